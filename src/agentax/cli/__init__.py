@@ -1,0 +1,51 @@
+"""The ``agentax`` command: ``agentax COMMAND [ARGS]``.
+
+Each command lives in its own module under ``agentax.cli`` and exposes ``main(argv) -> int | None``
+built with tyro from typed arguments; this dispatcher imports only the command asked for, so
+start-up stays fast. A :class:`~agentax.errors.UsageError` becomes one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+from agentax.errors import UsageError
+
+COMMANDS: dict[str, str] = {
+    "envs": "list the environments with their observation and action spaces",
+    "evaluate": "evaluate a policy (basic, random, or a trained run) over N episodes",
+    "play": "play one episode and write it as a GIF or MP4",
+    "demo": "the main job: train an agent on CartPole and show the result",
+}
+
+
+def usage() -> str:
+    width = max(map(len, COMMANDS))
+    lines = ["usage: agentax COMMAND [ARGS] (agentax COMMAND --help for its arguments)", "", "commands:"]
+    lines += [f"  {name:<{width}}  {summary}" for name, summary in COMMANDS.items()]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] in ("-h", "--help"):
+        print(usage())
+        return 0
+    name, args = argv[0], argv[1:]
+    if name not in COMMANDS:
+        print(f"agentax: error: unknown command {name!r}; choose from {', '.join(COMMANDS)}", file=sys.stderr)
+        return 2
+    command = importlib.import_module(f"agentax.cli.{name}")
+    try:
+        return command.main(args) or 0
+    except UsageError as error:
+        print(f"agentax {name}: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"agentax {name}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,5 @@
+import sys
+
+from agentax.cli import main
+
+sys.exit(main())

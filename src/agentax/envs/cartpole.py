@@ -1,0 +1,112 @@
+"""CartPole in JAX, step for step equal to Gymnasium's ``CartPole-v0`` / ``CartPole-v1``.
+
+Same constants, the same explicit-Euler integration, the same termination thresholds, the same
+uniform(-0.05, 0.05) initial state, reward 1 on every step (the terminal one included), and the
+time limit as a separate ``truncated`` flag: 200 steps for v0, 500 for v1.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from agentax.envs.core import Box, Discrete, Environment, TimeStep
+
+
+@struct.dataclass
+class CartPoleParams:
+    gravity: float = 9.8
+    masscart: float = 1.0
+    masspole: float = 0.1
+    length: float = 0.5  # half the pole's length
+    force_mag: float = 10.0
+    tau: float = 0.02  # seconds between state updates
+    theta_threshold_radians: float = 12 * 2 * math.pi / 360
+    x_threshold: float = 2.4
+    max_steps_in_episode: int = 500
+
+
+@struct.dataclass
+class CartPoleState:
+    x: jax.Array
+    x_dot: jax.Array
+    theta: jax.Array
+    theta_dot: jax.Array
+    time: jax.Array  # steps taken in this episode
+
+
+class CartPole(Environment):
+    """Push a cart left (0) or right (1) to keep its pole upright.
+
+    Observation ``[4]`` float32: cart position, cart velocity, pole angle, pole angular velocity.
+    """
+
+    def __init__(self, max_steps_in_episode: int = 500, id: str = "CartPole-v1", reward_threshold: float = 475.0):
+        self.max_steps_in_episode = max_steps_in_episode
+        self.id = id
+        self.reward_threshold = reward_threshold
+
+    def default_params(self) -> CartPoleParams:
+        return CartPoleParams(max_steps_in_episode=self.max_steps_in_episode)
+
+    def reset_env(self, key: jax.Array, params: CartPoleParams) -> tuple[jax.Array, CartPoleState]:
+        x, x_dot, theta, theta_dot = jax.random.uniform(key, (4,), jnp.float32, -0.05, 0.05)
+        state = CartPoleState(x, x_dot, theta, theta_dot, jnp.int32(0))
+        return self.get_obs(state), state
+
+    def step_env(
+        self, key: jax.Array, state: CartPoleState, action: jax.Array, params: CartPoleParams
+    ) -> tuple[TimeStep, CartPoleState]:
+        total_mass = params.masspole + params.masscart
+        polemass_length = params.masspole * params.length
+        force = jnp.where(action == 1, params.force_mag, -params.force_mag)
+        costheta, sintheta = jnp.cos(state.theta), jnp.sin(state.theta)
+        temp = (force + polemass_length * state.theta_dot**2 * sintheta) / total_mass
+        thetaacc = (params.gravity * sintheta - costheta * temp) / (
+            params.length * (4.0 / 3.0 - params.masspole * costheta**2 / total_mass)
+        )
+        xacc = temp - polemass_length * thetaacc * costheta / total_mass
+        state = CartPoleState(
+            x=state.x + params.tau * state.x_dot,
+            x_dot=state.x_dot + params.tau * xacc,
+            theta=state.theta + params.tau * state.theta_dot,
+            theta_dot=state.theta_dot + params.tau * thetaacc,
+            time=state.time + 1,
+        )
+        terminated = (
+            (state.x < -params.x_threshold)
+            | (state.x > params.x_threshold)
+            | (state.theta < -params.theta_threshold_radians)
+            | (state.theta > params.theta_threshold_radians)
+        )
+        truncated = state.time >= params.max_steps_in_episode
+        obs = self.get_obs(state)
+        return TimeStep(obs, jnp.float32(1.0), terminated, truncated, obs), state
+
+    @staticmethod
+    def get_obs(state: CartPoleState) -> jax.Array:
+        return jnp.stack([state.x, state.x_dot, state.theta, state.theta_dot]).astype(jnp.float32)
+
+    def observation_space(self, params: CartPoleParams | None = None) -> Box:
+        params = self.default_params() if params is None else params
+        high = np.array(
+            [params.x_threshold * 2, np.finfo(np.float32).max, params.theta_threshold_radians * 2,
+             np.finfo(np.float32).max],
+            dtype=np.float32,
+        )
+        return Box(-high, high, (4,), jnp.float32)
+
+    def action_space(self, params: CartPoleParams | None = None) -> Discrete:
+        return Discrete(2)
+
+
+def cartpole_v0() -> CartPole:
+    return CartPole(max_steps_in_episode=200, id="CartPole-v0", reward_threshold=195.0)
+
+
+def cartpole_v1() -> CartPole:
+    return CartPole(max_steps_in_episode=500, id="CartPole-v1", reward_threshold=475.0)

@@ -1,0 +1,109 @@
+"""Flax modules shared by every agent: MLP torso and the heads of the lecture.
+
+Parameters are plain pytrees (``module.init`` / ``module.apply``), so they scan, vmap over seeds
+and checkpoint cleanly. Every policy network returns action *logits* ``[..., num_actions]``;
+the lecture's one-sigmoid-output network for two actions is the categorical with logits
+``[z, 0]``, since ``softmax([z, 0])[0] == sigmoid(z)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+ACTIVATIONS = {"elu": nn.elu, "relu": nn.relu, "tanh": nn.tanh, "gelu": nn.gelu, "swish": nn.swish}
+
+
+class MLP(nn.Module):
+    """Dense layers with one activation: ``[..., in] -> [..., hidden[-1]]`` (or ``out`` if given)."""
+
+    hidden: Sequence[int]
+    activation: str = "elu"
+    out: int | None = None
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        act = ACTIVATIONS[self.activation]
+        for width in self.hidden:
+            x = act(nn.Dense(width)(x))
+        if self.out is not None:
+            x = nn.Dense(self.out)(x)
+        return x
+
+
+class PolicyNet(nn.Module):
+    """Action logits ``[..., num_actions]`` from observations ``[..., obs_dim]``.
+
+    ``sigmoid_head=True`` (two actions only) is the lecture's network: one output ``z`` with
+    ``P(action 0) = sigmoid(z)``, returned as logits ``[z, 0]``.
+    """
+
+    num_actions: int
+    hidden: Sequence[int] = (5,)
+    activation: str = "elu"
+    sigmoid_head: bool = False
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        x = MLP(self.hidden, self.activation)(obs)
+        if self.sigmoid_head:
+            z = nn.Dense(1)(x)
+            return jnp.concatenate([z, jnp.zeros_like(z)], axis=-1)
+        return nn.Dense(self.num_actions)(x)
+
+
+class QNetwork(nn.Module):
+    """Q-values ``[..., num_actions]``; ``dueling`` = "max" (the lecture) or "mean" splits V and A.
+
+    Dueling: ``Q = V + (A - max A)`` or ``Q = V + (A - mean A)``.
+    """
+
+    num_actions: int
+    hidden: Sequence[int] = (32, 32)
+    activation: str = "elu"
+    dueling: str | None = None
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        x = MLP(self.hidden, self.activation)(obs)
+        if self.dueling is None:
+            return nn.Dense(self.num_actions)(x)
+        value = nn.Dense(1)(x)  # (..., 1)
+        advantage = nn.Dense(self.num_actions)(x)  # (..., num_actions)
+        return dueling_aggregate(value, advantage, self.dueling)
+
+
+def dueling_aggregate(value: jax.Array, advantage: jax.Array, mode: str) -> jax.Array:
+    """``V + (A - max A)`` (mode "max") or ``V + (A - mean A)`` (mode "mean")."""
+    if mode == "max":
+        baseline = advantage.max(axis=-1, keepdims=True)
+    elif mode == "mean":
+        baseline = advantage.mean(axis=-1, keepdims=True)
+    else:
+        raise ValueError(f"unknown dueling mode {mode!r}; choose from max, mean")
+    return value + advantage - baseline
+
+
+def sample_action(key: jax.Array, logits: jax.Array) -> jax.Array:
+    """Sample actions ``[...]`` from logits ``[..., num_actions]`` (explore)."""
+    return jax.random.categorical(key, logits, axis=-1)
+
+
+def greedy_action(logits: jax.Array) -> jax.Array:
+    """The most probable action ``[...]`` (exploit)."""
+    return jnp.argmax(logits, axis=-1)
+
+
+def log_prob(logits: jax.Array, action: jax.Array) -> jax.Array:
+    """``log pi(action | s)`` ``[...]`` from logits ``[..., num_actions]`` and integer actions ``[...]``."""
+    log_probs = jax.nn.log_softmax(logits, axis=-1)
+    return jnp.take_along_axis(log_probs, action[..., None].astype(jnp.int32), axis=-1)[..., 0]
+
+
+def entropy(logits: jax.Array) -> jax.Array:
+    """Entropy ``[...]`` of the categorical given by logits ``[..., num_actions]``."""
+    log_probs = jax.nn.log_softmax(logits, axis=-1)
+    return -(jnp.exp(log_probs) * log_probs).sum(axis=-1)
