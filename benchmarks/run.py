@@ -1,0 +1,204 @@
+"""Run agentax's benchmarks: ``python benchmarks/run.py [NAME ...]`` (``make bench`` runs them all).
+
+Each ``benchmarks/bench_<NAME>.py`` is one section. It exposes ``run() -> dict`` returning::
+
+    {
+        "name": "envs",                     # == <NAME> of the file; names results/<NAME>.json
+        "title": "CartPole env steps/s",    # the section heading in benchmarks/README.md
+        "headers": ["envs", "steps/s"],     # column names of the table
+        "rows": [[1, 1.2e6], ...],          # one list per row, JSON-serialisable values, len == len(headers)
+        "notes": "markdown paragraph",      # what was measured, how, against which reference
+    }
+
+``run()`` takes no arguments, measures everything it reports in the same process (ratios against
+a reference run side by side, never against stored numbers) and should finish within ~2-3 minutes.
+The harness adds machine info (cpu count, platform, python, jax version and backend, date) and the
+section's wall time, prints the table, writes ``benchmarks/results/<NAME>.json`` and then rebuilds
+``benchmarks/README.md`` from every stored result, so sections run on different days coexist.
+
+``python benchmarks/run.py`` runs every section; ``python benchmarks/run.py envs dqn`` runs the named
+ones; ``--list`` prints the names. A section that raises prints its traceback and the others still
+run; the exit code is 1 if any failed, 2 for an unknown name.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import importlib.util
+import json
+import os
+import platform
+import sys
+import time
+import traceback
+from pathlib import Path
+
+BENCH_DIR = Path(__file__).resolve().parent
+RESULTS_DIR = BENCH_DIR / "results"
+README = BENCH_DIR / "README.md"
+REQUIRED_KEYS = ("name", "title", "headers", "rows", "notes")
+
+
+def discover() -> dict[str, Path]:
+    """Section name -> file, for every ``bench_<name>.py`` beside this script, sorted by name."""
+    return {path.stem.removeprefix("bench_"): path for path in sorted(BENCH_DIR.glob("bench_*.py"))}
+
+
+def machine_info() -> dict:
+    """Where and when the figures were measured."""
+    import jax
+
+    return {
+        "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "cpu_count": os.cpu_count(),
+        "cpus_usable": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
+        "processor": _processor_name(),
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "jax": jax.__version__,
+        "jax_backend": jax.default_backend(),
+        "jax_devices": [str(device) for device in jax.devices()],
+    }
+
+
+def _processor_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def load_section(name: str, path: Path):
+    """Import ``path`` as a module (the benchmarks folder is importable, for shared helpers)."""
+    if str(BENCH_DIR) not in sys.path:
+        sys.path.insert(0, str(BENCH_DIR))
+    spec = importlib.util.spec_from_file_location(f"agentax_bench_{name}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def check_result(name: str, result: dict) -> None:
+    """Raise ``ValueError`` if ``result`` breaks the contract of the module docstring."""
+    if not isinstance(result, dict):
+        raise ValueError(f"bench_{name}.run() returned {type(result).__name__}, expected a dict")
+    missing = [key for key in REQUIRED_KEYS if key not in result]
+    if missing:
+        needs = ", ".join(REQUIRED_KEYS)
+        raise ValueError(f"bench_{name}.run() result lacks {', '.join(missing)}; it needs {needs}")
+    if result["name"] != name:
+        raise ValueError(f"bench_{name}.run() returned name {result['name']!r}, expected {name!r}")
+    width = len(result["headers"])
+    for row in result["rows"]:
+        if len(row) != width:
+            raise ValueError(f"bench_{name}: row {row!r} has {len(row)} cells, headers have {width}")
+
+
+def format_cell(value) -> str:
+    """Numbers readable at a glance: 21,800,000 -> 21.8M; ratios and seconds with 3 significant digits."""
+    if isinstance(value, bool) or value is None:
+        return "" if value is None else str(value)
+    if isinstance(value, int):
+        return f"{value:,}"
+    if isinstance(value, float):
+        if value != value:  # NaN
+            return "—"
+        magnitude = abs(value)
+        if magnitude >= 1e9:
+            return f"{value / 1e9:.3g}G"
+        if magnitude >= 1e6:
+            return f"{value / 1e6:.3g}M"
+        if magnitude >= 1e4:
+            return f"{value / 1e3:.3g}k"
+        return f"{value:.3g}"
+    return str(value)
+
+
+def markdown_table(headers: list, rows: list) -> str:
+    lines = ["| " + " | ".join(str(h) for h in headers) + " |", "|" + " --- |" * len(headers)]
+    lines += ["| " + " | ".join(format_cell(cell) for cell in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def render_readme(results: list[dict]) -> str:
+    """``benchmarks/README.md``: one section per stored result."""
+    parts = [
+        "# agentax benchmarks",
+        "",
+        "Generated by `python benchmarks/run.py` (`make bench`) from `benchmarks/results/*.json`;",
+        "do not edit by hand. Run `python benchmarks/run.py NAME` to refresh one section. Every ratio",
+        "compares two measurements taken in the same process, one after the other; absolute figures",
+        "depend on the machine and its load.",
+    ]
+    for result in results:
+        machine = result.get("machine", {})
+        parts += [
+            "",
+            f"## {result['title']}",
+            "",
+            markdown_table(result["headers"], result["rows"]),
+            "",
+            result["notes"].strip(),
+            "",
+            f"*Measured {machine.get('date', '?')} on {machine.get('processor', '?')} "
+            f"({machine.get('cpus_usable', '?')} of {machine.get('cpu_count', '?')} CPUs usable), "
+            f"jax {machine.get('jax', '?')} ({machine.get('jax_backend', '?')}), "
+            f"Python {machine.get('python', '?')}; "
+            f"section took {result.get('wall_seconds', float('nan')):.0f} s.*",
+        ]
+    return "\n".join(parts) + "\n"
+
+
+def stored_results() -> list[dict]:
+    return [json.loads(path.read_text()) for path in sorted(RESULTS_DIR.glob("*.json"))]
+
+
+def run_section(name: str, path: Path) -> dict:
+    start = time.perf_counter()
+    result = load_section(name, path).run()
+    check_result(name, result)
+    result = dict(result, machine=machine_info(), wall_seconds=round(time.perf_counter() - start, 1))
+    RESULTS_DIR.mkdir(exist_ok=True)
+    tmp = RESULTS_DIR / f".{name}.json.tmp"
+    tmp.write_text(json.dumps(result, indent=1) + "\n")
+    tmp.replace(RESULTS_DIR / f"{name}.json")
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="benchmarks/run.py", description=__doc__.splitlines()[0])
+    parser.add_argument("names", nargs="*", help="sections to run (default: all)")
+    parser.add_argument("--list", action="store_true", help="print the section names and exit")
+    args = parser.parse_args(argv)
+    sections = discover()
+    if args.list:
+        print("\n".join(sections))
+        return 0
+    unknown = [name for name in args.names if name not in sections]
+    if unknown:
+        print(f"unknown benchmark {', '.join(unknown)}; choose from {', '.join(sections)}", file=sys.stderr)
+        return 2
+    failed = []
+    for name in args.names or list(sections):
+        print(f"== {name} ({sections[name].name})", flush=True)
+        try:
+            result = run_section(name, sections[name])
+        except Exception:
+            traceback.print_exc()
+            print(f"== {name} FAILED", flush=True)
+            failed.append(name)
+            continue
+        print(f"## {result['title']}  ({result['wall_seconds']:.0f} s)")
+        print(markdown_table(result["headers"], result["rows"]))
+        print(flush=True)
+    README.write_text(render_readme(stored_results()))
+    print(f"wrote {README}" + (f"; failed: {', '.join(failed)}" if failed else ""))
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
