@@ -2,10 +2,20 @@
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Callable
+from typing import Any
 
 from agentax.envs.cartpole import CartPole, cartpole_v0, cartpole_v1
 from agentax.envs.core import Box, Discrete, Environment, TimeStep
+from agentax.envs.gym import (
+    GYMNASIUM_SELECTION,
+    NAMESPACE,
+    GymnasiumEnv,
+    JaxToGymnasium,
+    is_gymnasium_id,
+    register_envs,
+)
 from agentax.errors import UsageError
 
 JAX_ENVS: dict[str, Callable[[], Environment]] = {
@@ -21,4 +31,36 @@ def make_jax(env_id: str) -> Environment:
     return JAX_ENVS[env_id]()
 
 
-__all__ = ["JAX_ENVS", "Box", "CartPole", "Discrete", "Environment", "TimeStep", "make_jax"]
+def make(env_id: str, num_envs: int = 1, **gymnasium_kwargs: Any) -> Environment | GymnasiumEnv:
+    """The JAX-native env ``env_id`` where one exists, else Gymnasium's, stepped on the host.
+
+    ``agentax/ID`` names the same JAX env as ``ID``. ``num_envs`` and ``gymnasium_kwargs`` only
+    shape a Gymnasium env (``gymnasium.make_vec``); JAX envs batch with ``vmap`` instead.
+    """
+    name = env_id.removeprefix(f"{NAMESPACE}/")
+    if name in JAX_ENVS:
+        return JAX_ENVS[name]()
+    if is_gymnasium_id(env_id):
+        return GymnasiumEnv(env_id, num_envs, **gymnasium_kwargs)
+    close = difflib.get_close_matches(env_id, [*JAX_ENVS, *GYMNASIUM_SELECTION], n=3, cutoff=0.6)
+    hint = f"did you mean {' or '.join(close)}? " if close else ""
+    raise UsageError(
+        f"unknown env {env_id!r}; {hint}agentax's JAX envs: {', '.join(JAX_ENVS)}; "
+        "or any Gymnasium id (agentax envs lists a selection)"
+    )
+
+
+register_envs(JAX_ENVS)
+
+__all__ = [
+    "JAX_ENVS",
+    "Box",
+    "CartPole",
+    "Discrete",
+    "Environment",
+    "GymnasiumEnv",
+    "JaxToGymnasium",
+    "TimeStep",
+    "make",
+    "make_jax",
+]

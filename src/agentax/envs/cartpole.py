@@ -103,6 +103,35 @@ class CartPole(Environment):
     def action_space(self, params: CartPoleParams | None = None) -> Discrete:
         return Discrete(2)
 
+    def render_frame(self, state: CartPoleState, params: CartPoleParams | None = None) -> np.ndarray:
+        """The cart and its pole ``[400, 600, 3]`` uint8, drawn to Gymnasium's scale and colours."""
+        params = self.default_params() if params is None else params
+        return draw_cartpole(
+            float(state.x), float(state.theta), float(params.x_threshold), float(params.length)
+        )
+
+
+def draw_cartpole(x: float, theta: float, x_threshold: float, length: float, width: int = 600) -> np.ndarray:
+    """A cart at ``x`` metres, its pole at ``theta`` radians (leaning right if positive), as Gymnasium draws."""
+    height, scale = width * 2 // 3, width / (2 * x_threshold)
+    frame = np.full((height, width, 3), 255, np.uint8)
+    track_row, cart_col = height - 100, x * scale + width / 2
+    frame[track_row, :] = 0
+    top, left = track_row - 15, int(round(cart_col - 25))
+    frame[top : track_row + 15, max(left, 0) : max(left + 50, 0)] = 0  # the cart, 50 x 30 pixels
+    axle = np.array([top + 7.5, cart_col])  # (row, column)
+    tip = axle + 2 * length * scale * np.array([-math.cos(theta), math.sin(theta)])
+    low = np.floor(np.minimum(axle, tip) - 6).astype(int).clip(0)
+    high = np.ceil(np.maximum(axle, tip) + 6).astype(int).clip(0, [height, width])
+    rows, cols = np.mgrid[low[0] : high[0], low[1] : high[1]] + 0.5
+    pixels = np.stack([rows, cols], axis=-1)  # (h, w, 2)
+    along = np.clip((pixels - axle) @ (tip - axle) / np.sum((tip - axle) ** 2), 0.0, 1.0)
+    distance = np.linalg.norm(pixels - axle - along[..., None] * (tip - axle), axis=-1)
+    patch = frame[low[0] : high[0], low[1] : high[1]]
+    patch[distance <= 5] = (202, 152, 101)  # the pole, 10 pixels wide
+    patch[np.linalg.norm(pixels - axle, axis=-1) <= 5] = (129, 132, 203)  # the axle
+    return frame
+
 
 def cartpole_v0() -> CartPole:
     return CartPole(max_steps_in_episode=200, id="CartPole-v0", reward_threshold=195.0)

@@ -1,0 +1,224 @@
+"""Gymnasium both ways: any Gymnasium env stepped on the host, and agentax's JAX envs in Gymnasium.
+
+``GymnasiumEnv`` wraps a Gymnasium env id, env or vector env so that agentax's host runners see
+the same ``TimeStep`` fields as from a JAX env (NumPy arrays with a leading ``num_envs`` axis).
+It steps a vector env in Gymnasium's ``SAME_STEP`` autoreset mode: the step that ends an episode
+already returns the next episode's first observation, and the observation really reached comes
+from ``info["final_obs"]`` -- exactly agentax's ``obs`` / ``final_obs`` split. (Gymnasium's default
+``NEXT_STEP`` mode would spend an extra, action-ignoring step on each reset instead.)
+
+``JaxToGymnasium`` is the other way: a ``gymnasium.Env`` around an agentax JAX env, with one
+compiled reset and one compiled step per env id and NumPy values out. ``register_envs`` registers
+every JAX env as ``agentax/ID``, which ``import agentax`` does, so
+``gymnasium.make("agentax/CartPole-v1")`` works.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from functools import cache
+from typing import Any
+
+import gymnasium
+import jax
+import numpy as np
+from gymnasium.vector import AutoresetMode
+
+from agentax.envs.core import Box, Discrete, Environment, EnvParams, TimeStep
+from agentax.errors import UsageError
+
+NAMESPACE = "agentax"
+
+# Gymnasium envs that install with agentax (classic control, toy text) and fit agentax's spaces.
+GYMNASIUM_SELECTION = (
+    "Acrobot-v1",
+    "MountainCar-v0",
+    "MountainCarContinuous-v0",
+    "Pendulum-v1",
+    "FrozenLake-v1",
+    "FrozenLake8x8-v1",
+    "CliffWalking-v1",
+    "Taxi-v4",
+)
+
+
+def from_gymnasium_space(space: gymnasium.Space) -> Discrete | Box:
+    """agentax's ``Discrete`` / ``Box`` for a Gymnasium space (others raise ``UsageError``)."""
+    if isinstance(space, gymnasium.spaces.Discrete):
+        if int(space.start) != 0:
+            raise UsageError(f"Discrete spaces must start at 0, this one starts at {space.start}")
+        return Discrete(int(space.n))
+    if isinstance(space, gymnasium.spaces.Box):
+        return Box(space.low, space.high, tuple(space.shape), space.dtype)
+    raise UsageError(f"agentax handles Discrete and Box spaces, not {space}")
+
+
+def to_gymnasium_space(space: Discrete | Box) -> gymnasium.Space:
+    """The Gymnasium space for an agentax ``Discrete`` / ``Box``."""
+    if isinstance(space, Discrete):
+        return gymnasium.spaces.Discrete(space.n)
+    dtype = np.dtype(space.dtype)
+    low = np.broadcast_to(np.asarray(space.low, dtype), space.shape)
+    high = np.broadcast_to(np.asarray(space.high, dtype), space.shape)
+    return gymnasium.spaces.Box(low, high, space.shape, dtype)
+
+
+class GymnasiumEnv:
+    """A Gymnasium env (or ``num_envs`` copies, as a vector env) stepped on the host.
+
+    ``env`` is a Gymnasium id (made with ``gymnasium.make_vec(id, num_envs, **make_kwargs)``), a
+    ``gymnasium.Env``, or a ``gymnasium.vector.VectorEnv`` created with
+    ``vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP}``. Arrays carry a leading
+    ``num_envs`` axis; ``observation_space()`` / ``action_space()`` describe one sub-env, as for
+    agentax's JAX envs.
+    """
+
+    def __init__(
+        self, env: str | gymnasium.Env | gymnasium.vector.VectorEnv, num_envs: int = 1, **make_kwargs: Any
+    ):
+        if isinstance(env, str):
+            self.id = env
+            try:
+                env = gymnasium.make_vec(
+                    env,
+                    num_envs,
+                    vectorization_mode="sync",
+                    vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP},
+                    **make_kwargs,
+                )
+            except gymnasium.error.Error as error:
+                raise UsageError(f"cannot make Gymnasium env {self.id!r}: {error}") from error
+        elif isinstance(env, gymnasium.Env):
+            single, self.id = env, env.spec.id if env.spec is not None else type(env.unwrapped).__name__
+            env = gymnasium.vector.SyncVectorEnv([lambda: single], autoreset_mode=AutoresetMode.SAME_STEP)
+        else:
+            self.id = env.spec.id if env.spec is not None else type(env).__name__
+            mode = env.metadata.get("autoreset_mode")
+            if mode != AutoresetMode.SAME_STEP:
+                raise UsageError(
+                    f"the vector env autoresets in mode {mode}; create it with "
+                    "vector_kwargs={'autoreset_mode': gymnasium.vector.AutoresetMode.SAME_STEP}"
+                )
+        self.vector_env: gymnasium.vector.VectorEnv = env
+        self.num_envs: int = env.num_envs
+        self.make_kwargs = make_kwargs
+        self._observation_space = from_gymnasium_space(env.single_observation_space)
+        self._action_space = from_gymnasium_space(env.single_action_space)
+
+    def observation_space(self, params: EnvParams | None = None) -> Discrete | Box:
+        return self._observation_space
+
+    def action_space(self, params: EnvParams | None = None) -> Discrete | Box:
+        return self._action_space
+
+    def reset(self, seed: int | None = None) -> np.ndarray:
+        """First observations ``[num_envs, *obs_shape]``; sub-env ``i`` is seeded ``seed + i``."""
+        obs, _ = self.vector_env.reset(seed=seed)
+        return obs
+
+    def step(self, actions: Any) -> TimeStep:
+        """One step of every sub-env; ``actions: [num_envs, *action_shape]``. Ended episodes auto-reset."""
+        obs, reward, terminated, truncated, info = self.vector_env.step(np.asarray(actions))
+        final_obs = np.array(obs)
+        for i in np.flatnonzero(info.get("_final_obs", ())):
+            final_obs[i] = info["final_obs"][i]
+        return TimeStep(obs, reward.astype(np.float32), terminated, truncated, final_obs)
+
+    def close(self) -> None:
+        self.vector_env.close()
+
+    def __repr__(self) -> str:
+        return f"GymnasiumEnv({self.id!r}, num_envs={self.num_envs})"
+
+
+@cache
+def _compiled_by_id(env_id: str) -> tuple[Environment, Callable, Callable]:
+    from agentax.envs import make_jax
+
+    return _compile(make_jax(env_id))
+
+
+def _compile(env: Environment) -> tuple[Environment, Callable, Callable]:
+    """``env`` with a jitted ``reset(key, params)`` and a jitted ``step(key, state, action, params)``
+    (no auto-reset: Gymnasium's caller resets), each also returning the next key."""
+
+    @jax.jit
+    def reset(key, params):
+        key, reset_key = jax.random.split(key)
+        obs, state = env.reset(reset_key, params)
+        return obs, state, key
+
+    @jax.jit
+    def step(key, state, action, params):
+        key, step_key = jax.random.split(key)
+        ts, state = env.step_env(step_key, state, action, params)
+        return (ts.obs, ts.reward, ts.terminated, ts.truncated), state, key
+
+    return env, reset, step
+
+
+def _has_renderer(env: Environment) -> bool:
+    return type(env).render_frame is not Environment.render_frame
+
+
+class JaxToGymnasium(gymnasium.Env):
+    """An agentax JAX env as a ``gymnasium.Env``: ``reset(seed=...)``, the five-value ``step``, NumPy out.
+
+    ``env`` is a JAX env id (its compiled functions are shared by all instances) or an
+    ``Environment``. ``reset(seed=s)`` seeds Gymnasium's ``np_random``, which draws the JAX key of
+    the episode, so equal seeds give equal episodes. The env's own time limit sets ``truncated``.
+    """
+
+    metadata: Mapping[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 50}
+
+    def __init__(
+        self, env: str | Environment, render_mode: str | None = None, params: EnvParams | None = None
+    ):
+        self.env, self._reset_fn, self._step_fn = (
+            _compiled_by_id(env) if isinstance(env, str) else _compile(env)
+        )
+        self.params = self.env.default_params() if params is None else params
+        self.metadata = {**self.metadata, "render_modes": ["rgb_array"] if _has_renderer(self.env) else []}
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise UsageError(
+                f"render_mode {render_mode!r} not supported; choose from {self.metadata['render_modes']}"
+            )
+        self.render_mode = render_mode
+        self.observation_space = to_gymnasium_space(self.env.observation_space(self.params))
+        self.action_space = to_gymnasium_space(self.env.action_space(self.params))
+        self._obs_dtype = self.observation_space.dtype
+        self.state = None
+        self._key = None
+
+    def _obs(self, obs: jax.Array) -> np.ndarray | int:
+        if isinstance(self.observation_space, gymnasium.spaces.Discrete):
+            return int(obs)
+        return np.array(obs, self._obs_dtype)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
+        super().reset(seed=seed)
+        key = jax.random.key(int(self.np_random.integers(0, 2**32)))
+        obs, self.state, self._key = self._reset_fn(key, self.params)
+        return self._obs(obs), {}
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
+        values, self.state, self._key = self._step_fn(self._key, self.state, action, self.params)
+        obs, reward, terminated, truncated = jax.device_get(values)
+        return self._obs(obs), float(reward), bool(terminated), bool(truncated), {}
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode != "rgb_array" or self.state is None:
+            return None
+        return np.asarray(self.env.render_frame(self.state, self.params))
+
+
+def register_envs(jax_envs: Mapping[str, Callable[[], Environment]]) -> None:
+    """Register each JAX env as Gymnasium id ``agentax/ID`` (ids already registered are kept)."""
+    for env_id in jax_envs:
+        gym_id = f"{NAMESPACE}/{env_id}"
+        if gym_id not in gymnasium.registry:
+            gymnasium.register(gym_id, entry_point="agentax.envs.gym:JaxToGymnasium", kwargs={"env": env_id})
+
+
+def is_gymnasium_id(env_id: str) -> bool:
+    return env_id in gymnasium.registry or ":" in env_id
