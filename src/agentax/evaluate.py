@@ -1,21 +1,32 @@
-"""Evaluating a policy: episode returns of a JAX env, batched, under ``jit``.
+"""Evaluating a policy: episode returns of any env -- JAX envs batched under ``jit``, Gymnasium's on the host.
 
 ``episode_returns`` is pure and jittable, so it runs inside training loops and inside ``vmap``
-over policy parameters (thousands of vacuum-robot settings in one call).
+over policy parameters (thousands of vacuum-robot settings in one call). ``host_episode_returns``
+steps a Gymnasium vector env. ``evaluate`` picks the right one and summarises the returns.
+
+Policies are JAX functions ``policy(obs, key) -> action`` on one observation, or, for host envs
+only, a :class:`HostPolicy` in NumPy acting on the whole batch.
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from functools import partial
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agentax.envs.core import Environment, EnvParams
-from agentax.policies import Policy
+from agentax.envs import Box, Discrete, Environment, GymnasiumEnv, make
+from agentax.envs.core import EnvParams
+from agentax.errors import UsageError
+from agentax.policies import Policy, basic_policy, random_policy
+
+POLICY_NAMES = ("basic", "random")
+POLICY_CHOICES = "basic, random, or a trained run's folder"
 
 
 @dataclass(frozen=True)
@@ -43,6 +54,17 @@ class EvalStats:
 
     def to_json(self) -> str:
         return json.dumps(asdict(self))
+
+
+@dataclass(frozen=True)
+class HostPolicy:
+    """A NumPy policy for host (Gymnasium) envs, acting on the whole batch of sub-envs.
+
+    ``act(obs [num_envs, *obs_shape], rng) -> actions [num_envs, ...]``, where ``rng`` is a
+    ``numpy.random.Generator`` seeded with the evaluation's seed.
+    """
+
+    act: Callable[[np.ndarray, np.random.Generator], np.ndarray]
 
 
 def episode_returns(
@@ -81,10 +103,155 @@ def _episode_returns_jit(env, policy, key, num_episodes, env_params):
     return episode_returns(env, policy, key, num_episodes, env_params)
 
 
+@partial(jax.jit, static_argnums=0)
+def _act_batch(policy: Policy, obs: jax.Array, key: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """``policy`` on each observation ``obs: [num_envs, ...]``; returns the actions and the next key."""
+    key, act_key = jax.random.split(key)
+    return jax.vmap(policy)(obs, jax.random.split(act_key, obs.shape[0])), key
+
+
+def host_actor(policy: Policy | HostPolicy, seed: int) -> Callable[[np.ndarray], np.ndarray]:
+    """A stateful ``act(obs [num_envs, ...]) -> actions`` for a host env, its randomness from ``seed``.
+
+    A JAX policy draws step ``t``'s keys as ``key_t, act_key = split(key_{t-1})`` from
+    ``key_0 = jax.random.key(seed)``, then ``split(act_key, num_envs)``.
+    """
+    if isinstance(policy, HostPolicy):
+        rng = np.random.default_rng(seed)
+        return lambda obs: np.asarray(policy.act(obs, rng))
+    key = jax.random.key(seed)
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        nonlocal key
+        actions, key = _act_batch(policy, jnp.asarray(obs), key)
+        return np.asarray(actions)
+
+    return act
+
+
+def host_episode_returns(
+    env: GymnasiumEnv, policy: Policy | HostPolicy, num_episodes: int, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Returns and lengths ``[num_episodes]`` of the first ``num_episodes`` episodes started in ``env``.
+
+    Each sub-env plays episodes one after another (sub-env ``i`` seeded ``seed + i``); an episode
+    counts if it is among the first ``num_episodes`` to start (ties in slot order), whatever its
+    length, so short episodes are not over-represented. Episodes are listed in order of start.
+    """
+    act = host_actor(policy, seed)
+    obs = env.reset(seed=seed)
+    slots = np.arange(env.num_envs)
+    episode = np.where(slots < num_episodes, slots, -1)  # the counted episode each sub-env plays, or -1
+    started = min(env.num_envs, num_episodes)
+    returns, lengths = np.zeros(num_episodes), np.zeros(num_episodes, np.int64)
+    while (episode >= 0).any():
+        ts = env.step(act(obs))
+        counted = episode >= 0
+        returns[episode[counted]] += ts.reward[counted]
+        lengths[episode[counted]] += 1
+        for i in np.flatnonzero(counted & (ts.terminated | ts.truncated)):
+            episode[i], started = (started, started + 1) if started < num_episodes else (-1, started)
+        obs = ts.obs
+    return returns, lengths
+
+
+def check_policy_fits(env: Environment | GymnasiumEnv, policy: Policy | HostPolicy, env_id: str = "") -> None:
+    """Raise ``UsageError`` unless the JAX ``policy`` reads ``env``'s observations and returns its actions.
+
+    Traced once with abstract values (``jax.eval_shape``), so nothing runs.
+    """
+    if isinstance(policy, HostPolicy):
+        return
+    env_id = env_id or getattr(env, "id", type(env).__name__)
+    obs_space, action_space = env.observation_space(), env.action_space()
+    obs = jax.ShapeDtypeStruct(obs_space.shape, jnp.int32 if isinstance(obs_space, Discrete) else jnp.float32)
+    try:
+        action = jax.eval_shape(policy, obs, jax.random.key(0))
+    except (TypeError, ValueError, IndexError) as error:
+        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise UsageError(f"the policy cannot read {env_id}'s observations {obs_space}: {reason}") from error
+    integer = jnp.issubdtype(action.dtype, jnp.integer)
+    fits = (
+        integer and action.shape == ()
+        if isinstance(action_space, Discrete)
+        else action.shape == action_space.shape
+    )
+    if not fits:
+        raise UsageError(
+            f"the policy returns actions of shape {action.shape} and dtype {action.dtype}, "
+            f"but {env_id} takes {action_space}"
+        )
+
+
+def named_policy(name: str, env: Environment | GymnasiumEnv, env_id: str = "") -> Policy:
+    """The policy called ``name`` (``basic`` or ``random``) for ``env``; ``UsageError`` if it does not fit."""
+    env_id = env_id or getattr(env, "id", type(env).__name__)
+    obs_space, action_space = env.observation_space(), env.action_space()
+    if name == "basic":
+        is_cartpole = isinstance(obs_space, Box) and obs_space.shape == (4,) and action_space == Discrete(2)
+        if not is_cartpole:
+            raise UsageError(
+                f"policy 'basic' is the lecture's CartPole policy (reads the pole angle, pushes left or "
+                f"right); {env_id} has observations {obs_space} and actions {action_space}: choose "
+                "random or a trained run's folder"
+            )
+        return basic_policy
+    if name == "random":
+        return random_policy(action_space)
+    raise UsageError(f"unknown policy {name!r}; choose from {POLICY_CHOICES}")
+
+
+def resolve_policy(
+    policy: str, env_id: str | None, num_envs: int = 1
+) -> tuple[str, Environment | GymnasiumEnv, Policy]:
+    """``(env_id, env, policy_fn)`` for a policy name or a trained run's folder, checked to fit the env.
+
+    A run's folder also gives the env id when ``env_id`` is ``None``. Gymnasium envs get ``num_envs``
+    sub-envs.
+    """
+    if Path(policy).is_dir():
+        try:
+            from agentax.runs import load_policy
+        except ImportError as error:
+            raise UsageError(
+                f"cannot load {policy!r}: this agentax has no trained-run support yet"
+            ) from error
+        run_env_id, policy_fn = load_policy(policy)
+        env_id = env_id or run_env_id
+        env = make(env_id, num_envs)
+    elif env_id is None:
+        raise UsageError(
+            "no env given; name one (agentax envs lists them), or a trained run's folder as policy"
+        )
+    else:
+        env = make(env_id, num_envs)
+        policy_fn = named_policy(policy, env, env_id)
+    check_policy_fits(env, policy_fn, env_id)
+    return env_id, env, policy_fn
+
+
 def evaluate(
-    env: Environment, policy: Policy, num_episodes: int = 100, seed: int = 0, env_params: EnvParams | None = None
+    env: Environment | GymnasiumEnv | str,
+    policy: Policy | HostPolicy,
+    num_episodes: int = 100,
+    seed: int = 0,
+    env_params: EnvParams | None = None,
 ) -> EvalStats:
-    """Mean, std, min and max of the returns of ``num_episodes`` episodes of ``policy`` in ``env``."""
+    """Mean, std, min and max of the returns of ``num_episodes`` episodes of ``policy`` in ``env``.
+
+    ``env`` is a JAX env (all episodes side by side in one compiled call), a host
+    :class:`~agentax.envs.GymnasiumEnv`, or an id for :func:`agentax.envs.make` (a Gymnasium env
+    then gets up to 16 sub-envs).
+    """
+    if num_episodes <= 0:
+        raise UsageError(f"the number of episodes must be at least 1, not {num_episodes}")
+    if isinstance(env, str):
+        env = make(env, num_envs=min(num_episodes, 16))
+    if isinstance(env, GymnasiumEnv):
+        returns, lengths = host_episode_returns(env, policy, num_episodes, seed)
+        return EvalStats.from_returns(returns, lengths)
+    if isinstance(policy, HostPolicy):
+        raise UsageError(f"{env.id} is a JAX env: give a JAX policy (obs, key) -> action, not a HostPolicy")
     params = env.default_params() if env_params is None else env_params
     returns, lengths = _episode_returns_jit(env, policy, jax.random.key(seed), num_episodes, params)
     return EvalStats.from_returns(returns, lengths)

@@ -31,6 +31,9 @@ def make_jax(env_id: str) -> Environment:
     return JAX_ENVS[env_id]()
 
 
+_made: dict[str, Environment] = {}
+
+
 def make(env_id: str, num_envs: int = 1, **gymnasium_kwargs: Any) -> Environment | GymnasiumEnv:
     """The JAX-native env ``env_id`` where one exists, else Gymnasium's, stepped on the host.
 
@@ -39,7 +42,9 @@ def make(env_id: str, num_envs: int = 1, **gymnasium_kwargs: Any) -> Environment
     """
     name = env_id.removeprefix(f"{NAMESPACE}/")
     if name in JAX_ENVS:
-        return JAX_ENVS[name]()
+        if name not in _made:  # one instance per id, so compiled functions keyed on the env are reused
+            _made[name] = JAX_ENVS[name]()
+        return _made[name]
     if is_gymnasium_id(env_id):
         return GymnasiumEnv(env_id, num_envs, **gymnasium_kwargs)
     close = difflib.get_close_matches(env_id, [*JAX_ENVS, *GYMNASIUM_SELECTION], n=3, cutoff=0.6)

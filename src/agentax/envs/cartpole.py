@@ -112,7 +112,7 @@ class CartPole(Environment):
 
 
 def draw_cartpole(x: float, theta: float, x_threshold: float, length: float, width: int = 600) -> np.ndarray:
-    """A cart at ``x`` metres, its pole at ``theta`` radians (leaning right if positive), as Gymnasium draws."""
+    """The cart at ``x`` metres, its pole at ``theta`` radians (positive: leaning right), as Gymnasium."""
     height, scale = width * 2 // 3, width / (2 * x_threshold)
     frame = np.full((height, width, 3), 255, np.uint8)
     track_row, cart_col = height - 100, x * scale + width / 2
