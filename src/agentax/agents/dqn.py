@@ -1,0 +1,591 @@
+"""Deep Q-learning (Mnih et al., 2015) and its variants, each a config flag that combines with the others.
+
+A Q-network maps an observation to one value per action; the agent acts ε-greedily and learns
+from replayed transitions by regressing ``Q(s, a)`` onto the TD target::
+
+    y = r + γ^k · Q_target(s′, argmax_a Q_select(s′, a)) · (1 − terminated)
+
+``k`` is 1, or the number of rewards summed by an n-step transition. Truncation by a time limit
+still bootstraps (from the observation the step really reached); only termination stops it.
+
+==================  =============================  ==========================================
+variant             flag                           what changes
+==================  =============================  ==========================================
+fixed Q targets     ``target_update_period`` > 0   Q_target uses ``target_params``, synced every
+                    (``target_update_tau`` < 1:    K learning steps (copy, or Polyak averaging
+                    Polyak)                        ``θ⁻ ← τ θ + (1 − τ) θ⁻``)
+Double DQN          ``double``                     Q_select is the online network, Q_target values
+dueling             ``dueling`` = "max" | "mean"   ``Q = V + (A − max A)`` (the lecture) or mean
+prioritized replay  ``prioritized``                sample ∝ (|δ| + ε)^ζ, loss weighted by w
+n-step returns      ``n_step`` > 1                 r is a discounted sum of n rewards, γ^n bootstrap
+==================  =============================  ==========================================
+
+Without a target network (``target_update_period=0``, the lecture's plain DQN) both Q_select and
+Q_target are the online network, and ``double`` changes nothing.
+
+The algorithm is pure functions: ``init``, ``act`` and ``learn = make_learn(cfg)``, the last
+picking the loss pieces once, outside ``jit``. Runners own the loop: ``make_train(env, cfg)`` gives
+the compiled runner's ``init(key)`` / ``update(state)`` (collection, replay and learning of JAX envs
+in one jitted program, vmappable over seeds); ``agentax.train.driver`` runs the same ``learn`` on
+Gymnasium envs stepped on the host.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from agentax.envs.core import Discrete, Environment
+from agentax.errors import UsageError
+from agentax.nets import QNetwork
+from agentax.policies import Policy, epsilon_greedy
+from agentax.replay import ReplaySample, Transition, example_transition, nstep, prioritized, uniform
+
+
+@dataclass(frozen=True)
+class DQNConfig:
+    """Hyperparameters of DQN and its variants (defaults: the tuned CartPole-v1 preset)."""
+
+    hidden: tuple[int, ...] = (64, 64)
+    """Widths of the Q-network's hidden layers."""
+    activation: str = "relu"
+    """Activation of the hidden layers: elu, relu, tanh, gelu or swish."""
+    dueling: str | None = None
+    """Dueling head: None (plain), "max" (Q = V + A − max A, the lecture) or "mean" (Q = V + A − mean A)."""
+    double: bool = False
+    """Double DQN: the online network picks the next action, the target network values it."""
+    target_update_period: int = 100
+    """Learning steps between target-network updates; 0: no target network (bootstrap from online)."""
+    target_update_tau: float = 1.0
+    """Share of the online weights mixed into the target at each update: 1 copies, 0.01 is Polyak."""
+    discount_factor: float = 0.99
+    """γ, the weight of the next state's value in the TD target."""
+    learning_rate: float = 2.5e-3
+    """Adam's step size."""
+    max_grad_norm: float | None = 10.0
+    """Clip the gradient to this global norm (None: no clipping)."""
+    loss: str = "huber"
+    """TD loss: "mse" (mean squared TD error, the lecture) or "huber" (quadratic within ±1, then linear)."""
+    batch_size: int = 64
+    """Transitions per learning step."""
+    buffer_size: int = 10_000
+    """Replay capacity: the most recent transitions kept."""
+    n_step: int = 1
+    """Rewards summed per transition before bootstrapping (1: one-step TD)."""
+    prioritized: bool = False
+    """Prioritized replay: sample ∝ (|δ| + ε)^ζ and weight the loss by importance weights."""
+    priority_exponent: float = 0.6
+    """ζ: how strongly sampling follows the priorities (0: uniform)."""
+    importance_exponent_start: float = 0.4
+    """β at the start of training, annealed linearly to 1 by the end."""
+    num_envs: int = 4
+    """Environments stepped side by side to collect transitions."""
+    schedule_unit: str = "steps"
+    """Unit of learning_starts, train_frequency and exploration_duration: "steps" (env steps summed over
+    envs) or "episodes" (the lecture's loop: ε per episode, learning steps at episode ends; one env)."""
+    learning_starts: int = 1_000
+    """Collect this many steps (or episodes) before the first learning step."""
+    train_frequency: int = 4
+    """Steps per env (or episodes) collected between learning phases."""
+    gradient_steps: int = 1
+    """Learning steps per learning phase."""
+    epsilon_start: float = 1.0
+    """ε at the start: the probability of a random action."""
+    epsilon_end: float = 0.05
+    """ε after exploration_duration."""
+    exploration_duration: int = 10_000
+    """Steps (or episodes) over which ε moves linearly from epsilon_start to epsilon_end."""
+    max_episodes: int = 0
+    """Stop collecting and learning after this many episodes (0: no limit; the lecture's 600)."""
+    total_steps: int = 50_000
+    """Env steps of the whole run (summed over envs)."""
+
+    @property
+    def steps_per_update(self) -> int:
+        """Env steps (summed over envs) of one ``update`` of the compiled runner."""
+        return self.num_envs * (1 if self.schedule_unit == "episodes" else self.train_frequency)
+
+    @property
+    def num_updates(self) -> int:
+        return max(1, self.total_steps // self.steps_per_update)
+
+    def validate(self) -> DQNConfig:
+        """Raise ``UsageError`` naming the first bad value; return ``self``."""
+        checks = [
+            (
+                0.0 <= self.discount_factor <= 1.0,
+                f"discount_factor must be in [0, 1], got {self.discount_factor}",
+            ),
+            (self.learning_rate > 0, f"learning_rate must be positive, got {self.learning_rate}"),
+            (self.loss in ("mse", "huber"), f"unknown loss {self.loss!r}; choose from mse, huber"),
+            (
+                self.dueling in (None, "max", "mean"),
+                f"unknown dueling mode {self.dueling!r}; choose from max, mean",
+            ),
+            (self.n_step >= 1, f"n_step must be at least 1, got {self.n_step}"),
+            (
+                self.target_update_period >= 0,
+                f"target_update_period must be >= 0, got {self.target_update_period}",
+            ),
+            (
+                0.0 < self.target_update_tau <= 1.0,
+                f"target_update_tau must be in (0, 1], got {self.target_update_tau}",
+            ),
+            (self.batch_size >= 1 and self.buffer_size >= 1, "batch_size and buffer_size must be at least 1"),
+            (self.num_envs >= 1, f"num_envs must be at least 1, got {self.num_envs}"),
+            (self.train_frequency >= 1, f"train_frequency must be at least 1, got {self.train_frequency}"),
+            (self.total_steps >= 1, f"total_steps must be at least 1, got {self.total_steps}"),
+            (
+                self.schedule_unit in ("steps", "episodes"),
+                f"unknown schedule_unit {self.schedule_unit!r}; choose from steps, episodes",
+            ),
+            (
+                self.schedule_unit == "steps" or self.num_envs == 1,
+                "schedule_unit='episodes' (the lecture's loop) needs num_envs=1",
+            ),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise UsageError(message)
+        return self
+
+
+PRESETS: dict[str, DQNConfig] = {
+    # The tuned preset: solves CartPole-v1 (evaluation mean >= 475) on every seed in few env steps.
+    "cartpole": DQNConfig(),
+    # The lecture (see LECTURE-FACTS.md), episode for episode: one env, ε = max(1 − episode/500, 0.01),
+    # 600 episodes of at most 200 steps (CartPole-v0), one learning step of batch 32 at the end of each
+    # episode once 50 episodes are done, replay of the last 2,000 transitions, γ 0.95, Adam 1e-3, MSE,
+    # no target network. total_steps 120,000 = 600 × 200 is an upper bound that max_episodes cuts short.
+    "lecture": DQNConfig(
+        hidden=(32, 32),
+        activation="elu",
+        target_update_period=0,
+        discount_factor=0.95,
+        learning_rate=1e-3,
+        max_grad_norm=None,
+        loss="mse",
+        batch_size=32,
+        buffer_size=2_000,
+        num_envs=1,
+        schedule_unit="episodes",
+        learning_starts=50,
+        train_frequency=1,
+        gradient_steps=1,
+        epsilon_start=1.0,
+        epsilon_end=0.01,
+        exploration_duration=495,
+        max_episodes=600,
+        total_steps=120_000,
+    ),
+}
+
+
+def preset(name: str, **overrides: Any) -> DQNConfig:
+    """The preset ``name`` with ``overrides`` applied, validated."""
+    if name not in PRESETS:
+        raise UsageError(f"unknown DQN preset {name!r}; choose from {', '.join(PRESETS)}")
+    return dataclasses.replace(PRESETS[name], **overrides).validate()
+
+
+@struct.dataclass
+class DQNState:
+    """The learner: online and target parameters, optimizer state, learning steps taken."""
+
+    params: Any
+    target_params: Any
+    opt_state: Any
+    step: jax.Array  # int32 []: learning steps so far
+    network: QNetwork = struct.field(pytree_node=False)
+
+
+def q_network(cfg: DQNConfig, num_actions: int) -> QNetwork:
+    return QNetwork(
+        num_actions=num_actions, hidden=tuple(cfg.hidden), activation=cfg.activation, dueling=cfg.dueling
+    )
+
+
+def optimizer(cfg: DQNConfig) -> optax.GradientTransformation:
+    adam = optax.adam(cfg.learning_rate)
+    return (
+        adam if cfg.max_grad_norm is None else optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), adam)
+    )
+
+
+def num_actions_of(action_space: Any) -> int:
+    """The number of actions of a discrete space (agentax's or Gymnasium's); ``UsageError`` otherwise."""
+    if isinstance(action_space, Discrete) or type(action_space).__name__ == "Discrete":
+        return int(action_space.n)
+    raise UsageError(
+        f"DQN needs a discrete action space, but this env's actions are {action_space}; "
+        "use an env with discrete actions or a continuous-control algorithm (ppo)"
+    )
+
+
+def init(key: jax.Array, obs_example: jax.Array, num_actions: int, cfg: DQNConfig) -> DQNState:
+    """A fresh learner for observations shaped like ``obs_example`` (one observation)."""
+    network = q_network(cfg, num_actions)
+    params = network.init(key, jnp.asarray(obs_example, jnp.float32)[None])
+    return DQNState(
+        params=params,
+        target_params=params,
+        opt_state=optimizer(cfg).init(params),
+        step=jnp.int32(0),
+        network=network,
+    )
+
+
+def act(state: DQNState, obs: jax.Array, key: jax.Array, epsilon: jax.Array) -> jax.Array:
+    """ε-greedy actions ``[num_envs]`` for observations ``[num_envs, *obs_shape]``."""
+    q_values = state.network.apply(state.params, obs)  # (num_envs, num_actions)
+    keys = jax.random.split(key, q_values.shape[0])
+    return jax.vmap(epsilon_greedy, in_axes=(0, 0, None))(keys, q_values, epsilon)
+
+
+def greedy_policy(state: DQNState) -> Policy:
+    """The trained greedy policy ``(obs, key) -> action`` on one observation (for evaluation)."""
+    return lambda obs, key: jnp.argmax(state.network.apply(state.params, obs)).astype(jnp.int32)
+
+
+def td_error(
+    q_tm1: jax.Array,
+    a_tm1: jax.Array,
+    r_t: jax.Array,
+    discount_t: jax.Array,
+    q_t_value: jax.Array,
+    q_t_selector: jax.Array,
+) -> jax.Array:
+    """``r_t + discount_t · q_t_value[argmax q_t_selector] − q_tm1[a_tm1]`` for ONE transition.
+
+    q_tm1, q_t_value, q_t_selector: ``[num_actions]``; the rest scalars. ``discount_t`` already holds
+    ``γ^k · (1 − terminated)``. Q-learning passes the target network's ``q_t`` as both value and
+    selector (a max); Double DQN passes the online network's as the selector. The target is a constant.
+    """
+    target = r_t + discount_t * q_t_value[jnp.argmax(q_t_selector)]
+    return jax.lax.stop_gradient(target) - q_tm1[a_tm1]
+
+
+def bootstrap_discount(transition: Transition, discount_factor: float) -> jax.Array:
+    """``γ^k · (1 − terminated)`` ``[batch]``: truncation bootstraps, termination does not."""
+    return (discount_factor ** transition.num_steps.astype(jnp.float32)) * (1.0 - transition.terminated)
+
+
+def squared_loss(td: jax.Array) -> jax.Array:
+    return td**2
+
+
+def huber_loss(td: jax.Array) -> jax.Array:
+    return optax.huber_loss(td, delta=1.0)
+
+
+LOSSES: dict[str, Callable[[jax.Array], jax.Array]] = {"mse": squared_loss, "huber": huber_loss}
+
+
+def update_target(target_params: Any, params: Any, step: jax.Array, period: int, tau: float) -> Any:
+    """Every ``period`` learning steps ``θ⁻ ← τ θ + (1 − τ) θ⁻`` (τ = 1: copy); otherwise ``θ⁻``."""
+    due = step % period == 0
+    return jax.tree.map(lambda t, p: jnp.where(due, tau * p + (1 - tau) * t, t), target_params, params)
+
+
+def make_learn(cfg: DQNConfig) -> Callable[[DQNState, ReplaySample], tuple[DQNState, dict]]:
+    """``learn(state, sample) -> (state, metrics)``: one gradient step on a replayed batch.
+
+    The variant's pieces (loss, target network or not, Double or max) are picked here, outside
+    ``jit``. ``sample.weights`` scale each transition's loss (ones for uniform replay). ``metrics``
+    holds ``loss``, ``q_mean`` and ``td_error`` ``[batch]`` (for prioritized replay's update).
+    """
+    loss_fn = LOSSES[cfg.loss]
+    use_target = cfg.target_update_period > 0
+    tx = optimizer(cfg)
+    batched_td_error = jax.vmap(td_error)
+
+    def loss_and_td(params, target_params, network, sample: ReplaySample):
+        transition = sample.transition
+        q_tm1 = network.apply(params, transition.obs)  # (batch, num_actions)
+        q_t_online = network.apply(params, transition.next_obs)  # (batch, num_actions)
+        q_t_value = network.apply(target_params, transition.next_obs) if use_target else q_t_online
+        q_t_selector = q_t_online if cfg.double else q_t_value
+        discount_t = bootstrap_discount(transition, cfg.discount_factor)
+        td = batched_td_error(
+            q_tm1, transition.action, transition.reward, discount_t, q_t_value, q_t_selector
+        )
+        loss = jnp.mean(sample.weights * loss_fn(td))
+        return loss, (td, q_tm1)
+
+    def learn(state: DQNState, sample: ReplaySample) -> tuple[DQNState, dict]:
+        grads, (td, q_tm1) = jax.grad(loss_and_td, has_aux=True)(
+            state.params, state.target_params, state.network, sample
+        )
+        updates, opt_state = tx.update(grads, state.opt_state, state.params)
+        params = optax.apply_updates(state.params, updates)
+        step = state.step + 1
+        target_params = state.target_params
+        if use_target:
+            target_params = update_target(
+                target_params, params, step, cfg.target_update_period, cfg.target_update_tau
+            )
+        metrics = {
+            "loss": jnp.mean(sample.weights * loss_fn(td)),
+            "q_mean": q_tm1.mean(),
+            "td_error": td,
+        }
+        return state.replace(
+            params=params, target_params=target_params, opt_state=opt_state, step=step
+        ), metrics
+
+    return learn
+
+
+@functools.cache
+def _cached_learn(cfg: DQNConfig) -> Callable:
+    return jax.jit(make_learn(cfg))
+
+
+def learn(state: DQNState, sample: ReplaySample, cfg: DQNConfig) -> tuple[DQNState, dict]:
+    """One learning step (``make_learn(cfg)``, jitted and cached per config)."""
+    return _cached_learn(cfg)(state, sample)
+
+
+def epsilon_at(cfg: DQNConfig, progress: jax.Array) -> jax.Array:
+    """ε after ``progress`` steps or episodes (``cfg.schedule_unit``): linear, then constant."""
+    fraction = jnp.clip(jnp.asarray(progress, jnp.float32) / max(cfg.exploration_duration, 1), 0.0, 1.0)
+    return cfg.epsilon_start + (cfg.epsilon_end - cfg.epsilon_start) * fraction
+
+
+def importance_exponent_at(cfg: DQNConfig, env_steps: jax.Array) -> jax.Array:
+    """β, annealed linearly from ``importance_exponent_start`` to 1 over ``total_steps``."""
+    fraction = jnp.clip(jnp.asarray(env_steps, jnp.float32) / cfg.total_steps, 0.0, 1.0)
+    return cfg.importance_exponent_start + (1.0 - cfg.importance_exponent_start) * fraction
+
+
+def one_step_transition(obs: jax.Array, action: jax.Array, time_step: Any) -> Transition:
+    """The transition ``[num_envs]`` of one env step: ``next_obs`` is ``final_obs``, flags apart."""
+    return Transition(
+        obs=obs,
+        action=action.astype(jnp.int32),
+        reward=time_step.reward.astype(jnp.float32),
+        next_obs=time_step.final_obs,
+        terminated=time_step.terminated,
+        truncated=time_step.truncated,
+        num_steps=jnp.ones_like(action, dtype=jnp.int32),
+    )
+
+
+# ---------------------------------------------------------------- the compiled runner's program
+
+
+@struct.dataclass
+class TrainState:
+    """Everything one seed's compiled training carries from update to update."""
+
+    agent: DQNState
+    replay: Any  # uniform.UniformState or prioritized.PrioritizedState
+    accumulator: nstep.NStepState
+    env_state: Any
+    obs: jax.Array  # [num_envs, *obs_shape]
+    episode_return: jax.Array  # float32 [num_envs]: return of each env's running episode
+    env_steps: jax.Array  # int32 []: summed over envs
+    episodes: jax.Array  # int32 []: finished episodes, summed over envs
+    key: jax.Array
+
+
+@dataclass(frozen=True)
+class Replay:
+    """The replay functions a config picks: uniform or prioritized, with the same call shapes."""
+
+    init: Callable
+    add: Callable
+    sample: Callable  # (state, key, batch_size, beta) -> ReplaySample
+    update_priorities: Callable  # (state, indices, td_error) -> state
+
+
+def replay_for(cfg: DQNConfig) -> Replay:
+    if cfg.prioritized:
+        return Replay(
+            init=functools.partial(prioritized.init, priority_exponent=cfg.priority_exponent),
+            add=prioritized.add,
+            sample=prioritized.sample,
+            update_priorities=prioritized.update_priorities,
+        )
+    return Replay(
+        init=uniform.init,
+        add=uniform.add,
+        sample=lambda state, key, batch_size, beta: uniform.sample(state, key, batch_size),
+        update_priorities=lambda state, indices, td_error: state,
+    )
+
+
+@dataclass(frozen=True)
+class CompiledDQN:
+    """DQN as the compiled runner sees it: pure ``init(key)`` and jittable ``update(state)``.
+
+    One ``update`` collects ``steps_per_update`` env steps (``train_frequency`` steps of
+    ``num_envs`` envs, or one step in the lecture's episode schedule) into the replay buffer and then,
+    once learning has started, runs ``gradient_steps`` learning steps. Both vmap over seeds.
+    """
+
+    env: Environment
+    cfg: DQNConfig
+    env_params: Any
+    init: Callable[[jax.Array], TrainState]
+    update: Callable[[TrainState], tuple[TrainState, dict]]
+    steps_per_update: int
+
+    def policy(self, agent: DQNState) -> Policy:
+        return greedy_policy(agent)
+
+
+def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None) -> CompiledDQN:
+    """DQN's program for the compiled runner on JAX env ``env`` (see :class:`CompiledDQN`)."""
+    cfg.validate()
+    params = env.default_params() if env_params is None else env_params
+    num_actions = num_actions_of(env.action_space(params))
+    learn_step = make_learn(cfg)
+    replay = replay_for(cfg)
+    by_episode = cfg.schedule_unit == "episodes"
+    vmap_reset = jax.vmap(env.reset, in_axes=(0, None))
+    vmap_step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
+
+    def init_fn(key: jax.Array) -> TrainState:
+        key, agent_key, reset_key = jax.random.split(key, 3)
+        obs, env_state = vmap_reset(jax.random.split(reset_key, cfg.num_envs), params)
+        agent = init(agent_key, obs[0], num_actions, cfg)
+        one = example_transition(obs[0].astype(jnp.float32), jnp.int32(0))
+        batch = jax.tree.map(lambda x: jnp.broadcast_to(x, (cfg.num_envs, *x.shape)), one)
+        return TrainState(
+            agent=agent,
+            replay=replay.init(cfg.buffer_size, one),
+            accumulator=nstep.init(cfg.n_step, batch),
+            env_state=env_state,
+            obs=obs.astype(jnp.float32),
+            episode_return=jnp.zeros(cfg.num_envs, jnp.float32),
+            env_steps=jnp.int32(0),
+            episodes=jnp.int32(0),
+            key=key,
+        )
+
+    def collect_step(state: TrainState, _) -> tuple[TrainState, tuple]:
+        key, act_key, step_key = jax.random.split(state.key, 3)
+        epsilon = epsilon_at(cfg, state.episodes if by_episode else state.env_steps)
+        action = act(state.agent, state.obs, act_key, epsilon)
+        time_step, env_state = vmap_step(
+            jax.random.split(step_key, cfg.num_envs), state.env_state, action, params
+        )
+        time_step = time_step.replace(
+            obs=time_step.obs.astype(jnp.float32), final_obs=time_step.final_obs.astype(jnp.float32)
+        )
+        transition = one_step_transition(state.obs, action, time_step)
+        active = state.episodes < cfg.max_episodes if cfg.max_episodes else jnp.bool_(True)
+        accumulator, emitted, full = nstep.push(state.accumulator, transition, cfg.discount_factor)
+        done = time_step.done
+        episode_return = state.episode_return + time_step.reward
+        finished_return = jnp.sum(jnp.where(done & active, episode_return, 0.0))
+        finished = jnp.sum(done & active).astype(jnp.int32)
+        state = state.replace(
+            replay=replay.add(state.replay, emitted, full & active),
+            accumulator=accumulator,
+            env_state=env_state,
+            obs=time_step.obs,
+            episode_return=jnp.where(done, 0.0, episode_return),
+            env_steps=state.env_steps + cfg.num_envs * active,
+            episodes=state.episodes + finished,
+            key=key,
+        )
+        return state, (finished_return, finished, epsilon)
+
+    def learn_phase(state: TrainState) -> tuple[TrainState, dict]:
+        def one(carry, _):
+            agent, replay_state, key = carry
+            key, sample_key = jax.random.split(key)
+            beta = importance_exponent_at(cfg, state.env_steps)
+            sample = replay.sample(replay_state, sample_key, cfg.batch_size, beta)
+            agent, metrics = learn_step(agent, sample)
+            replay_state = replay.update_priorities(replay_state, sample.indices, metrics["td_error"])
+            return (agent, replay_state, key), (metrics["loss"], metrics["q_mean"])
+
+        key, learn_key = jax.random.split(state.key)
+        (agent, replay_state, _), (loss, q_mean) = jax.lax.scan(
+            one, (state.agent, state.replay, learn_key), length=cfg.gradient_steps
+        )
+        return state.replace(agent=agent, replay=replay_state, key=key), {
+            "loss": loss.mean(),
+            "q_mean": q_mean.mean(),
+        }
+
+    def skip_learning(state: TrainState) -> tuple[TrainState, dict]:
+        return state, {"loss": jnp.float32(jnp.nan), "q_mean": jnp.float32(jnp.nan)}
+
+    def update_fn(state: TrainState) -> tuple[TrainState, dict]:
+        episodes_before = state.episodes
+        length = 1 if by_episode else cfg.train_frequency
+        state, (finished_return, finished, epsilon) = jax.lax.scan(collect_step, state, length=length)
+        if by_episode:
+            ended = state.episodes > episodes_before
+            due = (
+                ended & (state.episodes % cfg.train_frequency == 0) & (episodes_before >= cfg.learning_starts)
+            )
+        else:
+            due = state.env_steps >= cfg.learning_starts
+        if cfg.max_episodes:
+            due = due & (episodes_before < cfg.max_episodes)
+        state, learn_metrics = jax.lax.cond(due, learn_phase, skip_learning, state)
+        metrics = {
+            "env_steps": state.env_steps,
+            "episodes": state.episodes,
+            "episode_return_sum": finished_return.sum(),
+            "episodes_finished": finished.sum(),
+            "epsilon": epsilon[-1],
+            "learning_steps": state.agent.step,
+            **learn_metrics,
+        }
+        return state, metrics
+
+    return CompiledDQN(
+        env=env,
+        cfg=cfg,
+        env_params=params,
+        init=init_fn,
+        update=update_fn,
+        steps_per_update=cfg.steps_per_update,
+    )
+
+
+# ---------------------------------------------------------------- saved runs
+
+
+def config_to_dict(cfg: DQNConfig) -> dict:
+    return dataclasses.asdict(cfg)
+
+
+def config_from_dict(values: dict) -> DQNConfig:
+    """A ``DQNConfig`` from its ``asdict`` form (as saved in ``config.json``); unknown keys are ignored."""
+    names = {f.name for f in dataclasses.fields(DQNConfig)}
+    values = {k: (tuple(v) if k == "hidden" else v) for k, v in values.items() if k in names}
+    return DQNConfig(**values)
+
+
+__all__ = [
+    "DQNConfig",
+    "DQNState",
+    "PRESETS",
+    "CompiledDQN",
+    "TrainState",
+    "act",
+    "config_from_dict",
+    "config_to_dict",
+    "greedy_policy",
+    "init",
+    "learn",
+    "make_learn",
+    "make_train",
+    "preset",
+    "td_error",
+]

@@ -1,0 +1,139 @@
+"""NumPy twins of the uniform and prioritized buffers, for runners that step host environments.
+
+Same functions as ``agentax.replay.uniform`` and ``agentax.replay.prioritized`` (``init``, ``add``,
+``sample``, ``update_priorities``), same sum-tree layout, but the arrays are NumPy, ``add`` writes
+in place (and returns the state, so call sites read the same), and ``key`` is a
+``numpy.random.Generator``. A host loop that adds one transition per env step then never copies a
+buffer-sized array, which a functional JAX update outside ``jit`` would.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import numpy as np
+
+from agentax.replay.core import ReplaySample, capacity_of
+from agentax.replay.prioritized import tree_size
+
+
+@dataclass
+class HostUniformState:
+    storage: Any  # pytree of NumPy [capacity, ...] arrays
+    position: int = 0
+    size: int = 0
+
+
+@dataclass
+class HostPrioritizedState:
+    buffer: HostUniformState
+    tree: np.ndarray  # float64 [2 * num_leaves], the layout of prioritized.PrioritizedState.tree
+    max_priority: float = 1.0
+    priority_exponent: float = 0.6
+    priority_epsilon: float = 1e-6
+
+
+def init(capacity: int, example_transition: Any) -> HostUniformState:
+    """An empty buffer of ``capacity`` slots shaped like ``example_transition``."""
+    if capacity < 1:
+        raise ValueError(f"replay capacity must be at least 1, got {capacity}")
+    storage = jax.tree.map(
+        lambda x: np.zeros((capacity, *np.shape(x)), np.asarray(x).dtype), example_transition
+    )
+    return HostUniformState(storage=storage)
+
+
+def _write_indices(state: HostUniformState, batch_size: int) -> np.ndarray:
+    return (state.position + np.arange(batch_size)) % capacity_of(state.storage)
+
+
+def add(state: HostUniformState, batch: Any) -> HostUniformState:
+    """Append ``batch`` (leaves ``[batch, ...]``) in place, overwriting the oldest slots."""
+    capacity = capacity_of(state.storage)
+    batch_size = len(jax.tree.leaves(batch)[0])
+    indices = _write_indices(state, batch_size)
+    for store, values in zip(jax.tree.leaves(state.storage), jax.tree.leaves(batch), strict=True):
+        store[indices] = np.asarray(values)
+    state.position = (state.position + batch_size) % capacity
+    state.size = min(state.size + batch_size, capacity)
+    return state
+
+
+def sample(state: HostUniformState, key: np.random.Generator, batch_size: int) -> ReplaySample:
+    """``batch_size`` transitions drawn uniformly with replacement."""
+    indices = key.integers(0, max(state.size, 1), batch_size)
+    transition = jax.tree.map(lambda s: s[indices], state.storage)
+    return ReplaySample(transition=transition, indices=indices, weights=np.ones(batch_size, np.float32))
+
+
+def init_prioritized(
+    capacity: int, example_transition: Any, priority_exponent: float = 0.6, priority_epsilon: float = 1e-6
+) -> HostPrioritizedState:
+    """An empty prioritized buffer (see ``agentax.replay.prioritized``)."""
+    return HostPrioritizedState(
+        buffer=init(capacity, example_transition),
+        tree=np.zeros(2 * tree_size(capacity)),
+        priority_exponent=priority_exponent,
+        priority_epsilon=priority_epsilon,
+    )
+
+
+def set_leaves(tree: np.ndarray, indices: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Set leaves ``indices`` to ``values`` in place and recompute their ancestors."""
+    num_leaves = len(tree) // 2
+    nodes = np.asarray(indices) + num_leaves
+    tree[nodes] = values
+    for _ in range(num_leaves.bit_length() - 1):
+        nodes = np.unique(nodes // 2)
+        tree[nodes] = tree[2 * nodes] + tree[2 * nodes + 1]
+    return tree
+
+
+def find_prefix_sum(tree: np.ndarray, mass: np.ndarray) -> np.ndarray:
+    """For each ``mass``, the leaf where the running sum of leaves passes it."""
+    num_leaves = len(tree) // 2
+    nodes = np.ones(len(mass), np.int64)
+    mass = np.array(mass, np.float64)
+    for _ in range(num_leaves.bit_length() - 1):
+        left = tree[2 * nodes]
+        go_right = mass >= left
+        mass = np.where(go_right, mass - left, mass)
+        nodes = 2 * nodes + go_right
+    return nodes - num_leaves
+
+
+def add_prioritized(state: HostPrioritizedState, batch: Any) -> HostPrioritizedState:
+    """Append ``batch`` with the maximum priority seen so far."""
+    batch_size = len(jax.tree.leaves(batch)[0])
+    indices = _write_indices(state.buffer, batch_size)
+    set_leaves(state.tree, indices, np.full(batch_size, state.max_priority**state.priority_exponent))
+    add(state.buffer, batch)
+    return state
+
+
+def sample_prioritized(
+    state: HostPrioritizedState, key: np.random.Generator, batch_size: int, beta: float = 1.0
+) -> ReplaySample:
+    """``batch_size`` transitions drawn with probability ``∝ p^ζ`` (stratified), with their weights."""
+    mass_total = state.tree[1]
+    points = (np.arange(batch_size) + key.uniform(size=batch_size)) * (mass_total / batch_size)
+    indices = find_prefix_sum(state.tree, np.minimum(points, mass_total * (1 - 1e-9)))
+    indices = np.clip(indices, 0, max(state.buffer.size - 1, 0))
+    probability = state.tree[len(state.tree) // 2 + indices] / mass_total
+    weights = (state.buffer.size * probability) ** (-beta)
+    transition = jax.tree.map(lambda s: s[indices], state.buffer.storage)
+    return ReplaySample(
+        transition=transition, indices=indices, weights=(weights / weights.max()).astype(np.float32)
+    )
+
+
+def update_priorities(
+    state: HostPrioritizedState, indices: np.ndarray, td_error: np.ndarray
+) -> HostPrioritizedState:
+    """Slots ``indices`` get priority ``|td_error| + ε``."""
+    priority = np.abs(np.asarray(td_error, np.float64)) + state.priority_epsilon
+    set_leaves(state.tree, np.asarray(indices), priority**state.priority_exponent)
+    state.max_priority = max(state.max_priority, float(priority.max()))
+    return state
