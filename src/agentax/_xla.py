@@ -1,0 +1,82 @@
+"""Process-wide XLA set-up: the CPU hang cure and the persistent compilation cache.
+
+**The hang** (DESIGN.md, "Known hazards"): on a 2-core machine, XLA's CPU backend (jaxlib 0.10.2)
+was seen to stop for good — 0 % CPU, waiting in ``BlockUntilReady`` — on the first or second call
+of a jitted PPO train program vmapped over seeds (11 of 12 processes). XLA flags that limit its
+thread pools did not help; pinning the process to one CPU did (8 of 8 calls completed at the
+same throughput). :func:`pin_cpu` applies that cure. It must run before jax creates its CPU
+client, because only threads created after ``sched_setaffinity`` inherit the mask (checked: all
+14 threads of a process that ran a jitted, vmapped program carry the one-CPU mask).
+``agentax/__init__.py`` calls it first thing, so every program that imports agentax gets it.
+
+Processes are spread over the allowed CPUs (by pytest-xdist worker number, else by pid), so two
+trainings or two test workers do not share one core. ``AGENTAX_PIN_CPU=0`` turns the pin off,
+``AGENTAX_PIN_CPU=1`` forces it even where an accelerator plugin is installed (where it is off by
+default, since the hang is a CPU-backend one).
+
+**The compilation cache**: :func:`enable_compilation_cache` keeps compiled programs on disk
+(``~/.cache/agentax/jax``, or ``$AGENTAX_JAX_CACHE``; ``none`` disables it), with the size and
+compile-time thresholds lowered so that CPU programs, which compile in seconds, are cached too:
+a repeated ``agentax train`` skips compilation.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import re
+from pathlib import Path
+
+_ACCELERATOR_PLUGINS = ("jax_cuda12_plugin", "jax_cuda13_plugin", "jax_rocm60_plugin", "libtpu")
+
+
+def _accelerator_expected() -> bool:
+    platforms = os.environ.get("JAX_PLATFORMS", "").lower()
+    if platforms:
+        return platforms.split(",")[0] not in ("cpu", "")
+    return any(importlib.util.find_spec(name) is not None for name in _ACCELERATOR_PLUGINS)
+
+
+def pin_cpu() -> int | None:
+    """Pin this process (and the threads it creates later) to one allowed CPU; return it.
+
+    Returns None where pinning is off or impossible (``AGENTAX_PIN_CPU=0``, an accelerator
+    backend, a platform without ``sched_setaffinity``, or a single allowed CPU already).
+    """
+    setting = os.environ.get("AGENTAX_PIN_CPU", "auto").lower()
+    if setting in ("0", "false", "no", "off"):
+        return None
+    if setting == "auto" and _accelerator_expected():
+        return None
+    if not hasattr(os, "sched_setaffinity"):
+        return None
+    allowed = sorted(os.sched_getaffinity(0))
+    if len(allowed) == 1:
+        return allowed[0]
+    worker = re.fullmatch(r"gw(\d+)", os.environ.get("PYTEST_XDIST_WORKER", ""))
+    index = int(worker.group(1)) if worker else os.getpid()
+    cpu = allowed[index % len(allowed)]
+    os.sched_setaffinity(0, {cpu})
+    return cpu
+
+
+def compilation_cache_dir() -> Path | None:
+    """Where compiled programs are kept (``$AGENTAX_JAX_CACHE`` or ``~/.cache/agentax/jax``)."""
+    setting = os.environ.get("AGENTAX_JAX_CACHE", "")
+    if setting.lower() == "none":
+        return None
+    return Path(setting) if setting else Path.home() / ".cache" / "agentax" / "jax"
+
+
+def enable_compilation_cache() -> Path | None:
+    """Turn on jax's persistent compilation cache for every program, however small or quick."""
+    import jax
+
+    path = compilation_cache_dir()
+    if path is None:
+        return None
+    path.mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    return path
