@@ -16,11 +16,13 @@ from agentax.envs.gym import (
     is_gymnasium_id,
     register_envs,
 )
+from agentax.envs.vacuum import Vacuum
 from agentax.errors import UsageError
 
 JAX_ENVS: dict[str, Callable[[], Environment]] = {
     "CartPole-v0": cartpole_v0,
     "CartPole-v1": cartpole_v1,
+    "Vacuum-v0": Vacuum,
 }
 
 
