@@ -4,7 +4,8 @@ from agentax import _xla
 
 _xla.pin_cpu()  # before jax starts its CPU client: the cure for the XLA CPU hang (see _xla.py)
 
-from agentax.evaluate import EvalStats, evaluate  # noqa: E402
+from agentax.envs import make  # noqa: E402  (registers the JAX envs in Gymnasium as agentax/ID)
+from agentax.evaluate import EvalStats, HostPolicy, evaluate  # noqa: E402
 
 __version__ = "0.1.0"
-__all__ = ["EvalStats", "evaluate"]
+__all__ = ["EvalStats", "HostPolicy", "evaluate", "make"]

@@ -219,9 +219,13 @@ def resolve_policy(
         run_env_id, policy_fn = load_policy(policy)
         env_id = env_id or run_env_id
         env = make(env_id, num_envs)
+    elif "/" in policy or "\\" in policy:
+        raise UsageError(
+            f"no trained run at {policy!r}: the folder does not exist; choose from {POLICY_CHOICES}"
+        )
     elif env_id is None:
         raise UsageError(
-            "no env given; name one (agentax envs lists them), or a trained run's folder as policy"
+            "no env id given; name one (agentax envs lists them) or give a trained run's folder as policy"
         )
     else:
         env = make(env_id, num_envs)
