@@ -16,6 +16,7 @@ from agentax.envs.gym import (
     is_gymnasium_id,
     register_envs,
 )
+from agentax.envs.mdp import lecture_mdp_env
 from agentax.envs.vacuum import Vacuum
 from agentax.errors import UsageError
 
@@ -23,6 +24,7 @@ JAX_ENVS: dict[str, Callable[[], Environment]] = {
     "CartPole-v0": cartpole_v0,
     "CartPole-v1": cartpole_v1,
     "Vacuum-v0": Vacuum,
+    "LectureMDP-v0": lecture_mdp_env,
 }
 
 
