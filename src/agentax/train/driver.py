@@ -1,0 +1,292 @@
+"""A TF-Agents-style Driver for host environments, its observers, and DQN's host training loop.
+
+The vocabulary is TF-Agents' (see the lecture's last part): a **Driver** steps an environment with
+a **collect policy** and hands every transition to its **observers** — plain callables such as the
+replay buffer's add and the metrics ``EnvironmentSteps``, ``NumberOfEpisodes``, ``AverageReturn``,
+``AverageEpisodeLength``. The driver knows nothing of learning; collection state goes in and out::
+
+    driver = Driver(env, policy, observers=[replay_observer, returns, steps], max_steps=4)
+    time_step, policy_state = driver.run(time_step, policy_state)
+
+``env`` is an ``agentax.envs.gym.GymnasiumEnv`` (any Gymnasium env or vector env; its ``step`` returns
+agentax's ``TimeStep`` with NumPy arrays ``[num_envs, ...]``) or anything with the same ``reset`` /
+``step``. ``policy(obs, policy_state) -> (action, policy_state)`` acts on the batch of observations.
+
+``train_dqn_host`` is DQN's host runner: driver + host replay (``agentax.replay.host``) + the same
+jitted ``dqn.make_learn`` the compiled runner uses, for any Gymnasium env with discrete actions.
+"""
+
+from __future__ import annotations
+
+import collections
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from agentax.agents import dqn
+from agentax.envs.core import TimeStep
+from agentax.replay import Transition, example_transition, host, nstep
+
+Observer = Callable[[Transition], None]
+CollectPolicy = Callable[[np.ndarray, Any], tuple[np.ndarray, Any]]
+
+
+def first_time_step(env: Any, seed: int | None = None) -> TimeStep:
+    """The time step a driver starts from: the envs' first observations ``[num_envs, ...]``."""
+    obs = np.asarray(env.reset(seed=seed))
+    zeros = np.zeros(len(obs), bool)
+    reward = np.zeros(len(obs), np.float32)
+    return TimeStep(obs=obs, reward=reward, terminated=zeros, truncated=zeros, final_obs=obs)
+
+
+@dataclass
+class Driver:
+    """Steps ``env`` with ``policy`` and calls each observer with every transition ``[num_envs]``.
+
+    ``run`` stops after ``max_steps`` env steps (summed over envs) or ``max_episodes`` finished
+    episodes, whichever comes first (at least one must be set), as TF-Agents' step and episode drivers.
+    """
+
+    env: Any
+    policy: CollectPolicy
+    observers: Sequence[Observer] = ()
+    max_steps: int | None = None
+    max_episodes: int | None = None
+
+    def __post_init__(self):
+        if self.max_steps is None and self.max_episodes is None:
+            raise ValueError("a Driver needs max_steps or max_episodes")
+
+    def run(self, time_step: TimeStep, policy_state: Any) -> tuple[TimeStep, Any]:
+        """Collect until a limit is reached; returns the time step and policy state to continue from."""
+        steps = episodes = 0
+        max_steps = np.inf if self.max_steps is None else self.max_steps
+        max_episodes = np.inf if self.max_episodes is None else self.max_episodes
+        while steps < max_steps and episodes < max_episodes:
+            action, policy_state = self.policy(time_step.obs, policy_state)
+            action = np.asarray(action)
+            next_time_step = self.env.step(action)
+            transition = Transition(
+                obs=time_step.obs,
+                action=action,
+                reward=np.asarray(next_time_step.reward, np.float32),
+                next_obs=np.asarray(next_time_step.final_obs),
+                terminated=np.asarray(next_time_step.terminated, bool),
+                truncated=np.asarray(next_time_step.truncated, bool),
+                num_steps=np.ones(len(action), np.int32),
+            )
+            for observer in self.observers:
+                observer(transition)
+            steps += len(action)
+            episodes += int(np.sum(transition.terminated | transition.truncated))
+            time_step = next_time_step
+        return time_step, policy_state
+
+
+# ---------------------------------------------------------------- metric observers
+
+
+@dataclass
+class EnvironmentSteps:
+    """Env steps seen, summed over envs."""
+
+    count: int = 0
+
+    def __call__(self, transition: Transition) -> None:
+        self.count += len(transition.reward)
+
+    def result(self) -> int:
+        return self.count
+
+
+@dataclass
+class NumberOfEpisodes:
+    """Episodes finished (terminated or truncated)."""
+
+    count: int = 0
+
+    def __call__(self, transition: Transition) -> None:
+        self.count += int(np.sum(transition.terminated | transition.truncated))
+
+    def result(self) -> int:
+        return self.count
+
+
+@dataclass
+class EpisodeAverage:
+    """The mean of a per-episode sum of ``quantity(transition)`` over the last ``buffer_size``
+    finished episodes (NaN before the first)."""
+
+    quantity: Callable[[Transition], np.ndarray]
+    buffer_size: int = 10
+    running: np.ndarray | None = None
+    finished: collections.deque = field(default_factory=collections.deque)
+
+    def __call__(self, transition: Transition) -> None:
+        if self.running is None:
+            self.running = np.zeros(len(transition.reward))
+            self.finished = collections.deque(maxlen=self.buffer_size)
+        self.running += self.quantity(transition)
+        done = transition.terminated | transition.truncated
+        self.finished.extend(self.running[done].tolist())
+        self.running[done] = 0.0
+
+    def result(self) -> float:
+        return float(np.mean(self.finished)) if self.finished else float("nan")
+
+
+class AverageReturn(EpisodeAverage):
+    """The mean return of the last ``buffer_size`` finished episodes."""
+
+    def __init__(self, buffer_size: int = 10):
+        super().__init__(quantity=lambda transition: transition.reward, buffer_size=buffer_size)
+
+
+class AverageEpisodeLength(EpisodeAverage):
+    """The mean length of the last ``buffer_size`` finished episodes."""
+
+    def __init__(self, buffer_size: int = 10):
+        super().__init__(quantity=lambda transition: np.ones(len(transition.reward)), buffer_size=buffer_size)
+
+
+# ---------------------------------------------------------------- replay as an observer
+
+
+class ReplayObserver:
+    """Adds each transition ``[num_envs]`` to a host replay buffer, through the n-step accumulator
+    when ``n_step > 1`` (the jitted ``agentax.replay.nstep.push``, so both runners build the same
+    n-step transitions)."""
+
+    def __init__(self, buffer: Any, n_step: int = 1, discount_factor: float = 0.99):
+        self.buffer = buffer
+        self.prioritized = isinstance(buffer, host.HostPrioritizedState)
+        self.n_step = n_step
+        self.discount_factor = discount_factor
+        self.accumulator: nstep.NStepState | None = None
+
+    def __call__(self, transition: Transition) -> None:
+        if self.n_step > 1:
+            if self.accumulator is None:
+                self.accumulator = nstep.init(self.n_step, jax.tree.map(jnp.asarray, transition))
+            self.accumulator, emitted, full = _push(self.accumulator, transition, self.discount_factor)
+            if not bool(full):
+                return
+            transition = jax.device_get(emitted)
+        if self.prioritized:
+            host.add_prioritized(self.buffer, transition)
+        else:
+            host.add(self.buffer, transition)
+
+
+_push = jax.jit(nstep.push)
+
+
+# ---------------------------------------------------------------- DQN on a host env
+
+
+@dataclass
+class HostLog:
+    """What ``train_dqn_host`` reports at each logging interval."""
+
+    env_steps: int
+    episodes: int
+    mean_return: float  # over the last 10 finished training episodes
+    mean_length: float
+    loss: float
+    epsilon: float
+    learning_steps: int
+    seconds: float
+
+
+def train_dqn_host(
+    env: Any,
+    cfg: dqn.DQNConfig,
+    seed: int = 0,
+    log_every_steps: int = 2_000,
+    on_log: Callable[[HostLog, Any], bool | None] | None = None,
+) -> tuple[dqn.DQNState, list[HostLog]]:
+    """Train DQN on host env ``env`` (a ``GymnasiumEnv`` with ``cfg.num_envs`` envs) with the driver.
+
+    Collects ``cfg.train_frequency`` steps per env (or episodes, with ``schedule_unit="episodes"``)
+    per driver run, then runs ``cfg.gradient_steps`` jitted ``dqn`` learning steps on host-sampled
+    batches. Every ``log_every_steps`` env steps calls ``on_log(log, agent)``; a truthy answer stops
+    training early. Returns the final ``DQNState`` and the logs.
+    """
+    cfg = cfg.validate()
+    num_actions = dqn.num_actions_of(env.action_space())
+    key = jax.random.key(seed)
+    key, agent_key = jax.random.split(key)
+    time_step = first_time_step(env, seed)
+    agent = dqn.init(agent_key, time_step.obs[0], num_actions, cfg)
+    one = jax.device_get(example_transition(np.asarray(time_step.obs[0], np.float32), np.int32(0)))
+    if cfg.prioritized:
+        buffer = host.init_prioritized(cfg.buffer_size, one, cfg.priority_exponent)
+    else:
+        buffer = host.init(cfg.buffer_size, one)
+    by_episode = cfg.schedule_unit == "episodes"
+    steps, episodes = EnvironmentSteps(), NumberOfEpisodes()
+    returns, lengths = AverageReturn(), AverageEpisodeLength()
+    observers = [ReplayObserver(buffer, cfg.n_step, cfg.discount_factor), steps, episodes, returns, lengths]
+
+    act = jax.jit(_act_and_split)
+    learn = jax.jit(dqn.make_learn(cfg))
+    holder = {"agent": agent}
+
+    def collect_policy(obs: np.ndarray, policy_key: jax.Array) -> tuple[np.ndarray, jax.Array]:
+        epsilon = dqn.epsilon_at(cfg, episodes.count if by_episode else steps.count)
+        action, policy_key = act(holder["agent"], np.asarray(obs, np.float32), policy_key, epsilon)
+        return np.asarray(action), policy_key
+
+    if by_episode:
+        driver = Driver(env, collect_policy, observers, max_episodes=cfg.train_frequency)
+    else:
+        driver = Driver(env, collect_policy, observers, max_steps=cfg.train_frequency * cfg.num_envs)
+    rng = np.random.default_rng(seed)
+    key, policy_key = jax.random.split(key)
+    logs: list[HostLog] = []
+    loss, next_log, start = float("nan"), log_every_steps, time.perf_counter()
+    while steps.count < cfg.total_steps and not (cfg.max_episodes and episodes.count >= cfg.max_episodes):
+        time_step, policy_key = driver.run(time_step, policy_key)
+        started = episodes.count > cfg.learning_starts if by_episode else steps.count >= cfg.learning_starts
+        if started and buffer_size(buffer) > 0:
+            beta = float(dqn.importance_exponent_at(cfg, steps.count))
+            for _ in range(cfg.gradient_steps):
+                if cfg.prioritized:
+                    sample = host.sample_prioritized(buffer, rng, cfg.batch_size, beta)
+                else:
+                    sample = host.sample(buffer, rng, cfg.batch_size)
+                holder["agent"], metrics = learn(holder["agent"], sample)
+                if cfg.prioritized:
+                    host.update_priorities(buffer, sample.indices, np.asarray(metrics["td_error"]))
+            loss = float(metrics["loss"])
+        if steps.count >= next_log or steps.count >= cfg.total_steps:
+            next_log += log_every_steps
+            log = HostLog(
+                env_steps=steps.count,
+                episodes=episodes.count,
+                mean_return=returns.result(),
+                mean_length=lengths.result(),
+                loss=loss,
+                epsilon=float(dqn.epsilon_at(cfg, episodes.count if by_episode else steps.count)),
+                learning_steps=int(holder["agent"].step),
+                seconds=time.perf_counter() - start,
+            )
+            logs.append(log)
+            if on_log is not None and on_log(log, holder["agent"]):
+                break
+    return holder["agent"], logs
+
+
+def _act_and_split(agent: Any, obs: jax.Array, key: jax.Array, epsilon: jax.Array) -> tuple[jax.Array, ...]:
+    key, act_key = jax.random.split(key)
+    return dqn.act(agent, obs, act_key, epsilon), key
+
+
+def buffer_size(buffer: Any) -> int:
+    """Transitions held by a host buffer (uniform or prioritized)."""
+    return buffer.buffer.size if isinstance(buffer, host.HostPrioritizedState) else buffer.size
