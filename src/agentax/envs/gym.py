@@ -21,6 +21,7 @@ from typing import Any
 
 import gymnasium
 import jax
+import jax.numpy as jnp
 import numpy as np
 from gymnasium.vector import AutoresetMode
 
@@ -132,29 +133,36 @@ class GymnasiumEnv:
 
 
 @cache
-def _compiled_by_id(env_id: str) -> tuple[Environment, Callable, Callable]:
+def _compiled_by_id(env_id: str) -> tuple[Environment, EnvParams, Callable, Callable]:
     from agentax.envs import make_jax
 
-    return _compile(make_jax(env_id))
+    env = make_jax(env_id)
+    return _compile(env, env.default_params())
 
 
-def _compile(env: Environment) -> tuple[Environment, Callable, Callable]:
-    """``env`` with a jitted ``reset(key, params)`` and a jitted ``step(key, state, action, params)``
-    (no auto-reset: Gymnasium's caller resets), each also returning the next key."""
+def _compile(env: Environment, params: EnvParams) -> tuple[Environment, EnvParams, Callable, Callable]:
+    """``env`` and ``params`` with a jitted ``reset(key) -> (obs, state, key)`` and a jitted
+    ``step(key, state, action) -> (values, state, key)``, ``params`` built in.
+
+    ``step`` does not auto-reset (Gymnasium's caller resets) and packs obs, reward, terminated and
+    truncated into one float32 vector, so that one transfer brings them to the host (with params
+    built in, ~4x the steps per second of four transfers and params passed in).
+    """
 
     @jax.jit
-    def reset(key, params):
+    def reset(key):
         key, reset_key = jax.random.split(key)
         obs, state = env.reset(reset_key, params)
         return obs, state, key
 
     @jax.jit
-    def step(key, state, action, params):
+    def step(key, state, action):
         key, step_key = jax.random.split(key)
         ts, state = env.step_env(step_key, state, action, params)
-        return (ts.obs, ts.reward, ts.terminated, ts.truncated), state, key
+        flags = jnp.stack([ts.reward, ts.terminated, ts.truncated]).astype(jnp.float32)
+        return jnp.concatenate([ts.obs.astype(jnp.float32).reshape(-1), flags]), state, key
 
-    return env, reset, step
+    return env, params, reset, step
 
 
 def _has_renderer(env: Environment) -> bool:
@@ -164,9 +172,10 @@ def _has_renderer(env: Environment) -> bool:
 class JaxToGymnasium(gymnasium.Env):
     """An agentax JAX env as a ``gymnasium.Env``: ``reset(seed=...)``, the five-value ``step``, NumPy out.
 
-    ``env`` is a JAX env id (its compiled functions are shared by all instances) or an
-    ``Environment``. ``reset(seed=s)`` seeds Gymnasium's ``np_random``, which draws the JAX key of
-    the episode, so equal seeds give equal episodes. The env's own time limit sets ``truncated``.
+    ``env`` is a JAX env id (with default params, its compiled functions are shared by all
+    instances) or an ``Environment``. ``reset(seed=s)`` seeds Gymnasium's ``np_random``, which
+    draws the JAX key of the episode, so equal seeds give equal episodes. The env's own time limit
+    sets ``truncated``.
     """
 
     metadata: Mapping[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 50}
@@ -174,10 +183,12 @@ class JaxToGymnasium(gymnasium.Env):
     def __init__(
         self, env: str | Environment, render_mode: str | None = None, params: EnvParams | None = None
     ):
-        self.env, self._reset_fn, self._step_fn = (
-            _compiled_by_id(env) if isinstance(env, str) else _compile(env)
-        )
-        self.params = self.env.default_params() if params is None else params
+        if isinstance(env, str) and params is None:
+            self.env, self.params, self._reset_fn, self._step_fn = _compiled_by_id(env)
+        else:
+            env = _compiled_by_id(env)[0] if isinstance(env, str) else env
+            params = env.default_params() if params is None else params
+            self.env, self.params, self._reset_fn, self._step_fn = _compile(env, params)
         self.metadata = {**self.metadata, "render_modes": ["rgb_array"] if _has_renderer(self.env) else []}
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise UsageError(
@@ -186,25 +197,25 @@ class JaxToGymnasium(gymnasium.Env):
         self.render_mode = render_mode
         self.observation_space = to_gymnasium_space(self.env.observation_space(self.params))
         self.action_space = to_gymnasium_space(self.env.action_space(self.params))
-        self._obs_dtype = self.observation_space.dtype
         self.state = None
         self._key = None
 
-    def _obs(self, obs: jax.Array) -> np.ndarray | int:
+    def _obs(self, obs: np.ndarray) -> np.ndarray | int:
         if isinstance(self.observation_space, gymnasium.spaces.Discrete):
-            return int(obs)
-        return np.array(obs, self._obs_dtype)
+            return int(obs.reshape(()))
+        return np.asarray(obs, self.observation_space.dtype).reshape(self.observation_space.shape)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
         super().reset(seed=seed)
         key = jax.random.key(int(self.np_random.integers(0, 2**32)))
-        obs, self.state, self._key = self._reset_fn(key, self.params)
-        return self._obs(obs), {}
+        obs, self.state, self._key = self._reset_fn(key)
+        return self._obs(np.asarray(obs)), {}
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
-        values, self.state, self._key = self._step_fn(self._key, self.state, action, self.params)
-        obs, reward, terminated, truncated = jax.device_get(values)
-        return self._obs(obs), float(reward), bool(terminated), bool(truncated), {}
+        values, self.state, self._key = self._step_fn(self._key, self.state, action)
+        values = np.asarray(values)
+        reward, terminated, truncated = values[-3:]
+        return self._obs(values[:-3]), float(reward), bool(terminated), bool(truncated), {}
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array" or self.state is None:
