@@ -1,0 +1,149 @@
+"""Evaluation on any env: JAX envs vectorized, Gymnasium envs on the host, policies checked to fit."""
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from agentax.envs import GymnasiumEnv, make
+from agentax.errors import UsageError
+from agentax.evaluate import (
+    HostPolicy,
+    check_policy_fits,
+    episode_returns,
+    evaluate,
+    host_episode_returns,
+    named_policy,
+    resolve_policy,
+)
+from agentax.policies import basic_policy, random_policy
+
+
+def test_host_evaluation_of_a_random_policy_equals_a_plain_gymnasium_loop():
+    # One sub-env: the host evaluation must be exactly Gymnasium's reset(seed) / step / reset() loop
+    # with the same random actions (drawn from one generator seeded alike).
+    seed, num_episodes = 5, 200
+    random_actions = HostPolicy(lambda obs, rng: rng.integers(0, 4, size=len(obs)))
+    returns, lengths = host_episode_returns(GymnasiumEnv("FrozenLake-v1"), random_actions, num_episodes, seed)
+
+    env, rng = gymnasium.make("FrozenLake-v1"), np.random.default_rng(seed)
+    env.reset(seed=seed)
+    expected_returns, expected_lengths = [], []
+    for _ in range(num_episodes):
+        total, steps, done = 0.0, 0, False
+        while not done:
+            _, reward, terminated, truncated, _ = env.step(int(rng.integers(0, 4, size=1)[0]))
+            total, steps, done = total + reward, steps + 1, terminated or truncated
+        expected_returns.append(total)
+        expected_lengths.append(steps)
+        env.reset()
+    np.testing.assert_array_equal(returns, expected_returns)
+    np.testing.assert_array_equal(lengths, expected_lengths)
+    assert 0 < sum(expected_returns) < num_episodes  # the slippery lake: some episodes reach the goal
+
+
+def _pump(obs):
+    """Push the car the way it is moving: solves MountainCar in ~100-200 steps."""
+    return np.where(np.asarray(obs)[..., 1] >= 0, 2, 0)
+
+
+def test_jax_policy_on_a_host_env_plays_one_episode_per_sub_env():
+    # A JAX policy, vmapped over 4 sub-envs seeded 7..10, 4 episodes: episode i is sub-env i's first,
+    # i.e. a single Gymnasium env reset with seed 7 + i and driven by the same rule.
+    stats_returns, lengths = host_episode_returns(
+        GymnasiumEnv("MountainCar-v0", num_envs=4), lambda obs, key: jnp.where(obs[1] >= 0, 2, 0), 4, seed=7
+    )
+    for i in range(4):
+        env = gymnasium.make("MountainCar-v0")
+        obs, _ = env.reset(seed=7 + i)
+        total, done = 0.0, False
+        while not done:
+            obs, reward, terminated, truncated, _ = env.step(int(_pump(obs)))
+            total, done = total + reward, terminated or truncated
+        assert stats_returns[i] == total and lengths[i] == -total  # reward -1 per step
+    assert np.all(lengths < 200)  # every episode reached the flag before the time limit
+
+
+def test_host_evaluation_counts_the_first_episodes_started():
+    # 3 sub-envs, 7 episodes of different lengths (slippery lake, a fixed rule): the episodes
+    # counted are the first 7 to start, ordered by start step then sub-env -- worked out here by
+    # running 3 independent Gymnasium envs and listing every episode's start step.
+    num_envs, num_episodes, seed = 3, 7, 11
+    rule = lambda obs: (np.asarray(obs) * 7 + 1) % 4  # noqa: E731
+    returns, lengths = host_episode_returns(
+        GymnasiumEnv("FrozenLake-v1", num_envs=num_envs),
+        HostPolicy(lambda obs, rng: rule(obs)),
+        num_episodes,
+        seed,
+    )
+    started = []  # (start step, sub-env, return, length)
+    for i in range(num_envs):
+        env = gymnasium.make("FrozenLake-v1")
+        obs, _ = env.reset(seed=seed + i)
+        step = 0
+        for _ in range(num_episodes):
+            start, total, done = step, 0.0, False
+            while not done:
+                obs, reward, terminated, truncated, _ = env.step(int(rule(obs)))
+                step, total, done = step + 1, total + reward, terminated or truncated
+            started.append((start, i, total, step - start))
+            obs, _ = env.reset()
+    first = sorted(started)[:num_episodes]
+    np.testing.assert_array_equal(returns, [e[2] for e in first])
+    np.testing.assert_array_equal(lengths, [e[3] for e in first])
+    assert len(set(lengths)) > 1
+
+
+def test_evaluate_dispatches_on_the_env():
+    env = make("CartPole-v0")
+    stats = evaluate(env, basic_policy, num_episodes=50, seed=3)
+    returns, lengths = jax.jit(episode_returns, static_argnums=(0, 1, 3))(
+        env, basic_policy, jax.random.key(3), 50
+    )
+    assert stats.episodes == 50 and stats.mean_return == pytest.approx(float(np.mean(returns)))
+    assert stats.max_return == float(np.max(returns)) and stats.mean_length == pytest.approx(
+        float(np.mean(lengths))
+    )
+    host = evaluate("FrozenLake-v1", random_policy(make("FrozenLake-v1").action_space()), num_episodes=20)
+    assert host.episodes == 20 and 0.0 <= host.min_return <= host.max_return <= 1.0
+
+
+def test_evaluate_rejects_bad_input():
+    with pytest.raises(UsageError, match="at least 1"):
+        evaluate(make("CartPole-v1"), basic_policy, num_episodes=0)
+    with pytest.raises(UsageError, match="JAX env"):
+        evaluate(make("CartPole-v1"), HostPolicy(lambda obs, rng: np.zeros(len(obs), int)), num_episodes=5)
+
+
+@pytest.mark.parametrize("env_id", ["MountainCar-v0", "FrozenLake-v1", "Pendulum-v1"])
+def test_basic_policy_fits_cartpole_only(env_id):
+    env = make(env_id)
+    with pytest.raises(UsageError, match="CartPole") as error:
+        named_policy("basic", env, env_id)
+    assert env_id in str(error.value) and "random" in str(error.value)  # names the problem and the choices
+    check_policy_fits(env, named_policy("random", env, env_id), env_id)  # random fits any env
+    assert named_policy("basic", make("CartPole-v1")) is basic_policy
+
+
+def test_policies_that_do_not_fit_are_caught_before_running():
+    env = make("CartPole-v1")
+    with pytest.raises(UsageError, match="cannot read CartPole-v1's observations"):
+        check_policy_fits(env, lambda obs, key: jnp.int32(obs @ jnp.ones(6) > 0))  # weights for 6 inputs
+    with pytest.raises(UsageError, match="takes Discrete"):
+        check_policy_fits(env, lambda obs, key: jnp.zeros(3, jnp.int32))
+    with pytest.raises(UsageError, match="takes Discrete"):
+        check_policy_fits(env, lambda obs, key: obs[0])  # a float is no discrete action
+    with pytest.raises(UsageError, match="takes Box"):
+        check_policy_fits(make("Pendulum-v1"), lambda obs, key: jnp.zeros((2,)))
+    with pytest.raises(UsageError, match="unknown policy 'greedy'; choose from basic, random"):
+        named_policy("greedy", env)
+
+
+def test_resolve_policy_names_the_problem():
+    env_id, env, policy = resolve_policy("random", "Acrobot-v1", num_envs=3)
+    assert env_id == "Acrobot-v1" and env.num_envs == 3
+    with pytest.raises(UsageError, match="no env id given"):
+        resolve_policy("basic", None)
+    with pytest.raises(UsageError, match="no trained run at 'runs/missing'"):
+        resolve_policy("runs/missing", "CartPole-v1")
