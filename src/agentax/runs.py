@@ -1,0 +1,359 @@
+"""A run's folder: config, metrics (CSV + TensorBoard), checkpoints, the learning curve, the evaluation.
+
+Every trainer writes the same layout, so ``agentax evaluate/play --policy DIR``, ``agentax plot``
+and ``agentax train --resume DIR`` work on any of them::
+
+    runs/<algo>-<env>-<YYYYmmdd-HHMMSS>/
+      config.json      the whole configuration; "algo" and "env" keys name the algorithm and env
+      metrics.csv      a row per logging interval: env_steps, mean_return (pooled over seeds),
+                       return_seed<k> per seed, and whatever else the trainer logs
+      tensorboard/     the same scalars as TensorBoard event files (tensorboardX)
+      checkpoints/     ckpt-<updates>.msgpack (flax msgpack, never pickle), written to a temporary
+                       name in the same folder and renamed, so a crash never leaves half a file
+      curve.png        episode return against env steps: mean and 95 % interval across seeds
+      eval.json        the trained greedy policy on fresh evaluation seeds: mean_return,
+                       std_return, min_return, max_return, episodes, pooled over seeds at the top
+                       level and per seed under "per_seed"
+
+``load_policy(run_dir)`` rebuilds the trained policy of any run from its algorithm's module.
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime
+import importlib
+import json
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from agentax.errors import UsageError
+from agentax.evaluate import EvalStats
+from agentax.policies import Policy
+
+ALGO_MODULES: dict[str, str] = {
+    "reinforce": "agentax.agents.reinforce",
+    "ppo": "agentax.agents.ppo",
+    "dqn": "agentax.agents.dqn",
+    "ga": "agentax.search.genetic",
+    "cem": "agentax.search.cem",
+    "grid": "agentax.search.grid",
+    "random": "agentax.search.random_search",
+}
+CHECKPOINT_PREFIX = "ckpt-"
+
+
+def default_run_dir(algo: str, env_id: str, root: str | Path = "runs") -> Path:
+    """``runs/<algo>-<env>-<YYYYmmdd-HHMMSS>`` (with a ``-2``, ``-3`` suffix if taken)."""
+    stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+    path = Path(root) / f"{algo}-{env_id.replace('/', '_')}-{stamp}"
+    candidate, n = path, 1
+    while candidate.exists():
+        n += 1
+        candidate = path.with_name(f"{path.name}-{n}")
+    return candidate
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    """Write ``data`` to a temporary name in the same folder, then rename it over ``path``."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def read_config(run_dir: str | Path) -> dict[str, Any]:
+    """The run's ``config.json``; a clear error for a folder that holds no run."""
+    path = Path(run_dir) / "config.json"
+    if not path.is_file():
+        raise UsageError(f"{run_dir} holds no run (no config.json); give a folder written by agentax train")
+    try:
+        config = json.loads(path.read_text())
+    except json.JSONDecodeError as error:
+        raise UsageError(f"{path} is not valid JSON ({error})") from None
+    if not isinstance(config, dict) or "algo" not in config or "env" not in config:
+        raise UsageError(f"{path} lacks the 'algo' and 'env' keys of a run's config")
+    return config
+
+
+def read_metrics(run_dir: str | Path) -> list[dict[str, float]]:
+    """The rows of ``metrics.csv`` as floats (blank cells become NaN)."""
+    path = Path(run_dir) / "metrics.csv"
+    if not path.is_file():
+        raise UsageError(f"{run_dir} has no metrics.csv; give a run folder written by agentax")
+    with open(path, newline="") as f:
+        return [
+            {k: float(v) if v not in ("", None) else math.nan for k, v in row.items()}
+            for row in csv.DictReader(f)
+        ]
+
+
+# Checkpoints: any pytree, typed PRNG keys included, as flax msgpack.
+
+
+def _is_key(x: Any) -> bool:
+    return isinstance(x, jax.Array) and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
+
+
+def save_tree(path: str | Path, tree: Any, meta: dict[str, Any] | None = None) -> Path:
+    """Write ``tree`` (and a small JSON-able ``meta`` dict) to ``path`` atomically, as msgpack."""
+    from flax import serialization
+
+    host = jax.tree.map(lambda x: np.asarray(jax.random.key_data(x) if _is_key(x) else x), tree)
+    payload = {"state": serialization.to_state_dict(host), "meta": json.dumps(meta or {})}
+    path = Path(path)
+    _write_atomic(path, serialization.msgpack_serialize(payload))
+    return path
+
+
+def load_tree(path: str | Path, target: Any) -> tuple[Any, dict[str, Any]]:
+    """Read a tree saved by :func:`save_tree` into the structure of ``target``; returns ``(tree, meta)``.
+
+    ``target`` may hold arrays or ``jax.ShapeDtypeStruct`` leaves (from ``jax.eval_shape``). A
+    truncated, corrupt or mismatched file raises a :class:`UsageError` naming the file.
+    """
+    from flax import serialization
+
+    path = Path(path)
+    try:
+        payload = serialization.msgpack_restore(path.read_bytes())
+        meta = json.loads(payload["meta"])
+        key_leaves = jax.tree.map(_is_key_like, target)
+        plain_target = jax.tree.map(_plain_struct, target)
+        restored = serialization.from_state_dict(plain_target, payload["state"])
+        expected, actual = jax.tree.leaves(plain_target), jax.tree.leaves(restored)
+        if len(expected) != len(actual):
+            raise ValueError(f"{len(actual)} arrays where {len(expected)} were expected")
+        for want, got in zip(expected, actual, strict=True):
+            if tuple(want.shape) != tuple(np.shape(got)) or np.dtype(want.dtype) != np.asarray(got).dtype:
+                raise ValueError(
+                    f"an array {np.asarray(got).dtype}{list(np.shape(got))} where {want.dtype}"
+                    f"{list(want.shape)} was expected"
+                )
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, IndexError) as error:
+        raise UsageError(
+            f"checkpoint {path} is corrupt or belongs to another configuration ({error})"
+        ) from None
+    except Exception as error:  # msgpack's own errors (ExtraData, FormatError, StackError, ...)
+        raise UsageError(f"checkpoint {path} is corrupt ({type(error).__name__}: {error})") from None
+    tree = jax.tree.map(
+        lambda is_key, x: jax.random.wrap_key_data(np.asarray(x)) if is_key else np.asarray(x),
+        key_leaves,
+        restored,
+    )
+    return tree, meta
+
+
+def _is_key_like(x: Any) -> bool:
+    return jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
+
+
+def _plain_struct(x: Any) -> jax.ShapeDtypeStruct:
+    if _is_key_like(x):
+        data = jax.eval_shape(jax.random.key_data, x)
+        return jax.ShapeDtypeStruct(data.shape, data.dtype)
+    return jax.ShapeDtypeStruct(np.shape(x), x.dtype)
+
+
+def checkpoints(run_dir: str | Path) -> list[Path]:
+    """The run's checkpoint files, oldest first."""
+    folder = Path(run_dir) / "checkpoints"
+    found = folder.glob(f"{CHECKPOINT_PREFIX}*.msgpack") if folder.is_dir() else []
+    return sorted(found, key=lambda p: int(p.stem.removeprefix(CHECKPOINT_PREFIX)))
+
+
+def latest_checkpoint(run_dir: str | Path) -> Path:
+    """The newest checkpoint; a clear error if the run has none."""
+    found = checkpoints(run_dir)
+    if not found:
+        raise UsageError(f"{run_dir} has no checkpoint in {Path(run_dir) / 'checkpoints'}; train it first")
+    return found[-1]
+
+
+class Run:
+    """The open folder of one run: a thin shell that writes, the rest of this module reads.
+
+    ``Run.create`` starts a new run (refusing a folder that already holds one), ``Run.open``
+    continues one (``--resume``).
+    """
+
+    def __init__(self, path: Path, config: dict[str, Any]):
+        self.path = Path(path)
+        self.config = config
+        self._writer = None
+        self._columns: list[str] | None = None
+        metrics = self.path / "metrics.csv"
+        if metrics.is_file():
+            with open(metrics, newline="") as f:
+                self._columns = next(csv.reader(f), None)
+
+    @classmethod
+    def create(cls, path: str | Path, config: dict[str, Any]) -> Run:
+        """Make the folder and write ``config.json`` (which must name ``algo`` and ``env``)."""
+        path = Path(path)
+        if (path / "config.json").exists():
+            raise UsageError(
+                f"{path} already holds a run; continue it with 'agentax train --resume {path}' "
+                "or choose another --out"
+            )
+        if not {"algo", "env"} <= config.keys():
+            raise ValueError("a run's config needs 'algo' and 'env' keys")
+        (path / "checkpoints").mkdir(parents=True, exist_ok=True)
+        _write_atomic(
+            path / "config.json", (json.dumps(config, indent=2, default=_json_default) + "\n").encode()
+        )
+        return cls(path, config)
+
+    @classmethod
+    def open(cls, path: str | Path) -> Run:
+        return cls(Path(path), read_config(path))
+
+    def log(self, row: dict[str, float]) -> None:
+        """Append a row to metrics.csv (columns fixed by the first row) and to TensorBoard."""
+        metrics = self.path / "metrics.csv"
+        if self._columns is None:
+            self._columns = list(row)
+            with open(metrics, "w", newline="") as f:
+                csv.writer(f).writerow(self._columns)
+        extra = set(row) - set(self._columns)
+        if extra:
+            raise ValueError(f"metrics {sorted(extra)} are not columns of {metrics}")
+        with open(metrics, "a", newline="") as f:
+            csv.writer(f).writerow([_cell(row.get(c)) for c in self._columns])
+        if self._writer is None:
+            from tensorboardX import SummaryWriter
+
+            self._writer = SummaryWriter(str(self.path / "tensorboard"))
+        step = int(row.get("env_steps", 0))
+        for name, value in row.items():
+            if name != "env_steps" and value is not None and math.isfinite(float(value)):
+                self._writer.add_scalar(name, float(value), step)
+        self._writer.flush()
+
+    def truncate_metrics(self, max_env_steps: float) -> None:
+        """Drop the rows logged after ``max_env_steps`` (a resumed run logs them again)."""
+        metrics = self.path / "metrics.csv"
+        if not metrics.is_file():
+            return
+        with open(metrics, newline="") as f:
+            rows = list(csv.reader(f))
+        index = rows[0].index("env_steps")
+        kept = [rows[0]] + [r for r in rows[1:] if float(r[index]) <= max_env_steps]
+        with open(metrics, "w", newline="") as f:
+            csv.writer(f).writerows(kept)
+
+    def save_checkpoint(self, updates: int, tree: Any, meta: dict[str, Any], keep: int = 2) -> Path:
+        """Write ``checkpoints/ckpt-<updates>.msgpack`` atomically; keep the ``keep`` newest."""
+        path = save_tree(self.path / "checkpoints" / f"{CHECKPOINT_PREFIX}{updates}.msgpack", tree, meta)
+        for old in checkpoints(self.path)[:-keep]:
+            old.unlink(missing_ok=True)
+        return path
+
+    def write_eval(self, per_seed_returns: np.ndarray, per_seed_lengths: np.ndarray, **extra: Any) -> dict:
+        """Write eval.json from returns ``[num_seeds, episodes]``: pooled stats on top, per seed below."""
+        per_seed_returns, per_seed_lengths = np.atleast_2d(per_seed_returns), np.atleast_2d(per_seed_lengths)
+        pooled = EvalStats.from_returns(per_seed_returns.ravel(), per_seed_lengths.ravel())
+        result = {
+            **vars(pooled),
+            "per_seed": [
+                vars(EvalStats.from_returns(r, n))
+                for r, n in zip(per_seed_returns, per_seed_lengths, strict=True)
+            ],
+            **extra,
+        }
+        _write_atomic(self.path / "eval.json", (json.dumps(result, indent=2) + "\n").encode())
+        return result
+
+    def plot(self) -> Path:
+        """Write curve.png from metrics.csv."""
+        return plot_curves([self.path], self.path / "curve.png")
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return ""
+    value = float(value)
+    return "" if math.isnan(value) else repr(round(value, 6)) if not value.is_integer() else str(int(value))
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, tuple | list):
+        return list(value)
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
+
+
+def seed_columns(row: dict[str, float], prefix: str = "return_seed") -> list[str]:
+    """The per-seed columns (``return_seed0``, ``return_seed1``, ...) of a metrics row, in seed order."""
+    return sorted((c for c in row if c.startswith(prefix)), key=lambda c: int(c.removeprefix(prefix)))
+
+
+def plot_curves(run_dirs: Sequence[str | Path], out: str | Path, labels: Sequence[str] | None = None) -> Path:
+    """Episode return against env steps for each run: the mean over seeds and its 95 % interval.
+
+    The interval is ``mean ± 1.96 · std / sqrt(num_seeds)`` across the ``return_seed<k>`` columns
+    (none for a single seed). Several runs overlay in one figure.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.2), dpi=110)
+    for i, run_dir in enumerate(run_dirs):
+        rows = read_metrics(run_dir)
+        if not rows:
+            raise UsageError(f"{run_dir}/metrics.csv has no rows yet")
+        config = read_config(run_dir)
+        label = labels[i] if labels else f"{config['algo']} {config['env']} ({Path(run_dir).name})"
+        steps = np.array([r["env_steps"] for r in rows])
+        columns = seed_columns(rows[0])
+        if columns:
+            per_seed = np.array([[r[c] for c in columns] for r in rows])  # (rows, seeds)
+            mean = np.nanmean(per_seed, axis=1)
+            count = np.sum(np.isfinite(per_seed), axis=1)
+            half = (
+                1.96 * np.nanstd(per_seed, axis=1, ddof=1) / np.sqrt(count) if per_seed.shape[1] > 1 else None
+            )
+        else:
+            mean, half = np.array([r["mean_return"] for r in rows]), None
+        (line,) = ax.plot(steps, mean, label=label)
+        if half is not None:
+            ax.fill_between(steps, mean - half, mean + half, color=line.get_color(), alpha=0.25, linewidth=0)
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("episode return")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    out = Path(out)
+    fig.savefig(out)
+    plt.close(fig)
+    return out
+
+
+def load_policy(run_dir: str | Path) -> tuple[str, Policy]:
+    """``(env_id, policy)`` of a trained run: ``ALGO_MODULES[algo].load_policy(run_dir, config)``."""
+    config = read_config(run_dir)
+    algo = config["algo"]
+    if algo not in ALGO_MODULES:
+        raise UsageError(
+            f"{run_dir}: unknown algorithm {algo!r} in config.json; known: {', '.join(ALGO_MODULES)}"
+        )
+    module = importlib.import_module(ALGO_MODULES[algo])
+    return config["env"], module.load_policy(Path(run_dir), config)

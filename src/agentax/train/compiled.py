@@ -1,0 +1,340 @@
+"""The compiled runner: the whole training of a JAX env under ``jit`` + ``lax.scan``, vmapped over seeds.
+
+**Protocol.** An algorithm hands the runner a :class:`CompiledAlgorithm` of pure functions:
+
+- ``init(key) -> TrainState``: a pytree holding everything training needs — agent parameters and
+  optimizer state, env states and observations, a replay buffer if any, the key, counters — and an
+  ``episodes`` field, an :class:`agentax.returns.EpisodeStats` that the algorithm updates with
+  every env step it takes (``episodes.record(reward, done)``).
+- ``update(state) -> (state, metrics)``: one iteration, collect then learn; jittable, with no
+  Python flags inside (gate "learning starts" and "every k steps" with ``lax.cond``); ``metrics``
+  is a dict of scalar arrays (losses, entropy, ...).
+- ``num_updates``: how many iterations make the whole training; ``steps_per_update``: env steps
+  per iteration across the algorithm's envs (for the progress bar and the chunk size).
+- ``greedy_policy(state) -> Policy``: the evaluation policy ``(obs, key) -> action`` of one
+  seed's TrainState (acts on one observation).
+
+**The runner** compiles one program, ``jax.jit(jax.vmap(chunk))``, where ``chunk`` scans
+``update`` ``updates_per_chunk`` times (a shared, unbatched count masks the updates of a last,
+shorter chunk through ``lax.cond``, so no second program is compiled) and then, when asked,
+evaluates the greedy policy with :func:`agentax.evaluate.episode_returns` on fresh evaluation
+keys — inside the same program. Seed ``k`` of a batch starting at ``seed`` uses
+``jax.random.key(seed + k)``, so seed ``k`` run alone gives the same numbers as inside a batch.
+
+Between chunks, back in Python, it logs a row (metrics.csv, TensorBoard, a rich progress bar),
+checkpoints the whole TrainState (so a resumed run continues exactly), and stops early once the
+evaluation's mean over seeds reaches ``stop_at_return``. At the end it evaluates the greedy
+policies once more on fresh keys, writes eval.json and curve.png.
+
+Every process that imports agentax is pinned to one CPU first (:mod:`agentax._xla`), the cure
+for the XLA CPU hang this program, called over and over, once met.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from agentax.envs.core import Environment
+from agentax.errors import UsageError
+from agentax.evaluate import episode_returns
+from agentax.policies import Policy
+from agentax.runs import Run, latest_checkpoint, load_tree
+
+TrainState = Any
+EVAL_KEY_OFFSET = 1_000_003  # evaluation keys are fold_in(seed key, offset + evaluation number)
+
+
+@dataclass(frozen=True)
+class CompiledAlgorithm:
+    """What an algorithm hands the compiled runner (see the module docstring)."""
+
+    init: Callable[[jax.Array], TrainState]
+    update: Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]
+    num_updates: int
+    steps_per_update: int
+    greedy_policy: Callable[[TrainState], Policy]
+
+
+@dataclass(frozen=True)
+class RunnerConfig:
+    """How the runner schedules one training; saved in config.json under "runner"."""
+
+    seed: int = 0
+    """seed of the first agent; agent k uses seed + k"""
+    num_seeds: int = 1
+    """independent agents trained together in one vmapped program"""
+    updates_per_chunk: int = 10
+    """updates per compiled call; the runner logs once per chunk"""
+    eval_every_chunks: int = 1
+    """evaluate the greedy policy every this many chunks (and after the last)"""
+    eval_episodes: int = 20
+    """episodes per seed in each evaluation, during training and at the end"""
+    stop_at_return: float | None = None
+    """stop once an evaluation's mean return over seeds reaches this (None: train to the end)"""
+    checkpoint_every_chunks: int = 1
+    """write a checkpoint every this many chunks (and at the end)"""
+
+    def __post_init__(self):
+        if self.num_seeds < 1:
+            raise UsageError(f"--seeds must be at least 1, got {self.num_seeds}")
+        for name in ("updates_per_chunk", "eval_every_chunks", "eval_episodes", "checkpoint_every_chunks"):
+            if getattr(self, name) < 1:
+                raise UsageError(f"{name} must be at least 1, got {getattr(self, name)}")
+
+
+@dataclass
+class TrainResult:
+    """What a training did: the final (vmapped) state, counts, the final evaluation and timings."""
+
+    state: TrainState
+    updates: int
+    env_steps: float
+    eval: dict[str, Any]
+    rows: list[dict[str, float]] = field(default_factory=list)
+    solved_env_steps: float | None = None
+    solved_seconds: float | None = None
+    compile_seconds: float = 0.0
+    train_seconds: float = 0.0
+
+
+def seed_keys(seed: int, num_seeds: int) -> jax.Array:
+    """The keys of agents ``seed .. seed + num_seeds - 1`` (one per seed, independent of the batch)."""
+    return jnp.stack([jax.random.key(seed + k) for k in range(num_seeds)])
+
+
+def init_states(algorithm: CompiledAlgorithm, keys: jax.Array) -> TrainState:
+    return jax.jit(jax.vmap(algorithm.init))(keys)
+
+
+def make_chunk(algorithm: CompiledAlgorithm, env: Environment, updates_per_chunk: int, eval_episodes: int):
+    """``chunk(state, num_active, do_eval, eval_key) -> (state, metrics, returns, lengths)`` of ONE seed.
+
+    Runs ``num_active`` (≤ ``updates_per_chunk``) updates; ``metrics`` are their means; the
+    evaluation runs only if ``do_eval`` (else zeros). Vmap it over seeds with
+    ``in_axes=(0, None, None, 0)`` so the two flags stay unbatched and the ``cond``s stay real.
+    """
+
+    def chunk(state, num_active, do_eval, eval_key):
+        metrics_shape = jax.eval_shape(algorithm.update, state)[1]
+
+        def body(state, i):
+            def idle(state):
+                return state, jax.tree.map(lambda m: jnp.zeros(m.shape, m.dtype), metrics_shape)
+
+            return jax.lax.cond(i < num_active, algorithm.update, idle, state)
+
+        state, metrics = jax.lax.scan(body, state, jnp.arange(updates_per_chunk))
+        weight = (jnp.arange(updates_per_chunk) < num_active).astype(jnp.float32)
+        metrics = jax.tree.map(lambda m: (m * weight).sum() / jnp.maximum(weight.sum(), 1.0), metrics)
+
+        def evaluate(state):
+            returns, lengths = episode_returns(env, algorithm.greedy_policy(state), eval_key, eval_episodes)
+            return returns, lengths
+
+        def skip(state):
+            return jnp.zeros(eval_episodes, jnp.float32), jnp.zeros(eval_episodes, jnp.int32)
+
+        returns, lengths = jax.lax.cond(do_eval, evaluate, skip, state)
+        return state, metrics, returns, lengths
+
+    return chunk
+
+
+def _eval_keys(keys: jax.Array, evaluation: int) -> jax.Array:
+    return jax.vmap(jax.random.fold_in, in_axes=(0, None))(keys, EVAL_KEY_OFFSET + evaluation)
+
+
+def _episode_means(stats_before, stats_after) -> np.ndarray:
+    """Per seed: mean return of the episodes finished between two EpisodeStats (else their last returns)."""
+    completed = np.asarray(stats_after.completed) - np.asarray(stats_before.completed)
+    return_sum = np.asarray(stats_after.return_sum) - np.asarray(stats_before.return_sum)
+    last = np.asarray(stats_after.last_return).mean(axis=-1)
+    ever = np.asarray(stats_after.completed) > 0
+    fallback = np.where(ever, last, np.nan)
+    return np.where(completed > 0, return_sum / np.maximum(completed, 1), fallback)
+
+
+class _Progress:
+    """A rich progress bar over env steps (a no-op when disabled)."""
+
+    def __init__(self, enabled: bool, total_steps: float, done_steps: float):
+        self.bar = None
+        if not enabled:
+            return
+        from rich.console import Console
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        self.bar = Progress(
+            TextColumn("[bold]training"),
+            BarColumn(),
+            TextColumn("{task.completed:,.0f}/{task.total:,.0f} env steps"),
+            TextColumn("{task.fields[speed]} steps/s"),
+            TextColumn("return {task.fields[ret]}"),
+            TimeElapsedColumn(),
+            console=Console(file=sys.stderr),
+        )
+        self.task = self.bar.add_task("train", total=total_steps, completed=done_steps, speed="-", ret="-")
+        self.bar.start()
+
+    def update(self, env_steps: float, speed: float, mean_return: float) -> None:
+        if self.bar is not None:
+            ret = "-" if math.isnan(mean_return) else f"{mean_return:.1f}"
+            self.bar.update(self.task, completed=env_steps, speed=f"{speed:,.0f}", ret=ret)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.stop()
+
+
+def train(
+    algorithm: CompiledAlgorithm,
+    env: Environment,
+    runner: RunnerConfig,
+    run: Run | None = None,
+    *,
+    resume: bool = False,
+    progress: bool = False,
+    max_chunks: int | None = None,
+) -> TrainResult:
+    """Train ``runner.num_seeds`` agents together; log, checkpoint and evaluate into ``run`` (if given).
+
+    ``resume=True`` continues ``run`` from its newest checkpoint. ``max_chunks`` stops after that
+    many chunks of this call (as an interrupt would), leaving a resumable run.
+    """
+    start = time.perf_counter()
+    keys = seed_keys(runner.seed, runner.num_seeds)
+    chunk = make_chunk(algorithm, env, runner.updates_per_chunk, runner.eval_episodes)
+    program = jax.jit(jax.vmap(chunk, in_axes=(0, None, None, 0)), donate_argnums=0)
+
+    meta: dict[str, Any] = {"updates": 0, "evaluations": 0, "elapsed": 0.0}
+    if resume:
+        if run is None:
+            raise ValueError("resume needs the run to resume")
+        target = jax.eval_shape(jax.vmap(algorithm.init), keys)
+        state, meta = load_tree(latest_checkpoint(run.path), target)
+        run.truncate_metrics(meta["env_steps"])
+    else:
+        state = init_states(algorithm, keys)
+
+    compile_start = time.perf_counter()
+    compiled = program.lower(state, 0, True, keys).compile()
+    compile_seconds = time.perf_counter() - compile_start
+
+    updates, evaluations = int(meta["updates"]), int(meta["evaluations"])
+    elapsed_before = float(meta["elapsed"])
+    stats = jax.device_get(state.episodes)
+    env_steps = float(np.mean(stats.env_steps))
+    bar = _Progress(progress, algorithm.num_updates * algorithm.steps_per_update, env_steps)
+    rows: list[dict[str, float]] = []
+    solved_env_steps, solved_seconds = meta.get("solved_env_steps"), meta.get("solved_seconds")
+    chunks_this_call = 0
+    loop_start = time.perf_counter()
+    try:
+        while updates < algorithm.num_updates and solved_env_steps is None:
+            if max_chunks is not None and chunks_this_call >= max_chunks:
+                break
+            num_active = min(runner.updates_per_chunk, algorithm.num_updates - updates)
+            chunk_number = updates // runner.updates_per_chunk + 1
+            last = updates + num_active >= algorithm.num_updates
+            do_eval = last or chunk_number % runner.eval_every_chunks == 0
+            chunk_start = time.perf_counter()
+            state, metrics, eval_returns, _ = compiled(
+                state, num_active, do_eval, _eval_keys(keys, evaluations)
+            )
+            new_stats, metrics, eval_returns = jax.device_get((state.episodes, metrics, eval_returns))
+            seconds = time.perf_counter() - chunk_start
+            updates += num_active
+            evaluations += int(do_eval)
+            chunks_this_call += 1
+            steps_before, env_steps = env_steps, float(np.mean(new_stats.env_steps))
+            per_seed = _episode_means(stats, new_stats)
+            stats = new_stats
+            mean_return = float(np.nanmean(per_seed)) if np.isfinite(per_seed).any() else math.nan
+            eval_mean = float(np.mean(eval_returns)) if do_eval else math.nan
+            wall = elapsed_before + time.perf_counter() - loop_start
+            row = {
+                "env_steps": env_steps,
+                "updates": updates,
+                "mean_return": mean_return,
+                **{f"return_seed{k}": float(r) for k, r in enumerate(per_seed)},
+                "eval_return": eval_mean,
+                "steps_per_second": (env_steps - steps_before) / max(seconds, 1e-9),
+                "wall_seconds": wall,
+                **{name: float(np.mean(value)) for name, value in metrics.items()},
+            }
+            rows.append(row)
+            if do_eval and runner.stop_at_return is not None and eval_mean >= runner.stop_at_return:
+                solved_env_steps, solved_seconds = env_steps, time.perf_counter() - start
+            meta = {
+                "updates": updates,
+                "evaluations": evaluations,
+                "env_steps": env_steps,
+                "elapsed": wall,
+                "solved_env_steps": solved_env_steps,
+                "solved_seconds": solved_seconds,
+            }
+            if run is not None:
+                run.log(row)
+                finished = last or solved_env_steps is not None
+                if finished or chunk_number % runner.checkpoint_every_chunks == 0:
+                    run.save_checkpoint(updates, state, meta)
+            bar.update(env_steps, row["steps_per_second"], mean_return)
+    finally:
+        bar.close()
+    train_seconds = time.perf_counter() - loop_start
+
+    result = TrainResult(
+        state=state,
+        updates=updates,
+        env_steps=env_steps,
+        eval={},
+        rows=rows,
+        solved_env_steps=solved_env_steps,
+        solved_seconds=solved_seconds,
+        compile_seconds=compile_seconds,
+        train_seconds=train_seconds,
+    )
+    if updates < algorithm.num_updates and solved_env_steps is None:
+        return result  # stopped early by max_chunks: resumable, not finished
+
+    final_keys = _eval_keys(keys, evaluations)
+    state, _, returns, lengths = compiled(state, 0, True, final_keys)
+    result.state = state
+    returns, lengths = np.asarray(returns), np.asarray(lengths)
+    if run is not None:
+        result.eval = run.write_eval(returns, lengths, env_steps=env_steps, updates=updates)
+        run.plot()
+        run.close()
+    else:
+        result.eval = {"mean_return": float(returns.mean()), "per_seed_mean": returns.mean(axis=1).tolist()}
+    return result
+
+
+def restore_policy(
+    run_dir, algorithm: CompiledAlgorithm, runner: RunnerConfig, seed_index: int | None = None
+) -> Policy:
+    """The greedy policy of one seed of a run's newest checkpoint (the best seed by eval.json if None)."""
+    import json
+    from pathlib import Path
+
+    keys = seed_keys(runner.seed, runner.num_seeds)
+    target = jax.eval_shape(jax.vmap(algorithm.init), keys)
+    state, _ = load_tree(latest_checkpoint(run_dir), target)
+    if seed_index is None:
+        seed_index = 0
+        eval_path = Path(run_dir) / "eval.json"
+        if eval_path.is_file():
+            per_seed = json.loads(eval_path.read_text()).get("per_seed", [])
+            if per_seed:
+                seed_index = int(np.argmax([s["mean_return"] for s in per_seed]))
+    one = jax.tree.map(lambda x: x[seed_index], state)
+    return algorithm.greedy_policy(one)
