@@ -115,7 +115,7 @@ def test_unknown_env_id_names_close_matches_and_agentax_ids():
     with pytest.raises(UsageError, match="did you mean CartPole-v1") as error:
         make("CartPol-v1")
     assert "CartPole-v0" in str(error.value) and "\n" not in str(error.value)
-    with pytest.raises(UsageError, match="agentax's JAX envs: CartPole-v0, CartPole-v1"):
+    with pytest.raises(UsageError, match=r"choose from agentax's JAX envs \(CartPole-v0, CartPole-v1"):
         make("NoSuchEnv-v9")
 
 

@@ -54,7 +54,7 @@ def make(env_id: str, num_envs: int = 1, **gymnasium_kwargs: Any) -> Environment
     close = difflib.get_close_matches(env_id, [*JAX_ENVS, *GYMNASIUM_SELECTION], n=3, cutoff=0.6)
     hint = f"did you mean {' or '.join(close)}? " if close else ""
     raise UsageError(
-        f"unknown env {env_id!r}; {hint}agentax's JAX envs: {', '.join(JAX_ENVS)}; "
+        f"unknown env {env_id!r}; {hint}choose from agentax's JAX envs ({', '.join(JAX_ENVS)}) "
         "or any Gymnasium id (agentax envs lists a selection)"
     )
 

@@ -1,0 +1,121 @@
+"""The commands envs, evaluate, play and demo: output, files written, and one-line errors with exit code 2."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import imageio.v3 as iio
+import pytest
+
+from agentax import evaluate, make
+from agentax.cli import main
+from agentax.policies import basic_policy
+
+AGENTAX = str(Path(sys.executable).with_name("agentax"))
+
+
+def test_envs_lists_jax_and_gymnasium_envs_with_their_spaces(capsys):
+    assert main(["envs", "--json"]) == 0
+    rows = {row["id"]: row for row in json.loads(capsys.readouterr().out)}
+    assert rows["CartPole-v1"]["kind"] == "JAX" and rows["CartPole-v1"]["action_space"] == "Discrete(2)"
+    assert rows["CartPole-v0"]["observation_space"].startswith("Box(shape=(4,)")
+    assert rows["FrozenLake-v1"] == {
+        "id": "FrozenLake-v1",
+        "kind": "Gymnasium",
+        "observation_space": "Discrete(16)",
+        "action_space": "Discrete(4)",
+    }
+    assert main(["envs"]) == 0
+    table = capsys.readouterr().out
+    assert "MountainCar-v0" in table and "Discrete(3)" in table
+
+
+@pytest.mark.timeout(120)
+def test_evaluate_json_matches_the_lecture(capsys):
+    # The lecture: the basic policy over 500 episodes of CartPole (<= 200 steps) averages about 42,
+    # std 8-9, min about 24, max 63-68.
+    assert main(["evaluate", "--env", "CartPole-v0", "--policy", "basic", "--episodes", "500", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert {"env", "policy", "episodes", "mean_return", "std_return", "min_return", "max_return"} <= set(
+        result
+    )
+    assert (result["env"], result["policy"], result["episodes"]) == ("CartPole-v0", "basic", 500)
+    assert 38 < result["mean_return"] < 47 and 6 < result["std_return"] < 11
+    assert 20 <= result["min_return"] <= 30 and 55 <= result["max_return"] <= 80
+    stats = evaluate(make("CartPole-v0"), basic_policy, num_episodes=500, seed=0)  # the default seed
+    assert result["mean_return"] == stats.mean_return and result["max_return"] == stats.max_return
+
+
+def test_evaluate_table_and_gymnasium_env(capsys):
+    assert (
+        main(["evaluate", "--env", "FrozenLake-v1", "--policy", "random", "--episodes", "30", "--seed", "1"])
+        == 0
+    )
+    out = capsys.readouterr().out
+    assert "random policy on FrozenLake-v1" in out and "mean return" in out and "30 episodes, seed 1" in out
+
+
+@pytest.mark.timeout(120)
+def test_play_writes_the_animation_and_reports_the_return(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert (
+        main(["play", "--env", "CartPole-v1", "--policy", "basic", "--video", "out.gif", "--seed", "3"]) == 0
+    )
+    out = capsys.readouterr().out
+    assert out.startswith("wrote out.gif") and "return" in out
+    steps = int(out.split(" over ")[1].split()[0])
+    assert iio.imread(tmp_path / "out.gif", index=None).shape[0] == steps + 1
+    assert main(["play", "--env", "CartPole-v0", "--policy", "random"]) == 0
+    assert (tmp_path / "runs" / "play" / "CartPole-v0-random.gif").stat().st_size > 1000
+
+
+@pytest.mark.timeout(120)
+def test_demo_evaluates_and_writes_a_gif(tmp_path, capsys):
+    video = tmp_path / "demo.gif"
+    assert main(["demo", "--episodes", "50", "--video", str(video)]) == 0
+    out = capsys.readouterr().out
+    assert "basic policy on CartPole-v1" in out and f"wrote {video}" in out and video.stat().st_size > 1000
+
+
+BAD_INPUTS = [
+    (["evaluate", "--env", "CartPol-v1"], "unknown env 'CartPol-v1'; did you mean CartPole-v1"),
+    (
+        ["evaluate", "--env", "CartPole-v1", "--policy", "smart"],
+        "unknown policy 'smart'; choose from basic, random",
+    ),
+    (["evaluate", "--env", "CartPole-v1", "--episodes", "0"], "--episodes must be at least 1"),
+    (["evaluate", "--env", "CartPole-v1", "--episodes", "-3"], "--episodes must be at least 1"),
+    (["evaluate", "--env", "MountainCar-v0", "--policy", "basic"], "MountainCar-v0 has observations Box"),
+    (
+        ["evaluate", "--env", "FrozenLake-v1", "--policy", "basic"],
+        "FrozenLake-v1 has observations Discrete(16)",
+    ),
+    (["evaluate", "--policy", "basic"], "no env id given"),
+    (["evaluate", "--env", "CartPole-v1", "--policy", "runs/none"], "no trained run at 'runs/none'"),
+    (["play", "--env", "Nope-v0"], "unknown env 'Nope-v0'"),
+    (["play", "--env", "CartPole-v1", "--video", "out.avi"], "must end in .gif or .mp4"),
+    (
+        ["play", "--env", "Pendulum-v1", "--policy", "basic"],
+        "policy 'basic' is the lecture's CartPole policy",
+    ),
+]
+
+
+@pytest.mark.parametrize(("argv", "message"), BAD_INPUTS)
+def test_bad_input_is_one_line_and_exit_code_2(argv, message, capsys):
+    assert main(argv) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and message in captured.err
+    assert captured.err.count("\n") == 1 and captured.err.startswith(f"agentax {argv[0]}: error: ")
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize(
+    "argv", [["evaluate", "--env", "NoSuchEnv-v3"], ["play", "--env", "CartPole-v1", "--video", "x.txt"]]
+)
+def test_bad_input_from_the_shell(argv, tmp_path):
+    result = subprocess.run([AGENTAX, *argv], capture_output=True, text=True, cwd=tmp_path, timeout=100)
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
+    assert "choose" in result.stderr or "must end in" in result.stderr
