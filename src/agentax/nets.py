@@ -107,3 +107,44 @@ def entropy(logits: jax.Array) -> jax.Array:
     """Entropy ``[...]`` of the categorical given by logits ``[..., num_actions]``."""
     log_probs = jax.nn.log_softmax(logits, axis=-1)
     return -(jnp.exp(log_probs) * log_probs).sum(axis=-1)
+
+
+class ActorCritic(nn.Module):
+    """Separate actor and critic MLPs (PPO): ``obs [..., obs_dim] -> (actor_out, value [...])``.
+
+    Discrete actions: ``actor_out`` is the logits ``[..., action_dim]``. Continuous actions
+    (``continuous=True``): ``actor_out`` is ``(mean, log_std)``, each ``[..., action_dim]``, a
+    diagonal Gaussian whose ``log_std`` is a learned parameter independent of the state.
+    Orthogonal initialisation (gain √2 hidden, 0.01 policy head, 1 value head) as in the PPO paper's code.
+    """
+
+    action_dim: int
+    continuous: bool = False
+    hidden: Sequence[int] = (64, 64)
+    activation: str = "tanh"
+
+    @nn.compact
+    def __call__(self, obs: jax.Array):
+        act = ACTIVATIONS[self.activation]
+        hidden_init = nn.initializers.orthogonal(jnp.sqrt(2.0))
+        actor, critic = obs, obs
+        for width in self.hidden:
+            actor = act(nn.Dense(width, kernel_init=hidden_init)(actor))
+            critic = act(nn.Dense(width, kernel_init=hidden_init)(critic))
+        actor_out = nn.Dense(self.action_dim, kernel_init=nn.initializers.orthogonal(0.01))(actor)
+        value = nn.Dense(1, kernel_init=nn.initializers.orthogonal(1.0))(critic)[..., 0]
+        if self.continuous:
+            log_std = self.param("log_std", nn.initializers.zeros, (self.action_dim,))
+            return (actor_out, jnp.broadcast_to(log_std, actor_out.shape)), value
+        return actor_out, value
+
+
+def gaussian_log_prob(mean: jax.Array, log_std: jax.Array, action: jax.Array) -> jax.Array:
+    """``log N(action; mean, exp(log_std)^2)`` summed over the action dimensions: ``[..., d] -> [...]``."""
+    z = (action - mean) * jnp.exp(-log_std)
+    return (-0.5 * z**2 - log_std - 0.5 * jnp.log(2 * jnp.pi)).sum(axis=-1)
+
+
+def gaussian_entropy(log_std: jax.Array) -> jax.Array:
+    """Entropy of a diagonal Gaussian, summed over the action dimensions: ``[..., d] -> [...]``."""
+    return (log_std + 0.5 * jnp.log(2 * jnp.pi * jnp.e)).sum(axis=-1)
