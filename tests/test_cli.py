@@ -78,6 +78,25 @@ def test_demo_evaluates_and_writes_a_gif(tmp_path, capsys):
     assert "basic policy on CartPole-v1" in out and f"wrote {video}" in out and video.stat().st_size > 1000
 
 
+@pytest.mark.timeout(200)
+def test_a_trained_run_folder_is_a_policy(tmp_path, capsys):
+    # A tiny vacuum grid search writes a run folder; evaluate and play take the env from it.
+    run = tmp_path / "run"
+    search = "search vacuum --method grid --grid-size 2 --episodes 1 --eval-episodes 2".split()
+    assert main([*search, "--out", str(run)]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", "--policy", str(run), "--episodes", "3", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert (result["env"], result["policy"], result["episodes"]) == ("Vacuum-v0", "run", 3)
+    assert (
+        result["mean_length"] == 900 and result["min_return"] > 0
+    )  # 30 minutes of 2 s steps; dust picked up
+    assert main(["play", "--policy", str(run), "--video", str(tmp_path / "vacuum.gif")]) == 0
+    assert "run policy on Vacuum-v0" in capsys.readouterr().out
+    assert main(["evaluate", "--policy", str(run), "--env", "CartPole-v1"]) == 2
+    assert "takes Discrete(2)" in capsys.readouterr().err  # a vacuum policy does not fit CartPole
+
+
 BAD_INPUTS = [
     (["evaluate", "--env", "CartPol-v1"], "unknown env 'CartPol-v1'; did you mean CartPole-v1"),
     (
@@ -93,6 +112,7 @@ BAD_INPUTS = [
     ),
     (["evaluate", "--policy", "basic"], "no env id given"),
     (["evaluate", "--env", "CartPole-v1", "--policy", "runs/none"], "no trained run at 'runs/none'"),
+    (["evaluate", "--env", "CartPole-v1", "--policy", "tests"], "tests holds no run (no config.json)"),
     (["play", "--env", "Nope-v0"], "unknown env 'Nope-v0'"),
     (["play", "--env", "CartPole-v1", "--video", "out.avi"], "must end in .gif or .mp4"),
     (

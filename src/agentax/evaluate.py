@@ -210,12 +210,8 @@ def resolve_policy(
     sub-envs.
     """
     if Path(policy).is_dir():
-        try:
-            from agentax.runs import load_policy
-        except ImportError as error:
-            raise UsageError(
-                f"cannot load {policy!r}: this agentax has no trained-run support yet"
-            ) from error
+        from agentax.runs import load_policy  # here: runs sits above evaluate
+
         run_env_id, policy_fn = load_policy(policy)
         env_id = env_id or run_env_id
         env = make(env_id, num_envs)

@@ -80,7 +80,7 @@ def record_episode(
     seed: int = 0,
     env_params: EnvParams | None = None,
     max_steps: int = 1000,
-    max_frames: int = 1000,
+    max_frames: int = 600,
 ) -> Episode:
     """Play one episode of ``policy`` and draw it.
 
