@@ -114,6 +114,8 @@ def format_cell(value) -> str:
             return f"{value / 1e6:.3g}M"
         if magnitude >= 1e4:
             return f"{value / 1e3:.3g}k"
+        if magnitude >= 100:
+            return f"{value:,.0f}"
         return f"{value:.3g}"
     return str(value)
 
