@@ -20,8 +20,10 @@ def test_registered_env_passes_gymnasiums_checker(env_id):
     with warnings.catch_warnings(record=True) as caught:  # check_env reports soft findings as warnings
         warnings.simplefilter("always")
         check_env(env.unwrapped)
-    advice = "we recommend using a symmetric and normalized space"  # advice for learners, not an API fault
-    assert [str(w.message) for w in caught if advice not in str(w.message)] == []
+    # Soft findings that Gymnasium's own envs share: CartPole's unbounded velocities (-inf, inf), and
+    # the advice to normalise Box action spaces (the vacuum's rotation angle is in [-pi, pi]).
+    accepted = ("infinity", "we recommend using a symmetric and normalized space")
+    assert [str(w.message) for w in caught if not any(text in str(w.message) for text in accepted)] == []
     obs, info = env.reset(seed=7)
     assert env.observation_space.contains(obs) and info == {}
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
@@ -48,49 +50,50 @@ def test_seeded_reset_is_reproducible():
     assert np.all(np.abs(first) <= 0.05)  # Gymnasium's initial state: uniform(-0.05, 0.05)
 
 
-def _gymnasium_cartpole_from(env, version):
-    """Gymnasium's own CartPole, put into the state of our wrapped env."""
-    theirs = gymnasium.make(f"CartPole-{version}")
-    theirs.reset(seed=0)
-    state = env.unwrapped.state
+def _sync(theirs, ours):
+    """Put Gymnasium's CartPole into the state of our wrapped one (float64 copy of our float32 state)."""
+    state = ours.unwrapped.state
     theirs.unwrapped.state = np.array([state.x, state.x_dot, state.theta, state.theta_dot], np.float64)
-    return theirs
+
+
+# Gymnasium integrates in float64, we in float32: the rounding difference grows through the unstable
+# dynamics (about e^(4.4 t) for a falling pole), so Gymnasium is re-synchronised to our state before
+# every step and each step's result compared; its TimeLimit counts steps on its own.
 
 
 @pytest.mark.parametrize("version", ["v0", "v1"])
 def test_episodes_follow_gymnasiums_cartpole(version):
-    # Random actions from the same start: the same observations (float32 vs Gymnasium's float64),
-    # rewards and terminations, step for step, over 20 episodes.
-    ours, rng = gymnasium.make(f"agentax/CartPole-{version}"), np.random.default_rng(0)
-    lengths = []
+    # Random actions: the same observations (to float32 rounding), rewards and terminations, step
+    # for step, over 20 episodes.
+    ours, theirs = gymnasium.make(f"agentax/CartPole-{version}"), gymnasium.make(f"CartPole-{version}")
+    rng, lengths = np.random.default_rng(0), []
     for episode in range(20):
         ours.reset(seed=episode)
-        theirs = _gymnasium_cartpole_from(ours, version)
+        theirs.reset(seed=episode)
         for t in range(1, 1000):
             action = int(rng.integers(2))
+            _sync(theirs, ours)
             obs, reward, terminated, truncated, _ = ours.step(action)
             obs_ref, reward_ref, terminated_ref, truncated_ref, _ = theirs.step(action)
-            np.testing.assert_allclose(obs, obs_ref, rtol=1e-4, atol=1e-5)
+            np.testing.assert_allclose(obs, obs_ref, rtol=1e-5, atol=1e-6)
             assert (reward, terminated, truncated) == (reward_ref, terminated_ref, truncated_ref)
             if terminated or truncated:
                 lengths.append(t)
                 break
-    assert min(lengths) >= 8 and max(lengths) < 100  # random play topples the pole quickly
+    assert len(lengths) == 20 and min(lengths) >= 8 and max(lengths) < 200  # random play topples the pole
 
 
 @pytest.mark.parametrize(("version", "limit"), [("v0", 200), ("v1", 500)])
 def test_time_limit_truncates_like_gymnasium(version, limit):
     # A balancing controller (push toward where the pole is falling) never drops the pole, so the
     # episode ends by the time limit alone: truncated, not terminated, at step 200 (v0) / 500 (v1),
-    # exactly where Gymnasium's TimeLimit cuts. Gymnasium is re-synchronised to our state each step
-    # (float32 rounding would otherwise grow through the unstable dynamics over hundreds of steps).
-    ours = gymnasium.make(f"agentax/CartPole-{version}")
+    # exactly where Gymnasium's TimeLimit cuts.
+    ours, theirs = gymnasium.make(f"agentax/CartPole-{version}"), gymnasium.make(f"CartPole-{version}")
     obs, _ = ours.reset(seed=3)
-    theirs = _gymnasium_cartpole_from(ours, version)
+    theirs.reset(seed=3)
     for t in range(1, limit + 1):
         action = int(obs[2] + 0.5 * obs[3] > 0)
-        state = ours.unwrapped.state
-        theirs.unwrapped.state = np.array([state.x, state.x_dot, state.theta, state.theta_dot], np.float64)
+        _sync(theirs, ours)
         obs, _, terminated, truncated, _ = ours.step(action)
         obs_ref, _, terminated_ref, truncated_ref, _ = theirs.step(action)
         np.testing.assert_allclose(obs, obs_ref, rtol=1e-5, atol=1e-6)
