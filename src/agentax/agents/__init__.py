@@ -5,3 +5,26 @@
 ``make_train(env, cfg)`` for the compiled runner and ``load_policy(run_dir, config)`` for
 ``agentax.runs.load_policy``.
 """
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A named, tuned configuration: an algorithm's config and the compiled runner's schedule."""
+
+    config: Any
+    """the algorithm's frozen config dataclass"""
+    description: str
+    """one line for ``agentax train ALGO --help`` and the README"""
+    updates_per_chunk: int = 10
+    """updates per compiled call (one log row, one checkpoint)"""
+    eval_every_chunks: int = 1
+    """evaluate the greedy policy every this many chunks"""
+    eval_episodes: int = 20
+    """evaluation episodes per seed"""
+    stop_at_solved: bool = False
+    """stop once the evaluation reaches the env's solved threshold (the ``--stop-at-return`` default)"""

@@ -1,0 +1,408 @@
+"""Proximal policy optimisation (Schulman et al., 2017): the clipped objective with GAE(λ).
+
+Each iteration collects ``num_steps`` steps from each of ``num_envs`` envs with the current policy,
+computes advantages with GAE (bootstrapping through time-limit truncations from the value of the
+observation really reached), then takes ``update_epochs`` passes of minibatch SGD on::
+
+    ratio  = π(a|s) / π_old(a|s)
+    L_clip = −mean(min(ratio · A, clip(ratio, 1 − ε, 1 + ε) · A))
+    loss   = L_clip + vf_coef · mean((V(s) − G^λ)²) − ent_coef · mean(entropy)
+
+with the learning rate (and optionally ε) annealed linearly to 0 and gradients clipped by global
+norm. Discrete actions use a categorical policy, continuous ones a diagonal Gaussian (actions
+clipped to the space's bounds when stepping the env, the unclipped sample kept for the ratio).
+
+Pure functions: ``init``, ``act`` and ``learn`` serve both runners — ``make_train`` wraps them for
+the compiled runner (JAX envs, vmapped over seeds), ``agentax.train.host`` for Gymnasium envs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from agentax.agents import Preset
+from agentax.envs.core import Box, Discrete, Environment
+from agentax.errors import UsageError
+from agentax.nets import ACTIVATIONS, ActorCritic, entropy, gaussian_entropy, gaussian_log_prob, log_prob
+from agentax.policies import Policy
+from agentax.returns import EpisodeStats, gae, normalize
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """Hyperparameters of PPO (defaults: CleanRL's classic-control settings)."""
+
+    total_steps: int = 500_000
+    """env steps of the whole training (across envs)"""
+    num_envs: int = 4
+    """envs stepped side by side"""
+    num_steps: int = 128
+    """steps per env per iteration (rollout length)"""
+    learning_rate: float = 2.5e-4
+    """Adam's learning rate at the start"""
+    anneal_lr: bool = True
+    """anneal the learning rate linearly to 0 over the training"""
+    discount_factor: float = 0.99
+    """γ, the discount factor"""
+    gae_lambda: float = 0.95
+    """λ of GAE (1: Monte-Carlo returns, 0: one-step TD)"""
+    num_minibatches: int = 4
+    """minibatches per epoch (the rollout of num_envs × num_steps is split into these)"""
+    update_epochs: int = 4
+    """passes over each rollout"""
+    clip_eps: float = 0.2
+    """ε of the clipped objective"""
+    anneal_clip: bool = False
+    """anneal ε linearly to 0 with the learning rate (RL-Zoo's CartPole setting)"""
+    ent_coef: float = 0.01
+    """weight of the entropy bonus"""
+    vf_coef: float = 0.5
+    """weight of the value loss"""
+    max_grad_norm: float = 0.5
+    """clip gradients to this global norm"""
+    normalize_advantages: bool = True
+    """normalise advantages per minibatch"""
+    hidden: tuple[int, ...] = (64, 64)
+    """widths of the actor's and the critic's hidden layers"""
+    activation: str = "tanh"
+    """activation of the hidden layers: elu, relu, tanh, gelu or swish"""
+
+    def validate(self) -> PPOConfig:
+        """Raise a UsageError naming the first bad value (run by ``make_train`` and the CLI)."""
+        positive = (
+            "total_steps",
+            "num_envs",
+            "num_steps",
+            "learning_rate",
+            "num_minibatches",
+            "update_epochs",
+        )
+        for name in positive:
+            if getattr(self, name) <= 0:
+                raise UsageError(f"{name} must be positive, got {getattr(self, name)}")
+        for name in ("discount_factor", "gae_lambda"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise UsageError(f"{name} must lie in [0, 1], got {getattr(self, name)}")
+        for name in ("clip_eps", "ent_coef", "vf_coef", "max_grad_norm"):
+            if getattr(self, name) < 0:
+                raise UsageError(f"{name} must not be negative, got {getattr(self, name)}")
+        if self.activation not in ACTIVATIONS:
+            raise UsageError(f"unknown activation {self.activation!r}; choose from {', '.join(ACTIVATIONS)}")
+        if (self.num_envs * self.num_steps) % self.num_minibatches:
+            raise UsageError(
+                f"num_envs × num_steps = {self.num_envs * self.num_steps} does not split into "
+                f"{self.num_minibatches} minibatches"
+            )
+        return self
+
+    @property
+    def steps_per_update(self) -> int:
+        return self.num_envs * self.num_steps
+
+    @property
+    def num_updates(self) -> int:
+        return max(1, self.total_steps // self.steps_per_update)
+
+
+PRESETS: dict[str, Preset] = {
+    "default": Preset(PPOConfig(), "CleanRL's classic-control settings, 500k steps"),
+    "cartpole-fast": Preset(
+        PPOConfig(
+            total_steps=100_000,
+            num_envs=8,
+            num_steps=32,
+            learning_rate=1e-3,
+            discount_factor=0.98,
+            gae_lambda=0.8,
+            num_minibatches=1,
+            update_epochs=20,
+            clip_eps=0.2,
+            anneal_clip=True,
+            ent_coef=0.0,
+        ),
+        "RL-Zoo's CartPole-v1 settings (8 envs × 32 steps, 20 epochs); stops when solved",
+        updates_per_chunk=20,
+        stop_at_solved=True,
+    ),
+}
+
+
+def preset(name: str) -> Preset:
+    if name not in PRESETS:
+        raise UsageError(f"unknown PPO preset {name!r}; choose from {', '.join(PRESETS)}")
+    return PRESETS[name]
+
+
+@struct.dataclass
+class PPOAgent:
+    """The learner's state: network parameters, optimizer state and the number of iterations done."""
+
+    params: Any
+    opt_state: Any
+    updates: jax.Array  # int32 []
+
+
+@struct.dataclass
+class Rollout:
+    """``num_steps`` steps of ``num_envs`` envs, time-major ``[T, E, ...]``."""
+
+    obs: jax.Array
+    action: jax.Array
+    log_prob: jax.Array
+    value: jax.Array
+    reward: jax.Array
+    terminated: jax.Array
+    done: jax.Array
+    final_obs: jax.Array
+
+
+@dataclass(frozen=True)
+class Spec:
+    """What PPO needs to know of an env: observation shape and the action space."""
+
+    obs_shape: tuple[int, ...]
+    action_space: Discrete | Box
+
+    @property
+    def continuous(self) -> bool:
+        return isinstance(self.action_space, Box)
+
+    @property
+    def action_dim(self) -> int:
+        if isinstance(self.action_space, Discrete):
+            return self.action_space.n
+        if len(self.action_space.shape) != 1:
+            raise UsageError(f"PPO needs flat Box actions, got shape {self.action_space.shape}")
+        return self.action_space.shape[0]
+
+
+def network(cfg: PPOConfig, spec: Spec) -> ActorCritic:
+    return ActorCritic(spec.action_dim, spec.continuous, tuple(cfg.hidden), cfg.activation)
+
+
+def optimizer(cfg: PPOConfig) -> optax.GradientTransformation:
+    sgd_steps = cfg.num_updates * cfg.update_epochs * cfg.num_minibatches
+    learning_rate = (
+        optax.linear_schedule(cfg.learning_rate, 0.0, sgd_steps) if cfg.anneal_lr else cfg.learning_rate
+    )
+    return optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(learning_rate, eps=1e-5))
+
+
+def init(key: jax.Array, spec: Spec, cfg: PPOConfig) -> PPOAgent:
+    params = network(cfg, spec).init(key, jnp.zeros(spec.obs_shape, jnp.float32))
+    return PPOAgent(params, optimizer(cfg).init(params), jnp.int32(0))
+
+
+def _log_prob_entropy(actor_out: Any, action: jax.Array, continuous: bool) -> tuple[jax.Array, jax.Array]:
+    if continuous:
+        mean, log_std = actor_out
+        return gaussian_log_prob(mean, log_std, action), gaussian_entropy(log_std)
+    return log_prob(actor_out, action), entropy(actor_out)
+
+
+def act(
+    params: Any, obs: jax.Array, key: jax.Array, spec: Spec, cfg: PPOConfig
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Sample actions for observations ``[E, *obs_shape]``: ``(action, log_prob [E], value [E])``."""
+    actor_out, value = network(cfg, spec).apply(params, obs)
+    if spec.continuous:
+        mean, log_std = actor_out
+        action = mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape)
+    else:
+        action = jax.random.categorical(key, actor_out)
+    return action, _log_prob_entropy(actor_out, action, spec.continuous)[0], value
+
+
+def env_action(action: jax.Array, spec: Spec) -> jax.Array:
+    """What the env receives: continuous actions clipped to the space's bounds."""
+    if spec.continuous:
+        return jnp.clip(action, spec.action_space.low, spec.action_space.high)
+    return action
+
+
+def greedy_policy(params: Any, spec: Spec, cfg: PPOConfig) -> Policy:
+    """The deterministic policy for evaluation: the most probable action (the Gaussian's mean)."""
+    net = network(cfg, spec)
+
+    def policy(obs: jax.Array, key: jax.Array) -> jax.Array:
+        actor_out, _ = net.apply(params, obs)
+        if spec.continuous:
+            return env_action(actor_out[0], spec)
+        return jnp.argmax(actor_out, axis=-1).astype(jnp.int32)
+
+    return policy
+
+
+def clipped_surrogate_loss(
+    log_prob_t: jax.Array, old_log_prob_t: jax.Array, advantage_t: jax.Array, clip_eps: float | jax.Array
+) -> jax.Array:
+    """PPO's clipped policy loss ``−mean(min(ρ·A, clip(ρ, 1−ε, 1+ε)·A))``, ``ρ = exp(log π − log π_old)``."""
+    ratio = jnp.exp(log_prob_t - old_log_prob_t)
+    clipped = jnp.clip(ratio, 1.0 - clip_eps, 1.0 + clip_eps)
+    return -jnp.minimum(ratio * advantage_t, clipped * advantage_t).mean()
+
+
+def loss_fn(params: Any, batch: dict[str, jax.Array], clip_eps: jax.Array, spec: Spec, cfg: PPOConfig):
+    """The PPO loss of one minibatch (flat ``[B, ...]`` arrays); returns ``(loss, metrics)``."""
+    actor_out, value = network(cfg, spec).apply(params, batch["obs"])
+    new_log_prob, entropies = _log_prob_entropy(actor_out, batch["action"], spec.continuous)
+    advantage = normalize(batch["advantage"]) if cfg.normalize_advantages else batch["advantage"]
+    policy_loss = clipped_surrogate_loss(new_log_prob, batch["log_prob"], advantage, clip_eps)
+    value_loss = 0.5 * ((value - batch["target"]) ** 2).mean()
+    mean_entropy = entropies.mean()
+    loss = policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * mean_entropy
+    approx_kl = ((jnp.exp(new_log_prob - batch["log_prob"]) - 1) - (new_log_prob - batch["log_prob"])).mean()
+    return loss, {
+        "policy_loss": policy_loss,
+        "value_loss": value_loss,
+        "entropy": mean_entropy,
+        "approx_kl": approx_kl,
+    }
+
+
+def learn(
+    agent: PPOAgent, rollout: Rollout, key: jax.Array, spec: Spec, cfg: PPOConfig
+) -> tuple[PPOAgent, dict[str, jax.Array]]:
+    """One PPO iteration on a rollout ``[T, E, ...]``: GAE, then epochs of minibatch SGD."""
+    net, tx = network(cfg, spec), optimizer(cfg)
+    _, next_values = net.apply(agent.params, rollout.final_obs)  # (T, E): V of the observation reached
+    advantages, targets = gae(
+        rollout.reward,
+        rollout.value,
+        next_values,
+        rollout.terminated,
+        rollout.done,
+        cfg.discount_factor,
+        cfg.gae_lambda,
+    )
+    batch_size = cfg.num_envs * cfg.num_steps
+    flat = {
+        "obs": rollout.obs,
+        "action": rollout.action,
+        "log_prob": rollout.log_prob,
+        "advantage": advantages,
+        "target": targets,
+    }
+    flat = jax.tree.map(lambda x: x.reshape(batch_size, *x.shape[2:]), flat)
+    progress = agent.updates.astype(jnp.float32) / cfg.num_updates
+    clip_eps = cfg.clip_eps * (1.0 - progress) if cfg.anneal_clip else jnp.float32(cfg.clip_eps)
+    grad_fn = jax.grad(loss_fn, has_aux=True)
+
+    def sgd_step(carry, minibatch):
+        params, opt_state = carry
+        grads, metrics = grad_fn(params, minibatch, clip_eps, spec, cfg)
+        updates, opt_state = tx.update(grads, opt_state, params)
+        return (optax.apply_updates(params, updates), opt_state), metrics
+
+    def epoch(carry, epoch_key):
+        if cfg.num_minibatches == 1:
+            minibatches = jax.tree.map(lambda x: x[None], flat)
+        else:
+            order = jax.random.permutation(epoch_key, batch_size)
+            minibatches = jax.tree.map(
+                lambda x: x[order].reshape(cfg.num_minibatches, -1, *x.shape[1:]), flat
+            )
+        return jax.lax.scan(sgd_step, carry, minibatches)
+
+    (params, opt_state), metrics = jax.lax.scan(
+        epoch, (agent.params, agent.opt_state), jax.random.split(key, cfg.update_epochs)
+    )
+    agent = PPOAgent(params, opt_state, agent.updates + 1)
+    return agent, jax.tree.map(jnp.mean, metrics)
+
+
+# The compiled runner (JAX envs).
+
+
+@struct.dataclass
+class TrainState:
+    agent: PPOAgent
+    env_state: Any
+    obs: jax.Array  # (num_envs, *obs_shape)
+    key: jax.Array
+    episodes: EpisodeStats
+
+
+def spec_of(env: Environment, env_params: Any = None) -> Spec:
+    params = env.default_params() if env_params is None else env_params
+    return Spec(tuple(env.observation_space(params).shape), env.action_space(params))
+
+
+def make_train(env: Environment, cfg: PPOConfig, env_params: Any = None):
+    """PPO for :func:`agentax.train.compiled.train`: a ``CompiledAlgorithm``."""
+    from agentax.train.compiled import CompiledAlgorithm
+
+    cfg.validate()
+    params = env.default_params() if env_params is None else env_params
+    spec = spec_of(env, params)
+
+    def init_state(key: jax.Array) -> TrainState:
+        key, agent_key, reset_key = jax.random.split(key, 3)
+        obs, env_state = jax.vmap(env.reset, in_axes=(0, None))(
+            jax.random.split(reset_key, cfg.num_envs), params
+        )
+        return TrainState(init(agent_key, spec, cfg), env_state, obs, key, EpisodeStats.create(cfg.num_envs))
+
+    def env_step(state: TrainState, _):
+        key, act_key, step_key = jax.random.split(state.key, 3)
+        action, action_log_prob, value = act(state.agent.params, state.obs, act_key, spec, cfg)
+        ts, env_state = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
+            jax.random.split(step_key, cfg.num_envs), state.env_state, env_action(action, spec), params
+        )
+        transition = Rollout(
+            state.obs, action, action_log_prob, value, ts.reward, ts.terminated, ts.done, ts.final_obs
+        )
+        episodes = state.episodes.record(ts.reward, ts.done)
+        return state.replace(env_state=env_state, obs=ts.obs, key=key, episodes=episodes), transition
+
+    def update(state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
+        state, rollout = jax.lax.scan(env_step, state, None, cfg.num_steps)
+        key, learn_key = jax.random.split(state.key)
+        agent, metrics = learn(state.agent, rollout, learn_key, spec, cfg)
+        return state.replace(agent=agent, key=key), metrics
+
+    return CompiledAlgorithm(
+        init=init_state,
+        update=update,
+        num_updates=cfg.num_updates,
+        steps_per_update=cfg.steps_per_update,
+        greedy_policy=lambda state: greedy_policy(state.agent.params, spec, cfg),
+    )
+
+
+def config_to_dict(cfg: PPOConfig) -> dict[str, Any]:
+    return dataclasses.asdict(cfg)
+
+
+def config_from_dict(values: dict[str, Any]) -> PPOConfig:
+    fields = {f.name for f in dataclasses.fields(PPOConfig)}
+    unknown = set(values) - fields
+    if unknown:
+        raise UsageError(f"unknown PPO settings {sorted(unknown)}; known: {', '.join(sorted(fields))}")
+    values = dict(values)
+    if "hidden" in values:
+        values["hidden"] = tuple(values["hidden"])
+    return PPOConfig(**values)
+
+
+def load_policy(run_dir: Path, config: dict[str, Any]) -> Policy:
+    """The greedy policy of a PPO run (its best seed), for ``agentax.runs.load_policy``."""
+    from agentax.envs import make_jax
+    from agentax.train.compiled import RunnerConfig, restore_policy
+
+    cfg = config_from_dict(config["config"])
+    if config.get("runner_kind", "compiled") == "host":
+        from agentax.train.host import restore_host_policy
+
+        return restore_host_policy(run_dir, config, cfg)
+    env = make_jax(config["env"])
+    runner = RunnerConfig(**config["runner"])
+    return restore_policy(run_dir, make_train(env, cfg), runner)

@@ -1,0 +1,244 @@
+"""``agentax train ALGO --env ID [--preset NAME] [--seed S] [--seeds N] [--total-steps N] [--out DIR]``.
+
+Also ``agentax train --resume DIR`` (continue an interrupted run from its newest checkpoint).
+The algorithm's config dataclass becomes flags (``--learning-rate``, ``--num-envs``, ...), its
+defaults taken from the preset. JAX envs train on the compiled runner (all seeds in one vmapped
+program); other Gymnasium ids train PPO on the host loop.
+
+An algorithm module listed in ``ALGOS`` provides ``PRESETS: dict[str, agentax.agents.Preset]``
+(a ``"default"`` among them), ``make_train(env, cfg) -> CompiledAlgorithm``,
+``config_to_dict``/``config_from_dict``, ``load_policy(run_dir, config)``, and a config with a
+``total_steps`` field and a ``validate()`` method that raises UsageError on bad values (not
+``__post_init__``: tyro would turn that error into a multi-line box).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import math
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+from typing import Annotated, Any
+
+import tyro
+
+from agentax.errors import UsageError
+
+ALGOS: dict[str, str] = {
+    "reinforce": "agentax.agents.reinforce",
+    "ppo": "agentax.agents.ppo",
+}
+HOST_ALGOS = ("ppo",)  # algorithms with a host loop for Gymnasium-only envs
+
+
+@dataclass(frozen=True)
+class RunArgs:
+    """Where and how to train (the algorithm's own settings follow)."""
+
+    env: str = "CartPole-v1"
+    """environment id (agentax's JAX envs train compiled; other Gymnasium ids on the host)"""
+    preset: str = "default"
+    """named, tuned settings to start from"""
+    seed: int = 0
+    """seed of the first agent (agent k uses seed + k)"""
+    seeds: int = 1
+    """independent agents trained together (vmapped into one program)"""
+    stop_at_return: str = "auto"
+    """stop once the evaluation mean reaches this number; 'none' trains for all of total_steps; 'auto' uses
+    the env's solved threshold in solving presets"""
+    out: str | None = None
+    """run folder (default runs/<algo>-<env>-<time>)"""
+    progress: bool = True
+    """show a progress bar"""
+
+
+def _module(algo: str) -> ModuleType:
+    if algo not in ALGOS:
+        raise UsageError(f"unknown algorithm {algo!r}; choose from {', '.join(ALGOS)}")
+    return importlib.import_module(ALGOS[algo])
+
+
+def _option(argv: list[str], name: str, default: str) -> str:
+    """The value of ``--name V`` / ``--name=V`` in argv (read before tyro, to pick the defaults)."""
+    for i, arg in enumerate(argv):
+        if arg == name and i + 1 < len(argv):
+            return argv[i + 1]
+        if arg.startswith(name + "="):
+            return arg.split("=", 1)[1]
+    return default
+
+
+def parse_stop(value: str, preset: Any, env: Any) -> float | None:
+    if value == "none":
+        return None
+    if value == "auto":
+        solved = getattr(env, "reward_threshold", None)
+        return float(solved) if preset.stop_at_solved and solved is not None else None
+    try:
+        return float(value)
+    except ValueError:
+        raise UsageError(f"--stop-at-return must be a number, 'none' or 'auto', got {value!r}") from None
+
+
+def parse(algo: str, argv: list[str]) -> tuple[RunArgs, Any, Any]:
+    """``(run_args, algorithm config, preset)`` from the command line."""
+    module = _module(algo)
+    preset_name = _option(argv, "--preset", "default")
+    if preset_name not in module.PRESETS:
+        raise UsageError(f"unknown {algo} preset {preset_name!r}; choose from {', '.join(module.PRESETS)}")
+    preset = module.PRESETS[preset_name]
+    config_type = type(preset.config)
+
+    Args = dataclasses.make_dataclass(
+        "Args",
+        [
+            ("run", Annotated[RunArgs, tyro.conf.OmitArgPrefixes]),
+            ("config", Annotated[config_type, tyro.conf.OmitArgPrefixes]),
+        ],
+        frozen=True,
+    )
+
+    args = tyro.cli(
+        Args,
+        args=argv,
+        prog=f"agentax train {algo}",
+        default=Args(RunArgs(preset=preset_name), preset.config),
+        description=f"Train {algo}. Presets: "
+        + "; ".join(f"{name}: {p.description}" for name, p in module.PRESETS.items()),
+    )
+    if hasattr(args.config, "validate"):
+        args.config.validate()
+    if args.run.seeds < 1:
+        raise UsageError(f"--seeds must be at least 1, got {args.run.seeds}")
+    return args.run, args.config, preset
+
+
+def main(argv: list[str]) -> int:
+    if not argv or argv[0] in ("-h", "--help"):
+        print("usage: agentax train ALGO [--env ID] [--preset NAME] [--seed S] [--seeds N] [--total-steps N]")
+        print("                         [--stop-at-return R|none] [--out DIR] [algorithm flags...]")
+        print("       agentax train --resume DIR")
+        print(f"algorithms: {', '.join(ALGOS)} (agentax train ALGO --help for its flags and presets)")
+        return 0
+    if argv[0] == "--resume" or argv[0].startswith("--resume="):
+        run_dir = argv[1] if argv[0] == "--resume" and len(argv) > 1 else argv[0].partition("=")[2]
+        if not run_dir:
+            raise UsageError("--resume needs the run folder: agentax train --resume DIR")
+        return resume(Path(run_dir), progress="--no-progress" not in argv)
+    algo, rest = argv[0], argv[1:]
+    run_args, cfg, preset = parse(algo, rest)
+    return start(algo, run_args, cfg, preset)
+
+
+def _is_jax_env(env_id: str) -> bool:
+    from agentax.envs import JAX_ENVS
+
+    return env_id in JAX_ENVS
+
+
+def start(algo: str, run_args: RunArgs, cfg: Any, preset: Any) -> int:
+    """Create the run folder and train."""
+    from agentax import _xla
+    from agentax.runs import Run, default_run_dir
+
+    module = _module(algo)
+    _xla.enable_compilation_cache()
+    out = Path(run_args.out) if run_args.out else default_run_dir(algo, run_args.env)
+    if _is_jax_env(run_args.env):
+        from agentax.envs import make_jax
+        from agentax.train.compiled import RunnerConfig
+
+        env = make_jax(run_args.env)
+        runner = RunnerConfig(
+            seed=run_args.seed,
+            num_seeds=run_args.seeds,
+            updates_per_chunk=preset.updates_per_chunk,
+            eval_every_chunks=preset.eval_every_chunks,
+            eval_episodes=preset.eval_episodes,
+            stop_at_return=parse_stop(run_args.stop_at_return, preset, env),
+        )
+        config = {
+            "algo": algo,
+            "env": run_args.env,
+            "preset": run_args.preset,
+            "runner_kind": "compiled",
+            "runner": dataclasses.asdict(runner),
+            "config": module.config_to_dict(cfg),
+        }
+        run = Run.create(out, config)
+        print(f"training {algo} on {run_args.env} ({run_args.seeds} seed(s)) into {out}", file=sys.stderr)
+        return _train_compiled(module, env, cfg, runner, run, resume=False, progress=run_args.progress)
+    if algo not in HOST_ALGOS:
+        raise UsageError(
+            f"{algo} trains only on agentax's JAX envs; {run_args.env!r} is not one. "
+            f"Use ppo for Gymnasium envs, or a JAX env: {', '.join(_jax_env_ids())}"
+        )
+    from agentax.train import host
+
+    return host.train_cli(algo, module, run_args, cfg, preset, out)
+
+
+def _jax_env_ids() -> list[str]:
+    from agentax.envs import JAX_ENVS
+
+    return list(JAX_ENVS)
+
+
+def _train_compiled(module, env, cfg, runner, run, *, resume: bool, progress: bool) -> int:
+    from agentax.train.compiled import train
+
+    start_time = time.perf_counter()
+    result = train(module.make_train(env, cfg), env, runner, run, resume=resume, progress=progress)
+    report(result.eval, run.path, time.perf_counter() - start_time, result)
+    return 0
+
+
+def report(evaluation: dict, path: Path, seconds: float, result: Any = None) -> None:
+    """Print the final evaluation and where the run lives."""
+    line = (
+        f"evaluation: mean return {evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f} "
+        f"(min {evaluation['min_return']:.0f}, max {evaluation['max_return']:.0f}, "
+        f"{evaluation['episodes']} episodes"
+    )
+    per_seed = evaluation.get("per_seed", [])
+    if len(per_seed) > 1:
+        line += ", per seed " + " ".join(f"{s['mean_return']:.1f}" for s in per_seed)
+    print(line + ")")
+    if result is not None:
+        if result.solved_env_steps is not None:
+            print(f"solved after {result.solved_env_steps:,.0f} env steps, {result.solved_seconds:.1f} s")
+        print(
+            f"{result.env_steps:,.0f} env steps; compile {result.compile_seconds:.1f} s, "
+            f"training {result.train_seconds:.1f} s, total {seconds:.1f} s"
+        )
+    print(f"run folder: {path} (curve.png, eval.json, metrics.csv)")
+
+
+def resume(run_dir: Path, progress: bool = True) -> int:
+    """Continue the run in ``run_dir`` from its newest checkpoint."""
+    from agentax import _xla
+    from agentax.runs import Run, latest_checkpoint, read_config
+
+    config = read_config(run_dir)
+    latest_checkpoint(run_dir)  # a clear error before anything starts if there is none
+    algo = config["algo"]
+    module = _module(algo)
+    cfg = module.config_from_dict(config["config"])
+    _xla.enable_compilation_cache()
+    if config.get("runner_kind") == "host":
+        from agentax.train import host
+
+        return host.resume_cli(module, Run.open(run_dir), cfg, progress)
+    from agentax.envs import make_jax
+    from agentax.train.compiled import RunnerConfig
+
+    env = make_jax(config["env"])
+    runner = RunnerConfig(**config["runner"])
+    if not math.isfinite(float(runner.stop_at_return or 0)):
+        raise UsageError(f"{run_dir}/config.json: stop_at_return must be finite")
+    print(f"resuming {algo} on {config['env']} from {run_dir}", file=sys.stderr)
+    return _train_compiled(module, env, cfg, runner, Run.open(run_dir), resume=True, progress=progress)
