@@ -163,3 +163,7 @@ def test_space_conversions_round_trip():
     assert to_gymnasium_space(Discrete(5)) == gymnasium.spaces.Discrete(5)
     with pytest.raises(UsageError, match="Discrete and Box"):
         from_gymnasium_space(gymnasium.spaces.MultiDiscrete([2, 3]))
+    with pytest.raises(
+        UsageError, match=r"Blackjack-v1 cannot run in agentax: agentax handles Discrete and Box"
+    ):
+        make("Blackjack-v1")  # observations: a Tuple of three Discrete spaces

@@ -103,8 +103,12 @@ class GymnasiumEnv:
         self.vector_env: gymnasium.vector.VectorEnv = env
         self.num_envs: int = env.num_envs
         self.make_kwargs = make_kwargs
-        self._observation_space = from_gymnasium_space(env.single_observation_space)
-        self._action_space = from_gymnasium_space(env.single_action_space)
+        try:
+            self._observation_space = from_gymnasium_space(env.single_observation_space)
+            self._action_space = from_gymnasium_space(env.single_action_space)
+        except UsageError as error:
+            env.close()
+            raise UsageError(f"{self.id} cannot run in agentax: {error}") from None
 
     def observation_space(self, params: EnvParams | None = None) -> Discrete | Box:
         return self._observation_space
