@@ -1,0 +1,242 @@
+"""REINFORCE (Williams, 1992) as the lecture teaches it, and with a learned baseline.
+
+Each iteration the neural policy plays ``episodes_per_update`` episodes (at most ``max_steps``
+steps each), sampling its actions. Every action's advantage is its discounted return, normalised
+with the mean and std over all the episodes together; the loss is::
+
+    loss = −mean_t(log π(a_t | s_t) · advantage_t)
+
+minimised with Adam. With ``baseline=True`` a value network ``V(s)`` learns the returns by
+regression and the advantage becomes ``G_t − V(s_t)`` (then normalised): the same expected
+gradient, less variance.
+
+The lecture's network is ``PolicyNet(2, hidden=(5,), activation="elu", sigmoid_head=True)``:
+one sigmoid output giving P(left). Its per-step loss, the cross-entropy between the sampled action
+and P weighted by the advantage, is exactly ``−log π(a|s) · advantage``.
+
+On the compiled runner the episodes of an iteration run side by side for ``max_steps`` steps;
+steps after an episode's end are masked out.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from agentax.agents import Preset
+from agentax.envs.core import Discrete, Environment
+from agentax.errors import UsageError
+from agentax.nets import ACTIVATIONS, MLP, PolicyNet, log_prob
+from agentax.policies import Policy
+from agentax.returns import EpisodeStats, discounted_returns, normalize
+
+
+@dataclass(frozen=True)
+class ReinforceConfig:
+    """Hyperparameters of REINFORCE (defaults: the lecture's)."""
+
+    total_steps: int = 300_000
+    """env-step budget; iterations = total_steps // (episodes_per_update × max_steps)"""
+    episodes_per_update: int = 10
+    """episodes played per policy update"""
+    max_steps: int = 200
+    """steps per episode at most"""
+    discount_factor: float = 0.95
+    """γ, the discount factor"""
+    learning_rate: float = 0.01
+    """Adam's learning rate"""
+    hidden: tuple[int, ...] = (5,)
+    """widths of the policy's hidden layers"""
+    activation: str = "elu"
+    """activation of the hidden layers: elu, relu, tanh, gelu or swish"""
+    sigmoid_head: bool = True
+    """the lecture's single sigmoid output (two actions only); else one logit per action"""
+    baseline: bool = False
+    """learn a value network V(s) and use G_t − V(s_t) as the advantage"""
+    baseline_hidden: tuple[int, ...] = (32,)
+    """widths of the baseline's hidden layers"""
+
+    def validate(self) -> ReinforceConfig:
+        """Raise a UsageError naming the first bad value."""
+        for name in ("total_steps", "episodes_per_update", "max_steps", "learning_rate"):
+            if getattr(self, name) <= 0:
+                raise UsageError(f"{name} must be positive, got {getattr(self, name)}")
+        if not 0.0 <= self.discount_factor <= 1.0:
+            raise UsageError(f"discount_factor must lie in [0, 1], got {self.discount_factor}")
+        if self.activation not in ACTIVATIONS:
+            raise UsageError(f"unknown activation {self.activation!r}; choose from {', '.join(ACTIVATIONS)}")
+        return self
+
+    @property
+    def steps_per_update(self) -> int:
+        return self.episodes_per_update * self.max_steps
+
+    @property
+    def num_updates(self) -> int:
+        return max(1, self.total_steps // self.steps_per_update)
+
+
+PRESETS: dict[str, Preset] = {
+    "default": Preset(
+        ReinforceConfig(), "the lecture's settings (150 iterations of 10 episodes, γ 0.95, Adam 0.01)"
+    ),
+    "lecture": Preset(
+        ReinforceConfig(), "the lecture's settings (150 iterations of 10 episodes, γ 0.95, Adam 0.01)"
+    ),
+    "baseline": Preset(
+        ReinforceConfig(baseline=True), "the lecture's settings with a learned value baseline"
+    ),
+}
+
+
+@struct.dataclass
+class ReinforceAgent:
+    params: Any  # {"policy": ..., "value": ...} (value only with a baseline)
+    opt_state: Any
+
+
+def policy_network(cfg: ReinforceConfig, num_actions: int) -> PolicyNet:
+    return PolicyNet(num_actions, tuple(cfg.hidden), cfg.activation, cfg.sigmoid_head)
+
+
+def value_network(cfg: ReinforceConfig) -> MLP:
+    return MLP(tuple(cfg.baseline_hidden), cfg.activation, out=1)
+
+
+def init(
+    key: jax.Array, obs_shape: tuple[int, ...], num_actions: int, cfg: ReinforceConfig
+) -> ReinforceAgent:
+    policy_key, value_key = jax.random.split(key)
+    obs = jnp.zeros(obs_shape, jnp.float32)
+    params = {"policy": policy_network(cfg, num_actions).init(policy_key, obs)}
+    if cfg.baseline:
+        params["value"] = value_network(cfg).init(value_key, obs)
+    return ReinforceAgent(params, optax.adam(cfg.learning_rate).init(params))
+
+
+def loss_fn(params: Any, batch: dict[str, jax.Array], num_actions: int, cfg: ReinforceConfig):
+    """REINFORCE's loss over the valid steps of ``[T, N]`` arrays; returns ``(loss, metrics)``."""
+    valid = batch["valid"].astype(jnp.float32)
+    count = jnp.maximum(valid.sum(), 1.0)
+    logits = policy_network(cfg, num_actions).apply(params["policy"], batch["obs"])
+    log_probs = log_prob(logits, batch["action"])
+    returns = batch["returns"]
+    metrics = {}
+    if cfg.baseline:
+        values = value_network(cfg).apply(params["value"], batch["obs"])[..., 0]
+        advantage = normalize(returns - jax.lax.stop_gradient(values), valid)
+        value_loss = (((values - returns) ** 2) * valid).sum() / count
+        metrics["value_loss"] = value_loss
+    else:
+        advantage = normalize(returns, valid)
+        value_loss = 0.0
+    policy_loss = -(log_probs * advantage * valid).sum() / count
+    metrics["policy_loss"] = policy_loss
+    return policy_loss + value_loss, metrics
+
+
+def learn(agent: ReinforceAgent, batch: dict[str, jax.Array], num_actions: int, cfg: ReinforceConfig):
+    grads, metrics = jax.grad(loss_fn, has_aux=True)(agent.params, batch, num_actions, cfg)
+    updates, opt_state = optax.adam(cfg.learning_rate).update(grads, agent.opt_state, agent.params)
+    return ReinforceAgent(optax.apply_updates(agent.params, updates), opt_state), metrics
+
+
+def greedy_policy(params: Any, num_actions: int, cfg: ReinforceConfig) -> Policy:
+    net = policy_network(cfg, num_actions)
+    return lambda obs, key: jnp.argmax(net.apply(params["policy"], obs), axis=-1).astype(jnp.int32)
+
+
+@struct.dataclass
+class TrainState:
+    agent: ReinforceAgent
+    key: jax.Array
+    episodes: EpisodeStats
+
+
+def make_train(env: Environment, cfg: ReinforceConfig, env_params: Any = None):
+    """REINFORCE for :func:`agentax.train.compiled.train`: a ``CompiledAlgorithm``."""
+    from agentax.train.compiled import CompiledAlgorithm
+
+    cfg.validate()
+    params = env.default_params() if env_params is None else env_params
+    action_space = env.action_space(params)
+    if not isinstance(action_space, Discrete):
+        raise UsageError(f"REINFORCE here needs discrete actions; {env.id} has {action_space}")
+    if cfg.sigmoid_head and action_space.n != 2:
+        raise UsageError(f"the sigmoid head needs exactly 2 actions; {env.id} has {action_space.n}")
+    num_actions, obs_shape = action_space.n, tuple(env.observation_space(params).shape)
+    num_episodes = cfg.episodes_per_update
+    net = policy_network(cfg, num_actions)
+
+    def init_state(key: jax.Array) -> TrainState:
+        key, agent_key = jax.random.split(key)
+        return TrainState(
+            init(agent_key, obs_shape, num_actions, cfg), key, EpisodeStats.create(num_episodes)
+        )
+
+    def update(state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
+        key, reset_key, play_key, next_key = jax.random.split(state.key, 4)
+        obs, env_state = jax.vmap(env.reset, in_axes=(0, None))(
+            jax.random.split(reset_key, num_episodes), params
+        )
+
+        def step(carry, t):
+            obs, env_state, alive, episodes, key = carry
+            key, act_key, step_key = jax.random.split(key, 3)
+            action = jax.random.categorical(act_key, net.apply(state.agent.params["policy"], obs))
+            ts, env_state = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
+                jax.random.split(step_key, num_episodes), env_state, action, params
+            )
+            ended = ts.done | (t == cfg.max_steps - 1)
+            episodes = episodes.record(ts.reward, ended, alive)
+            out = {"obs": obs, "action": action, "reward": ts.reward * alive, "ended": ended, "valid": alive}
+            return (ts.obs, env_state, alive & ~ended, episodes, key), out
+
+        alive = jnp.ones(num_episodes, bool)
+        carry = (obs, env_state, alive, state.episodes, play_key)
+        (_, _, _, episodes, _), batch = jax.lax.scan(step, carry, jnp.arange(cfg.max_steps))
+        discounts = cfg.discount_factor * (1.0 - batch["ended"].astype(jnp.float32))
+        batch["returns"] = discounted_returns(batch["reward"], discounts, jnp.zeros(num_episodes))
+        agent, metrics = learn(state.agent, batch, num_actions, cfg)
+        return TrainState(agent, next_key, episodes), metrics
+
+    return CompiledAlgorithm(
+        init=init_state,
+        update=update,
+        num_updates=cfg.num_updates,
+        steps_per_update=cfg.steps_per_update,
+        greedy_policy=lambda state: greedy_policy(state.agent.params, num_actions, cfg),
+    )
+
+
+def config_to_dict(cfg: ReinforceConfig) -> dict[str, Any]:
+    return dataclasses.asdict(cfg)
+
+
+def config_from_dict(values: dict[str, Any]) -> ReinforceConfig:
+    fields = {f.name for f in dataclasses.fields(ReinforceConfig)}
+    unknown = set(values) - fields
+    if unknown:
+        raise UsageError(f"unknown REINFORCE settings {sorted(unknown)}; known: {', '.join(sorted(fields))}")
+    values = dict(values)
+    for name in ("hidden", "baseline_hidden"):
+        if name in values:
+            values[name] = tuple(values[name])
+    return ReinforceConfig(**values)
+
+
+def load_policy(run_dir: Path, config: dict[str, Any]) -> Policy:
+    """The greedy policy of a REINFORCE run (its best seed), for ``agentax.runs.load_policy``."""
+    from agentax.envs import make_jax
+    from agentax.train.compiled import RunnerConfig, restore_policy
+
+    env = make_jax(config["env"])
+    cfg = config_from_dict(config["config"])
+    return restore_policy(run_dir, make_train(env, cfg), RunnerConfig(**config["runner"]))
