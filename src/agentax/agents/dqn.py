@@ -48,6 +48,7 @@ from agentax.errors import UsageError
 from agentax.nets import QNetwork
 from agentax.policies import Policy, epsilon_greedy
 from agentax.replay import ReplaySample, Transition, example_transition, nstep, prioritized, uniform
+from agentax.returns import EpisodeStats
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,8 @@ class DQNConfig:
     """γ, the weight of the next state's value in the TD target."""
     learning_rate: float = 2.5e-3
     """Adam's step size."""
+    anneal_learning_rate: bool = False
+    """Decay the step size linearly to 0 over the run's learning steps (settles a solved agent)."""
     max_grad_norm: float | None = 10.0
     """Clip the gradient to this global norm (None: no clipping)."""
     loss: str = "huber"
@@ -116,6 +119,14 @@ class DQNConfig:
     @property
     def num_updates(self) -> int:
         return max(1, self.total_steps // self.steps_per_update)
+
+    @property
+    def num_learning_steps(self) -> int:
+        """Learning steps of a whole run in the steps schedule (in the episode one: an upper bound)."""
+        if self.schedule_unit == "episodes":
+            return max(self.max_episodes or self.total_steps, 1) * self.gradient_steps // self.train_frequency
+        learning_updates = self.num_updates - self.learning_starts // self.steps_per_update
+        return max(learning_updates, 0) * self.gradient_steps
 
     def validate(self) -> DQNConfig:
         """Raise ``UsageError`` naming the first bad value; return ``self``."""
@@ -214,7 +225,10 @@ def q_network(cfg: DQNConfig, num_actions: int) -> QNetwork:
 
 
 def optimizer(cfg: DQNConfig) -> optax.GradientTransformation:
-    adam = optax.adam(cfg.learning_rate)
+    learning_rate = cfg.learning_rate
+    if cfg.anneal_learning_rate:
+        learning_rate = optax.linear_schedule(cfg.learning_rate, 0.0, max(cfg.num_learning_steps, 1))
+    adam = optax.adam(learning_rate)
     return (
         adam if cfg.max_grad_norm is None else optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), adam)
     )
@@ -391,9 +405,7 @@ class TrainState:
     accumulator: nstep.NStepState
     env_state: Any
     obs: jax.Array  # [num_envs, *obs_shape]
-    episode_return: jax.Array  # float32 [num_envs]: return of each env's running episode
-    env_steps: jax.Array  # int32 []: summed over envs
-    episodes: jax.Array  # int32 []: finished episodes, summed over envs
+    episodes: EpisodeStats  # returns, finished episodes and env steps, read by the runner
     key: jax.Array
 
 
@@ -423,28 +435,16 @@ def replay_for(cfg: DQNConfig) -> Replay:
     )
 
 
-@dataclass(frozen=True)
-class CompiledDQN:
-    """DQN as the compiled runner sees it: pure ``init(key)`` and jittable ``update(state)``.
+def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None):
+    """DQN for :func:`agentax.train.compiled.train`: a ``CompiledAlgorithm`` on JAX env ``env``.
 
-    One ``update`` collects ``steps_per_update`` env steps (``train_frequency`` steps of
-    ``num_envs`` envs, or one step in the lecture's episode schedule) into the replay buffer and then,
-    once learning has started, runs ``gradient_steps`` learning steps. Both vmap over seeds.
+    One ``update`` collects ``steps_per_update`` env steps (``train_frequency`` steps of ``num_envs``
+    envs, or one step in the lecture's episode schedule) into the replay buffer and then, once
+    learning has started, runs ``gradient_steps`` learning steps. ``init`` and ``update`` are pure and
+    vmap over seeds.
     """
+    from agentax.train.compiled import CompiledAlgorithm
 
-    env: Environment
-    cfg: DQNConfig
-    env_params: Any
-    init: Callable[[jax.Array], TrainState]
-    update: Callable[[TrainState], tuple[TrainState, dict]]
-    steps_per_update: int
-
-    def policy(self, agent: DQNState) -> Policy:
-        return greedy_policy(agent)
-
-
-def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None) -> CompiledDQN:
-    """DQN's program for the compiled runner on JAX env ``env`` (see :class:`CompiledDQN`)."""
     cfg.validate()
     params = env.default_params() if env_params is None else env_params
     num_actions = num_actions_of(env.action_space(params))
@@ -466,15 +466,13 @@ def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None) -> Comp
             accumulator=nstep.init(cfg.n_step, batch),
             env_state=env_state,
             obs=obs.astype(jnp.float32),
-            episode_return=jnp.zeros(cfg.num_envs, jnp.float32),
-            env_steps=jnp.int32(0),
-            episodes=jnp.int32(0),
+            episodes=EpisodeStats.create(cfg.num_envs),
             key=key,
         )
 
-    def collect_step(state: TrainState, _) -> tuple[TrainState, tuple]:
+    def collect_step(state: TrainState, _) -> tuple[TrainState, jax.Array]:
         key, act_key, step_key = jax.random.split(state.key, 3)
-        epsilon = epsilon_at(cfg, state.episodes if by_episode else state.env_steps)
+        epsilon = epsilon_at(cfg, state.episodes.completed if by_episode else state.episodes.env_steps)
         action = act(state.agent, state.obs, act_key, epsilon)
         time_step, env_state = vmap_step(
             jax.random.split(step_key, cfg.num_envs), state.env_state, action, params
@@ -482,30 +480,28 @@ def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None) -> Comp
         time_step = time_step.replace(
             obs=time_step.obs.astype(jnp.float32), final_obs=time_step.final_obs.astype(jnp.float32)
         )
-        transition = one_step_transition(state.obs, action, time_step)
-        active = state.episodes < cfg.max_episodes if cfg.max_episodes else jnp.bool_(True)
-        accumulator, emitted, full = nstep.push(state.accumulator, transition, cfg.discount_factor)
-        done = time_step.done
-        episode_return = state.episode_return + time_step.reward
-        finished_return = jnp.sum(jnp.where(done & active, episode_return, 0.0))
-        finished = jnp.sum(done & active).astype(jnp.int32)
+        active = state.episodes.completed < cfg.max_episodes if cfg.max_episodes else jnp.bool_(True)
+        accumulator, emitted, full = nstep.push(
+            state.accumulator, one_step_transition(state.obs, action, time_step), cfg.discount_factor
+        )
         state = state.replace(
             replay=replay.add(state.replay, emitted, full & active),
             accumulator=accumulator,
             env_state=env_state,
             obs=time_step.obs,
-            episode_return=jnp.where(done, 0.0, episode_return),
-            env_steps=state.env_steps + cfg.num_envs * active,
-            episodes=state.episodes + finished,
+            episodes=state.episodes.record(
+                time_step.reward, time_step.done, jnp.broadcast_to(active, action.shape)
+            ),
             key=key,
         )
-        return state, (finished_return, finished, epsilon)
+        return state, epsilon
 
     def learn_phase(state: TrainState) -> tuple[TrainState, dict]:
+        beta = importance_exponent_at(cfg, state.episodes.env_steps)
+
         def one(carry, _):
             agent, replay_state, key = carry
             key, sample_key = jax.random.split(key)
-            beta = importance_exponent_at(cfg, state.env_steps)
             sample = replay.sample(replay_state, sample_key, cfg.batch_size, beta)
             agent, metrics = learn_step(agent, sample)
             replay_state = replay.update_priorities(replay_state, sample.indices, metrics["td_error"])
@@ -515,46 +511,40 @@ def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None) -> Comp
         (agent, replay_state, _), (loss, q_mean) = jax.lax.scan(
             one, (state.agent, state.replay, learn_key), length=cfg.gradient_steps
         )
-        return state.replace(agent=agent, replay=replay_state, key=key), {
-            "loss": loss.mean(),
-            "q_mean": q_mean.mean(),
-        }
+        state = state.replace(agent=agent, replay=replay_state, key=key)
+        return state, {"loss": loss.mean(), "q_mean": q_mean.mean()}
 
     def skip_learning(state: TrainState) -> tuple[TrainState, dict]:
-        return state, {"loss": jnp.float32(jnp.nan), "q_mean": jnp.float32(jnp.nan)}
+        return state, {"loss": jnp.float32(0.0), "q_mean": jnp.float32(0.0)}
 
     def update_fn(state: TrainState) -> tuple[TrainState, dict]:
-        episodes_before = state.episodes
+        episodes_before = state.episodes.completed
         length = 1 if by_episode else cfg.train_frequency
-        state, (finished_return, finished, epsilon) = jax.lax.scan(collect_step, state, length=length)
+        state, epsilon = jax.lax.scan(collect_step, state, length=length)
         if by_episode:
-            ended = state.episodes > episodes_before
+            ended = state.episodes.completed > episodes_before
             due = (
-                ended & (state.episodes % cfg.train_frequency == 0) & (episodes_before >= cfg.learning_starts)
+                ended
+                & (state.episodes.completed % cfg.train_frequency == 0)
+                & (episodes_before >= cfg.learning_starts)
             )
         else:
-            due = state.env_steps >= cfg.learning_starts
+            due = state.episodes.env_steps >= cfg.learning_starts
         if cfg.max_episodes:
             due = due & (episodes_before < cfg.max_episodes)
-        state, learn_metrics = jax.lax.cond(due, learn_phase, skip_learning, state)
-        metrics = {
-            "env_steps": state.env_steps,
-            "episodes": state.episodes,
-            "episode_return_sum": finished_return.sum(),
-            "episodes_finished": finished.sum(),
+        state, metrics = jax.lax.cond(due, learn_phase, skip_learning, state)
+        return state, {
+            **metrics,
             "epsilon": epsilon[-1],
-            "learning_steps": state.agent.step,
-            **learn_metrics,
+            "learning_steps": state.agent.step.astype(jnp.float32),
         }
-        return state, metrics
 
-    return CompiledDQN(
-        env=env,
-        cfg=cfg,
-        env_params=params,
+    return CompiledAlgorithm(
         init=init_fn,
         update=update_fn,
+        num_updates=cfg.num_updates,
         steps_per_update=cfg.steps_per_update,
+        greedy_policy=lambda state: greedy_policy(state.agent),
     )
 
 
@@ -576,7 +566,6 @@ __all__ = [
     "DQNConfig",
     "DQNState",
     "PRESETS",
-    "CompiledDQN",
     "TrainState",
     "act",
     "config_from_dict",

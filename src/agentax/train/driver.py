@@ -209,13 +209,16 @@ def train_dqn_host(
     seed: int = 0,
     log_every_steps: int = 2_000,
     on_log: Callable[[HostLog, Any], bool | None] | None = None,
+    resume_from: tuple[dqn.DQNState, int, int] | None = None,
 ) -> tuple[dqn.DQNState, list[HostLog]]:
     """Train DQN on host env ``env`` (a ``GymnasiumEnv`` with ``cfg.num_envs`` envs) with the driver.
 
     Collects ``cfg.train_frequency`` steps per env (or episodes, with ``schedule_unit="episodes"``)
     per driver run, then runs ``cfg.gradient_steps`` jitted ``dqn`` learning steps on host-sampled
     batches. Every ``log_every_steps`` env steps calls ``on_log(log, agent)``; a truthy answer stops
-    training early. Returns the final ``DQNState`` and the logs.
+    training early. ``resume_from=(agent, env_steps, episodes)`` continues a checkpointed agent (its
+    schedules where they were; the replay buffer, not checkpointed, refills). Returns the final
+    ``DQNState`` and the logs.
     """
     cfg = cfg.validate()
     num_actions = dqn.num_actions_of(env.action_space())
@@ -223,13 +226,16 @@ def train_dqn_host(
     key, agent_key = jax.random.split(key)
     time_step = first_time_step(env, seed)
     agent = dqn.init(agent_key, time_step.obs[0], num_actions, cfg)
+    done_steps, done_episodes = 0, 0
+    if resume_from is not None:
+        agent, done_steps, done_episodes = resume_from
     one = jax.device_get(example_transition(np.asarray(time_step.obs[0], np.float32), np.int32(0)))
     if cfg.prioritized:
         buffer = host.init_prioritized(cfg.buffer_size, one, cfg.priority_exponent)
     else:
         buffer = host.init(cfg.buffer_size, one)
     by_episode = cfg.schedule_unit == "episodes"
-    steps, episodes = EnvironmentSteps(), NumberOfEpisodes()
+    steps, episodes = EnvironmentSteps(done_steps), NumberOfEpisodes(done_episodes)
     returns, lengths = AverageReturn(), AverageEpisodeLength()
     observers = [ReplayObserver(buffer, cfg.n_step, cfg.discount_factor), steps, episodes, returns, lengths]
 
@@ -249,7 +255,7 @@ def train_dqn_host(
     rng = np.random.default_rng(seed)
     key, policy_key = jax.random.split(key)
     logs: list[HostLog] = []
-    loss, next_log, start = float("nan"), log_every_steps, time.perf_counter()
+    loss, next_log, start = float("nan"), done_steps + log_every_steps, time.perf_counter()
     while steps.count < cfg.total_steps and not (cfg.max_episodes and episodes.count >= cfg.max_episodes):
         time_step, policy_key = driver.run(time_step, policy_key)
         started = episodes.count > cfg.learning_starts if by_episode else steps.count >= cfg.learning_starts
@@ -290,3 +296,131 @@ def _act_and_split(agent: Any, obs: jax.Array, key: jax.Array, epsilon: jax.Arra
 def buffer_size(buffer: Any) -> int:
     """Transitions held by a host buffer (uniform or prioritized)."""
     return buffer.buffer.size if isinstance(buffer, host.HostPrioritizedState) else buffer.size
+
+
+def run_dqn_host(
+    env_id: str,
+    cfg: dqn.DQNConfig,
+    run: Any = None,
+    *,
+    seed: int = 0,
+    log_every_steps: int = 2_000,
+    eval_episodes: int = 10,
+    stop_at_return: float | None = None,
+    resume: bool = False,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """DQN on Gymnasium env ``env_id`` through the driver, writing ``run`` (an ``agentax.runs.Run``).
+
+    At each logging interval: a metrics row (``env_steps``, ``mean_return`` of the last training
+    episodes, ``eval_return`` of the greedy policy over ``eval_episodes`` episodes, loss, ε), a
+    checkpoint of the learner, and an early stop once ``eval_return >= stop_at_return``. At the end
+    eval.json (on fresh evaluation seeds) and curve.png. Returns the final evaluation.
+    """
+    from agentax.envs.gym import GymnasiumEnv
+    from agentax.evaluate import host_episode_returns
+    from agentax.runs import latest_checkpoint, load_tree
+
+    env = GymnasiumEnv(env_id, cfg.num_envs)
+    eval_env = GymnasiumEnv(env_id, min(eval_episodes, 8))
+    resume_from, evaluations, elapsed_before = None, 0, 0.0
+    if resume:
+        target = jax.eval_shape(
+            lambda: dqn.init(jax.random.key(0), _obs_example(env), _num_actions(env), cfg)
+        )
+        agent, meta = load_tree(latest_checkpoint(run.path), target)
+        resume_from, evaluations = (
+            (agent, int(meta["env_steps"]), int(meta["episodes"])),
+            int(meta["evaluations"]),
+        )
+        run.truncate_metrics(meta["env_steps"])
+    start, last = (
+        time.perf_counter(),
+        {"steps": resume_from[1] if resume_from else 0, "time": time.perf_counter()},
+    )
+    bar = _progress_bar(progress, cfg.total_steps)
+
+    def on_log(log: HostLog, agent: dqn.DQNState) -> bool:
+        nonlocal evaluations
+        returns, _ = host_episode_returns(
+            eval_env, dqn.greedy_policy(agent), eval_episodes, seed=10_000 + evaluations
+        )
+        evaluations += 1
+        now = time.perf_counter()
+        row = {
+            "env_steps": log.env_steps,
+            "mean_return": log.mean_return,
+            "return_seed0": log.mean_return,
+            "eval_return": float(np.mean(returns)),
+            "steps_per_second": (log.env_steps - last["steps"]) / max(now - last["time"], 1e-9),
+            "wall_seconds": elapsed_before + now - start,
+            "loss": log.loss,
+            "epsilon": log.epsilon,
+            "learning_steps": log.learning_steps,
+            "episodes": log.episodes,
+        }
+        last.update(steps=log.env_steps, time=now)
+        solved = stop_at_return is not None and row["eval_return"] >= stop_at_return
+        if run is not None:
+            run.log(row)
+            meta = {
+                "env_steps": log.env_steps,
+                "episodes": log.episodes,
+                "evaluations": evaluations,
+                "updates": log.learning_steps,
+                "elapsed": row["wall_seconds"],
+            }
+            run.save_checkpoint(log.env_steps, agent, meta)
+        if bar is not None:
+            bar.update(
+                bar.task_ids[0],
+                completed=log.env_steps,
+                description=f"dqn {env_id} return {row['eval_return']:.1f}",
+            )
+        return solved
+
+    try:
+        agent, logs = train_dqn_host(env, cfg, seed, log_every_steps, on_log, resume_from)
+    finally:
+        if bar is not None:
+            bar.stop()
+    returns, lengths = host_episode_returns(
+        eval_env, dqn.greedy_policy(agent), eval_episodes, seed=20_000 + seed
+    )
+    result = {"mean_return": float(np.mean(returns)), "env_steps": logs[-1].env_steps if logs else 0}
+    if run is not None:
+        result = run.write_eval(returns[None], lengths[None], env_steps=result["env_steps"])
+        run.plot()
+        run.close()
+    env.close()
+    eval_env.close()
+    return result
+
+
+def _obs_example(env: Any) -> jax.Array:
+    space = env.observation_space()
+    return jnp.zeros(space.shape, jnp.float32)
+
+
+def _num_actions(env: Any) -> int:
+    return dqn.num_actions_of(env.action_space())
+
+
+def _progress_bar(enabled: bool, total_steps: int):
+    if not enabled:
+        return None
+    import sys
+
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    bar = Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed:,.0f} env steps"),
+        TimeElapsedColumn(),
+        console=Console(file=sys.stderr),
+    )
+    bar.add_task("dqn", total=total_steps)
+    bar.start()
+    return bar
