@@ -22,6 +22,7 @@ import numpy as np
 
 from agentax.envs import Environment, GymnasiumEnv
 from agentax.envs.core import EnvParams
+from agentax.envs.gym import frames_per_second
 from agentax.errors import UsageError
 from agentax.evaluate import HostPolicy, host_actor
 from agentax.policies import Policy
@@ -100,8 +101,7 @@ def record_episode(
         _with_time_bar(env.render_frame(jax.tree.map(lambda leaf, i=i: leaf[i], states), params), i, horizon)
         for i in _frame_indices(length, max_frames)
     ]
-    fps = 1.0 / float(params.tau) if hasattr(params, "tau") else 30.0
-    return Episode(np.stack(frames), float(rewards[:length].sum()), length, fps)
+    return Episode(np.stack(frames), float(rewards[:length].sum()), length, frames_per_second(params))
 
 
 def _record_gymnasium(

@@ -169,6 +169,11 @@ def _compile(env: Environment, params: EnvParams) -> tuple[Environment, EnvParam
     return env, params, reset, step
 
 
+def frames_per_second(params: EnvParams) -> float:
+    """Real time for an env with a step duration ``params.tau`` in seconds (CartPole: 50), else 30."""
+    return 1.0 / float(params.tau) if hasattr(params, "tau") else 30.0
+
+
 def _has_renderer(env: Environment) -> bool:
     return type(env).render_frame is not Environment.render_frame
 
@@ -193,7 +198,10 @@ class JaxToGymnasium(gymnasium.Env):
             env = _compiled_by_id(env)[0] if isinstance(env, str) else env
             params = env.default_params() if params is None else params
             self.env, self.params, self._reset_fn, self._step_fn = _compile(env, params)
-        self.metadata = {**self.metadata, "render_modes": ["rgb_array"] if _has_renderer(self.env) else []}
+        self.metadata = {
+            "render_modes": ["rgb_array"] if _has_renderer(self.env) else [],
+            "render_fps": frames_per_second(self.params),
+        }
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise UsageError(
                 f"render_mode {render_mode!r} not supported; choose from {self.metadata['render_modes']}"
