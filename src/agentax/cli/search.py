@@ -36,6 +36,7 @@ from agentax.search.population import (
     make_fitness,
     run_generations,
     save_params,
+    select_final,
     write_json,
 )
 from agentax.search.random_search import RandomSearchConfig, random_search
@@ -44,9 +45,9 @@ from agentax.search.settings import plot_heatmap
 TARGETS = ("vacuum", "cartpole")
 VACUUM_METHODS = {"grid": "agentax.search.grid", "random": "agentax.search.random_search"}
 NEURAL_METHODS = {"ga": "agentax.search.genetic", "cem": "agentax.search.cem"}
-EVAL_STREAM = (
-    1  # fresh evaluation episodes: jax.random.fold_in(key(seed), 1); the search uses split(key(seed))
-)
+# Episode streams: the search uses jax.random.key(seed + k) for seed k; the final selection and the fresh
+# evaluation fold these numbers into jax.random.key(seed), so no two of them share episodes.
+SELECTION_STREAM, EVAL_STREAM = 2, 1
 
 
 @dataclass(frozen=True)
@@ -81,12 +82,12 @@ class CartPoleArgs:
     """First seed; the searches use seed, seed + 1, ..."""
     population: int = 64
     """Candidates per generation."""
-    generations: int = 30
+    generations: int = 20
     """Generations (CEM iterations) at most."""
     episodes: int = 5
     """Episodes per fitness evaluation."""
     mutation_scale: float | None = None
-    """GA: std of the Gaussian mutation (default 0.1); CEM: std of the extra noise (default 0.1)."""
+    """GA: std of the Gaussian mutation (default 0.3); CEM: std of the extra noise (default 0.3)."""
     elite_fraction: float | None = None
     """Fraction of elites (default GA 0.1, CEM 0.2)."""
     hidden: tuple[int, ...] = (5,)
@@ -268,10 +269,14 @@ def search_cartpole(args: CartPoleArgs) -> int:
         spread={"best fitness": (np.array([row["best_fitness_min"] for row in rows]),
                                  np.array([row["best_fitness_max"] for row in rows]))},
     )  # fmt: skip
-    summary = _evaluate_best(env, flat, state, args, seconds, int(generations[-1]))
+    selection_key = jax.random.fold_in(jax.random.key(args.seed), SELECTION_STREAM)
+    selection_fitness = make_fitness(env, flat, config.selection_episodes, greedy=not config.sample_actions)
+    best_params, selection_scores = select_final(
+        algorithm.candidates, state, selection_fitness, selection_key
+    )
+    summary = _evaluate_best(env, flat, best_params, selection_scores, args, seconds, int(generations[-1]))
     write_json(out / "eval.json", summary)
-    best_seed = summary["seed"] - args.seed
-    save_params(out / "best_params.msgpack", np.asarray(state.best_params[best_seed], np.float32))
+    save_params(out / "best_params.msgpack", np.asarray(best_params[summary["seed"] - args.seed], np.float32))
     print(
         "best policy (seed {seed}): return {mean_return:.1f} ± {std_return:.1f}, {episodes} fresh episodes "
         "(min {min_return:.0f}, max {max_return:.0f}); {generations} generations in {seconds:.1f} s".format(
@@ -282,16 +287,18 @@ def search_cartpole(args: CartPoleArgs) -> int:
     return 0
 
 
-def _evaluate_best(env, flat, state, args: CartPoleArgs, seconds: float, generations: int) -> dict:
-    """Every seed's best parameters on ``eval_episodes`` fresh episodes; the summary of the fittest seed."""
+def _evaluate_best(
+    env, flat, best_params, selection_scores, args: CartPoleArgs, seconds, generations
+) -> dict:
+    """Every seed's selected policy on ``eval_episodes`` fresh episodes; the summary of the best seed
+    (chosen by its selection score, not by the fresh episodes), and every seed's under ``per_seed``.
+    """
     key = jax.random.fold_in(jax.random.key(args.seed), EVAL_STREAM)
     returns = jax.jit(
         jax.vmap(lambda theta: episode_returns(env, flat.policy(theta), key, args.eval_episodes)[0])
-    )(state.best_params)
+    )(best_params)
     returns = np.asarray(returns, np.float64)  # [seeds, eval_episodes]
-    best = int(
-        np.argmax(np.asarray(state.best_fitness))
-    )  # chosen by search fitness, not by the fresh episodes
+    best = int(np.argmax(np.asarray(selection_scores)))
     stats = [
         {"seed": args.seed + i, "mean_return": float(r.mean()), "std_return": float(r.std()),
          "min_return": float(r.min()), "max_return": float(r.max()), "episodes": int(r.size)}

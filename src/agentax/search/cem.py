@@ -28,7 +28,7 @@ class CEMConfig:
 
     population_size: int = 64
     """Candidates per iteration (the current mean and population_size − 1 samples)."""
-    generations: int = 30
+    generations: int = 20
     """Iterations to run (at most)."""
     num_episodes: int = 5
     """Episodes per fitness evaluation (fitness = their mean return)."""
@@ -36,10 +36,12 @@ class CEMConfig:
     """Fraction of the candidates the Gaussian is refitted to."""
     init_std: float = 1.0
     """Standard deviation of the first Gaussian (its mean is zero)."""
-    extra_noise: float = 0.1
+    extra_noise: float = 0.3
     """Standard deviation added (in quadrature) to the refitted one at the first iteration."""
     noise_decay_generations: int = 20
     """Iterations over which the extra noise decays linearly to zero."""
+    selection_episodes: int = 20
+    """Episodes of the final selection between the last mean and best sample (new episodes)."""
     sample_actions: bool = False
     """Evaluate fitness with sampled actions instead of greedy ones."""
     net: NetConfig = field(default_factory=NetConfig)
@@ -54,7 +56,7 @@ class CEMConfig:
             raise UsageError(f"initial std must be > 0, got {self.init_std}")
         if self.extra_noise < 0:
             raise UsageError(f"extra noise (a mutation scale) must be >= 0, got {self.extra_noise}")
-        for name in ("generations", "num_episodes", "noise_decay_generations"):
+        for name in ("generations", "num_episodes", "noise_decay_generations", "selection_episodes"):
             if getattr(self, name) < 1:
                 raise UsageError(f"{name.replace('_', ' ')} must be >= 1, got {getattr(self, name)}")
 
@@ -103,9 +105,14 @@ def step(state: CEMState, fitness_fn: FitnessFn, config: CEMConfig) -> tuple[CEM
     return state, metrics
 
 
+def candidates(state: CEMState) -> jax.Array:
+    """What the final selection chooses from: the Gaussian's mean and the latest best ``[2, num_params]``."""
+    return jnp.stack([state.mean, state.best_params])
+
+
 def load_policy(run_dir: pathlib.Path, config: dict) -> Policy:
     """The greedy policy of a saved CEM run (``agentax play/evaluate --policy DIR``)."""
     return load_net_policy(run_dir, config)
 
 
-__all__ = ["CEMConfig", "CEMState", "init", "load_policy", "step"]
+__all__ = ["CEMConfig", "CEMState", "candidates", "init", "load_policy", "step"]

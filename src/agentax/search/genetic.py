@@ -28,7 +28,7 @@ class GAConfig:
 
     population_size: int = 64
     """Candidates per generation."""
-    generations: int = 30
+    generations: int = 20
     """Generations to run (at most)."""
     num_episodes: int = 5
     """Episodes per fitness evaluation (fitness = their mean return)."""
@@ -38,10 +38,12 @@ class GAConfig:
     """Members drawn at random per tournament; the fittest becomes a parent."""
     crossover_rate: float = 0.5
     """Probability that a child mixes its two parents gene by gene (uniform crossover)."""
-    mutation_scale: float = 0.1
+    mutation_scale: float = 0.3
     """Standard deviation of the Gaussian noise added to every gene of a child."""
     init_scale: float = 1.0
     """Standard deviation of the first generation's genes (around zero)."""
+    selection_episodes: int = 20
+    """Episodes of the final selection among the last generation (new episodes, not the search's)."""
     sample_actions: bool = False
     """Evaluate fitness with sampled actions instead of greedy ones."""
     net: NetConfig = field(default_factory=NetConfig)
@@ -56,7 +58,7 @@ class GAConfig:
             raise UsageError(f"elite fraction must be in (0, 1), got {self.elite_fraction}")
         if not 0 <= self.crossover_rate <= 1:
             raise UsageError(f"crossover rate must be in [0, 1], got {self.crossover_rate}")
-        for name in ("generations", "num_episodes", "tournament_size"):
+        for name in ("generations", "num_episodes", "tournament_size", "selection_episodes"):
             if getattr(self, name) < 1:
                 raise UsageError(f"{name.replace('_', ' ')} must be >= 1, got {getattr(self, name)}")
         if self.init_scale <= 0:
@@ -114,9 +116,14 @@ def step(state: GAState, fitness_fn: FitnessFn, config: GAConfig) -> tuple[GASta
     return state, metrics
 
 
+def candidates(state: GAState) -> jax.Array:
+    """Candidates of the final selection: the next generation [population_size, num_params], elites first."""
+    return state.population
+
+
 def load_policy(run_dir: pathlib.Path, config: dict) -> Policy:
     """The greedy policy of a saved GA run (``agentax play/evaluate --policy DIR``)."""
     return load_net_policy(run_dir, config)
 
 
-__all__ = ["GAConfig", "GAState", "init", "load_policy", "step"]
+__all__ = ["GAConfig", "GAState", "candidates", "init", "load_policy", "step"]

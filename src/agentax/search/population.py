@@ -146,6 +146,24 @@ def evaluate_population(
     return fitness, env_steps.sum()
 
 
+def select_best(fitness: FitnessFn, candidates: jax.Array, key: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The fittest of ``candidates: [num_candidates, num_params]`` on new episodes, and its fitness.
+
+    The last step of a search: the best score seen during the search is partly luck (the best of
+    thousands of noisy evaluations), so the final choice is made on episodes of its own.
+    """
+    scores, _ = evaluate_population(fitness, candidates, key)
+    best = jnp.argmax(scores)
+    return candidates[best], scores[best]
+
+
+def select_final(
+    candidates: Callable[[object], jax.Array], states, fitness: FitnessFn, key: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """:func:`select_best` for each seed of vmapped ``states``: ``([num_seeds, num_params], [num_seeds])``."""
+    return jax.jit(jax.vmap(lambda state: select_best(fitness, candidates(state), key)))(states)
+
+
 def rank_elites(fitness: jax.Array, num_elites: int) -> jax.Array:
     """Indices ``[num_elites]`` of the fittest members, best first."""
     return jax.lax.top_k(fitness, num_elites)[1]
