@@ -24,8 +24,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from jax.extend.random import threefry_2x32
 
-from agentax.envs.cartpole import CartPole, CartPoleState, cartpole_v0, cartpole_v1
+from agentax.envs.cartpole import CartPole, CartPoleState, cartpole_v0, cartpole_v1, threefry2x32, uniform4
 
 pytestmark = pytest.mark.timeout(120)
 VERSIONS = {"v0": (cartpole_v0, 200), "v1": (cartpole_v1, 500)}
@@ -155,6 +156,23 @@ def test_initial_states_are_distributed_as_gymnasiums():
     np.testing.assert_allclose(obs.mean(0), 0.0, atol=1e-3)  # 5 standard errors: 0.0289 / sqrt(n) = 2e-4
     np.testing.assert_allclose(obs.var(0), 0.01 / 12, rtol=0.03)
     assert len(np.unique(obs[:, 0])) > 0.99 * n  # full float resolution, no coarse grid
+
+
+def test_start_values_are_jaxs_own_threefry_draws():
+    # The unrolled hash is bit for bit jax's Threefry-2x32, on 1,000 random keys and counters ...
+    words = jax.random.bits(jax.random.key(6), (4, 1000))
+    expected = jax.vmap(lambda k0, k1, x0, x1: threefry_2x32((k0, k1), jnp.stack([x0, x1])))(*words)
+    np.testing.assert_array_equal(jnp.stack(jax.jit(threefry2x32)(*words), axis=1), expected)
+    # ... so uniform4 draws what jax.random.uniform draws with non-partitionable Threefry, and other
+    # key implementations fall back to jax.random.uniform itself.
+    for key in jax.random.split(jax.random.key(7), 5):
+        with jax.threefry_partitionable(False):
+            expected = jax.random.uniform(key, (4,), jnp.float32, -0.05, 0.05)
+        np.testing.assert_array_equal(jax.jit(uniform4, static_argnums=(1, 2))(key, -0.05, 0.05), expected)
+    rbg = jax.random.key(8, impl="rbg")
+    np.testing.assert_array_equal(
+        uniform4(rbg, 0.0, 1.0), jax.random.uniform(rbg, (4,), jnp.float32, 0.0, 1.0)
+    )
 
 
 def test_spaces_and_limits_match_gymnasium():
