@@ -168,7 +168,7 @@ def test_compiled_and_host_runners_take_the_same_learning_step():
 
 
 def test_presets_and_validation():
-    lecture = dqn.PRESETS["lecture"]
+    lecture = dqn.PRESETS["lecture"].config
     # LECTURE-FACTS.md: 32-32 elu, batch 32, γ 0.95, Adam 1e-3, MSE, replay 2,000, ε to 0.01 in 500 episodes.
     assert (lecture.hidden, lecture.activation, lecture.batch_size) == ((32, 32), "elu", 32)
     assert (lecture.discount_factor, lecture.learning_rate, lecture.loss) == (0.95, 1e-3, "mse")
@@ -180,7 +180,7 @@ def test_presets_and_validation():
     with pytest.raises(UsageError, match="choose from"):
         dqn.preset("nope")
     with pytest.raises(UsageError, match="discount_factor"):
-        dqn.preset("cartpole", discount_factor=1.5)
+        dqn.preset("default", discount_factor=1.5)
     with pytest.raises(UsageError, match="discrete action space"):
         from agentax.envs.core import Box
 

@@ -15,7 +15,7 @@ fixed Q targets     ``target_update_period`` > 0   Q_target uses ``target_params
                     (``target_update_tau`` < 1:    K learning steps (copy, or Polyak averaging
                     Polyak)                        ``θ⁻ ← τ θ + (1 − τ) θ⁻``)
 Double DQN          ``double``                     Q_select is the online network, Q_target values
-dueling             ``dueling`` = "max" | "mean"   ``Q = V + (A − max A)`` (the lecture) or mean
+dueling             ``dueling``                    ``Q = V + (A − max A)`` (the lecture) or mean
 prioritized replay  ``prioritized``                sample ∝ (|δ| + ε)^ζ, loss weighted by w
 n-step returns      ``n_step`` > 1                 r is a discounted sum of n rewards, γ^n bootstrap
 ==================  =============================  ==========================================
@@ -36,13 +36,16 @@ import dataclasses
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from pathlib import Path
+from typing import Annotated, Any
 
 import jax
 import jax.numpy as jnp
 import optax
+import tyro
 from flax import struct
 
+from agentax.agents import Preset
 from agentax.envs.core import Discrete, Environment
 from agentax.errors import UsageError
 from agentax.nets import QNetwork
@@ -53,23 +56,25 @@ from agentax.returns import EpisodeStats
 
 @dataclass(frozen=True)
 class DQNConfig:
-    """Hyperparameters of DQN and its variants (defaults: the tuned CartPole-v1 preset)."""
+    """Hyperparameters of DQN and its variants (defaults: the tuned CartPole-v1 preset, "default")."""
 
     hidden: tuple[int, ...] = (64, 64)
     """Widths of the Q-network's hidden layers."""
     activation: str = "relu"
     """Activation of the hidden layers: elu, relu, tanh, gelu or swish."""
-    dueling: str | None = None
-    """Dueling head: None (plain), "max" (Q = V + A − max A, the lecture) or "mean" (Q = V + A − mean A)."""
-    double: bool = False
+    dueling: bool = False
+    """Dueling head: Q = V + A − baseline(A), the baseline chosen by dueling_baseline."""
+    dueling_baseline: str = "max"
+    """The dueling head's baseline: "max" (Q = V + A − max A, the lecture) or "mean" (A − mean A)."""
+    double: bool = True
     """Double DQN: the online network picks the next action, the target network values it."""
-    target_update_period: int = 100
+    target_update_period: Annotated[int, tyro.conf.arg(aliases=("--target-update",))] = 128
     """Learning steps between target-network updates; 0: no target network (bootstrap from online)."""
     target_update_tau: float = 1.0
     """Share of the online weights mixed into the target at each update: 1 copies, 0.01 is Polyak."""
     discount_factor: float = 0.99
     """γ, the weight of the next state's value in the TD target."""
-    learning_rate: float = 2.5e-3
+    learning_rate: float = 2.3e-3
     """Adam's step size."""
     anneal_learning_rate: bool = False
     """Decay the step size linearly to 0 over the run's learning steps (settles a solved agent)."""
@@ -79,11 +84,11 @@ class DQNConfig:
     """TD loss: "mse" (mean squared TD error, the lecture) or "huber" (quadratic within ±1, then linear)."""
     batch_size: int = 64
     """Transitions per learning step."""
-    buffer_size: int = 10_000
+    buffer_size: int = 50_000
     """Replay capacity: the most recent transitions kept."""
-    n_step: int = 1
+    n_step: int = 3
     """Rewards summed per transition before bootstrapping (1: one-step TD)."""
-    prioritized: bool = False
+    prioritized: Annotated[bool, tyro.conf.arg(aliases=("--per",))] = False
     """Prioritized replay: sample ∝ (|δ| + ε)^ζ and weight the loss by importance weights."""
     priority_exponent: float = 0.6
     """ζ: how strongly sampling follows the priorities (0: uniform)."""
@@ -96,20 +101,25 @@ class DQNConfig:
     envs) or "episodes" (the lecture's loop: ε per episode, learning steps at episode ends; one env)."""
     learning_starts: int = 1_000
     """Collect this many steps (or episodes) before the first learning step."""
-    train_frequency: int = 4
+    train_frequency: int = 64
     """Steps per env (or episodes) collected between learning phases."""
-    gradient_steps: int = 1
+    gradient_steps: int = 128
     """Learning steps per learning phase."""
     epsilon_start: float = 1.0
     """ε at the start: the probability of a random action."""
-    epsilon_end: float = 0.05
+    epsilon_end: float = 0.04
     """ε after exploration_duration."""
-    exploration_duration: int = 10_000
+    exploration_duration: int = 8_000
     """Steps (or episodes) over which ε moves linearly from epsilon_start to epsilon_end."""
     max_episodes: int = 0
     """Stop collecting and learning after this many episodes (0: no limit; the lecture's 600)."""
-    total_steps: int = 50_000
+    total_steps: int = 60_000
     """Env steps of the whole run (summed over envs)."""
+    freeze_at_return: float | None = None
+    """Early stopping per seed (compiled runner): stop learning once the greedy policy's last
+    ``freeze_episodes`` episodes, played on side envs during training, average at least this."""
+    freeze_episodes: int = 8
+    """Greedy episodes (and side envs) behind ``freeze_at_return``."""
 
     @property
     def steps_per_update(self) -> int:
@@ -138,8 +148,8 @@ class DQNConfig:
             (self.learning_rate > 0, f"learning_rate must be positive, got {self.learning_rate}"),
             (self.loss in ("mse", "huber"), f"unknown loss {self.loss!r}; choose from mse, huber"),
             (
-                self.dueling in (None, "max", "mean"),
-                f"unknown dueling mode {self.dueling!r}; choose from max, mean",
+                self.dueling_baseline in ("max", "mean"),
+                f"unknown dueling_baseline {self.dueling_baseline!r}; choose from max, mean",
             ),
             (self.n_step >= 1, f"n_step must be at least 1, got {self.n_step}"),
             (
@@ -154,6 +164,7 @@ class DQNConfig:
             (self.num_envs >= 1, f"num_envs must be at least 1, got {self.num_envs}"),
             (self.train_frequency >= 1, f"train_frequency must be at least 1, got {self.train_frequency}"),
             (self.total_steps >= 1, f"total_steps must be at least 1, got {self.total_steps}"),
+            (self.freeze_episodes >= 1, f"freeze_episodes must be at least 1, got {self.freeze_episodes}"),
             (
                 self.schedule_unit in ("steps", "episodes"),
                 f"unknown schedule_unit {self.schedule_unit!r}; choose from steps, episodes",
@@ -169,42 +180,68 @@ class DQNConfig:
         return self
 
 
-PRESETS: dict[str, DQNConfig] = {
-    # The tuned preset: solves CartPole-v1 (evaluation mean >= 475) on every seed in few env steps.
-    "cartpole": DQNConfig(),
-    # The lecture (see LECTURE-FACTS.md), episode for episode: one env, ε = max(1 − episode/500, 0.01),
-    # 600 episodes of at most 200 steps (CartPole-v0), one learning step of batch 32 at the end of each
-    # episode once 50 episodes are done, replay of the last 2,000 transitions, γ 0.95, Adam 1e-3, MSE,
-    # no target network. total_steps 120,000 = 600 × 200 is an upper bound that max_episodes cuts short.
-    "lecture": DQNConfig(
-        hidden=(32, 32),
-        activation="elu",
-        target_update_period=0,
-        discount_factor=0.95,
-        learning_rate=1e-3,
-        max_grad_norm=None,
-        loss="mse",
-        batch_size=32,
-        buffer_size=2_000,
-        num_envs=1,
-        schedule_unit="episodes",
-        learning_starts=50,
-        train_frequency=1,
-        gradient_steps=1,
-        epsilon_start=1.0,
-        epsilon_end=0.01,
-        exploration_duration=495,
-        max_episodes=600,
-        total_steps=120_000,
+LECTURE = DQNConfig(
+    hidden=(32, 32),
+    activation="elu",
+    double=False,
+    target_update_period=0,
+    discount_factor=0.95,
+    learning_rate=1e-3,
+    max_grad_norm=None,
+    loss="mse",
+    batch_size=32,
+    buffer_size=2_000,
+    n_step=1,
+    num_envs=1,
+    schedule_unit="episodes",
+    learning_starts=50,
+    train_frequency=1,
+    gradient_steps=1,
+    epsilon_start=1.0,
+    epsilon_end=0.01,
+    exploration_duration=495,
+    max_episodes=600,
+    total_steps=120_000,
+)
+"""The lecture's DQN (LECTURE-FACTS.md), episode for episode, on CartPole-v0.
+
+The lecture loops over 600 episodes of at most 200 steps; in each step ε = max(1 − episode/500,
+0.01); after each episode, once 50 episodes are done, one training step on a batch of 32 from the
+last 2,000 transitions. In agentax's units: ``schedule_unit="episodes"`` counts ``learning_starts``
+(50), ``train_frequency`` (1: a learning step at the end of every episode) and
+``exploration_duration`` (495: ε reaches 0.01 at episode 495, as max(1 − 495/500, 0.01) does) in
+finished episodes; ``max_episodes=600`` ends collection and learning after the 600th episode, and
+``total_steps=120,000`` (600 × 200, the most those episodes can take) bounds the run. One env, no
+target network, MSE, Adam 1e-3 (the lecture notes 1e-2 works better), γ 0.95. One difference: the
+lecture stores ``done`` and so also cuts bootstrapping at the 200-step time limit; agentax keeps
+truncation apart and bootstraps through it.
+"""
+
+PRESETS: dict[str, Preset] = {
+    "default": Preset(
+        DQNConfig(freeze_at_return=475.0),
+        "tuned for CartPole-v1: Double DQN, 3-step returns, 128 learning steps per 256 env steps; "
+        "each seed stops learning once its greedy policy averages 475; stops when solved",
+        updates_per_chunk=4,
+        eval_every_chunks=1,
+        eval_episodes=20,
+        stop_at_solved=True,
+    ),
+    "lecture": Preset(
+        LECTURE,
+        "the lecture's DQN: 600 episodes of CartPole-v0, a learning step per episode, no target network",
+        updates_per_chunk=2_000,
+        eval_every_chunks=1,
+        eval_episodes=20,
     ),
 }
 
 
 def preset(name: str, **overrides: Any) -> DQNConfig:
-    """The preset ``name`` with ``overrides`` applied, validated."""
+    """The config of preset ``name`` with ``overrides`` applied, validated."""
     if name not in PRESETS:
         raise UsageError(f"unknown DQN preset {name!r}; choose from {', '.join(PRESETS)}")
-    return dataclasses.replace(PRESETS[name], **overrides).validate()
+    return dataclasses.replace(PRESETS[name].config, **overrides).validate()
 
 
 @struct.dataclass
@@ -220,7 +257,10 @@ class DQNState:
 
 def q_network(cfg: DQNConfig, num_actions: int) -> QNetwork:
     return QNetwork(
-        num_actions=num_actions, hidden=tuple(cfg.hidden), activation=cfg.activation, dueling=cfg.dueling
+        num_actions=num_actions,
+        hidden=tuple(cfg.hidden),
+        activation=cfg.activation,
+        dueling=cfg.dueling_baseline if cfg.dueling else None,
     )
 
 
@@ -407,6 +447,53 @@ class TrainState:
     obs: jax.Array  # [num_envs, *obs_shape]
     episodes: EpisodeStats  # returns, finished episodes and env steps, read by the runner
     key: jax.Array
+    greedy: GreedyMonitor | None = None  # with freeze_at_return: the greedy side envs
+
+
+@struct.dataclass
+class GreedyMonitor:
+    """Side envs played by the greedy policy during training, for per-seed early stopping.
+
+    Their finished episodes' returns go into a ring of the last ``freeze_episodes``; once it is full
+    and its mean reaches ``freeze_at_return`` the seed is ``frozen``: it keeps collecting (so the
+    runner's schedule is unchanged) but learns no more. Costs one extra small forward pass per step.
+    """
+
+    env_state: Any
+    obs: jax.Array  # [freeze_episodes, *obs_shape]
+    running: jax.Array  # float32 [freeze_episodes]: return of each side env's running episode
+    returns: jax.Array  # float32 [freeze_episodes]: ring of the last finished episodes' returns
+    finished: jax.Array  # int32 []: episodes finished so far
+    frozen: jax.Array  # bool []
+
+
+def monitor_step(
+    monitor: GreedyMonitor,
+    agent: DQNState,
+    key: jax.Array,
+    vmap_step: Callable,
+    params: Any,
+    threshold: float,
+) -> GreedyMonitor:
+    """One greedy step of every side env; record finished returns; freeze once the ring's mean reaches
+    ``threshold``."""
+    num = monitor.obs.shape[0]
+    action = jnp.argmax(agent.network.apply(agent.params, monitor.obs), axis=-1)
+    time_step, env_state = vmap_step(jax.random.split(key, num), monitor.env_state, action, params)
+    running = monitor.running + time_step.reward
+    done = time_step.done
+    slot = (monitor.finished + jnp.cumsum(done) - 1) % num  # ring slots of this step's finished episodes
+    returns = monitor.returns.at[jnp.where(done, slot, num)].set(running, mode="drop")
+    finished = monitor.finished + done.sum(dtype=jnp.int32)
+    solved = (finished >= num) & (returns.mean() >= threshold)
+    return GreedyMonitor(
+        env_state=env_state,
+        obs=time_step.obs.astype(jnp.float32),
+        running=jnp.where(done, 0.0, running),
+        returns=returns,
+        finished=finished,
+        frozen=monitor.frozen | solved,
+    )
 
 
 @dataclass(frozen=True)
@@ -451,11 +538,12 @@ def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None):
     learn_step = make_learn(cfg)
     replay = replay_for(cfg)
     by_episode = cfg.schedule_unit == "episodes"
+    monitoring = cfg.freeze_at_return is not None
     vmap_reset = jax.vmap(env.reset, in_axes=(0, None))
     vmap_step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
 
     def init_fn(key: jax.Array) -> TrainState:
-        key, agent_key, reset_key = jax.random.split(key, 3)
+        key, agent_key, reset_key, monitor_key = jax.random.split(key, 4)
         obs, env_state = vmap_reset(jax.random.split(reset_key, cfg.num_envs), params)
         agent = init(agent_key, obs[0], num_actions, cfg)
         one = example_transition(obs[0].astype(jnp.float32), jnp.int32(0))
@@ -468,10 +556,16 @@ def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None):
             obs=obs.astype(jnp.float32),
             episodes=EpisodeStats.create(cfg.num_envs),
             key=key,
+            greedy=init_monitor(monitor_key) if monitoring else None,
         )
 
+    def init_monitor(key: jax.Array) -> GreedyMonitor:
+        obs, env_state = vmap_reset(jax.random.split(key, cfg.freeze_episodes), params)
+        zeros = jnp.zeros(cfg.freeze_episodes, jnp.float32)
+        return GreedyMonitor(env_state, obs.astype(jnp.float32), zeros, zeros, jnp.int32(0), jnp.bool_(False))
+
     def collect_step(state: TrainState, _) -> tuple[TrainState, jax.Array]:
-        key, act_key, step_key = jax.random.split(state.key, 3)
+        key, act_key, step_key, monitor_key = jax.random.split(state.key, 4)
         epsilon = epsilon_at(cfg, state.episodes.completed if by_episode else state.episodes.env_steps)
         action = act(state.agent, state.obs, act_key, epsilon)
         time_step, env_state = vmap_step(
@@ -494,6 +588,11 @@ def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None):
             ),
             key=key,
         )
+        if monitoring:
+            greedy = monitor_step(
+                state.greedy, state.agent, monitor_key, vmap_step, params, cfg.freeze_at_return
+            )
+            state = state.replace(greedy=greedy)
         return state, epsilon
 
     def learn_phase(state: TrainState) -> tuple[TrainState, dict]:
@@ -532,12 +631,13 @@ def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None):
             due = state.episodes.env_steps >= cfg.learning_starts
         if cfg.max_episodes:
             due = due & (episodes_before < cfg.max_episodes)
+        extra = {}
+        if monitoring:
+            due = due & ~state.greedy.frozen
+            extra = {"frozen": state.greedy.frozen.astype(jnp.float32)}
         state, metrics = jax.lax.cond(due, learn_phase, skip_learning, state)
-        return state, {
-            **metrics,
-            "epsilon": epsilon[-1],
-            "learning_steps": state.agent.step.astype(jnp.float32),
-        }
+        learning_steps = state.agent.step.astype(jnp.float32)
+        return state, {**metrics, "epsilon": epsilon[-1], "learning_steps": learning_steps, **extra}
 
     return CompiledAlgorithm(
         init=init_fn,
@@ -553,6 +653,27 @@ def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None):
 
 def config_to_dict(cfg: DQNConfig) -> dict:
     return dataclasses.asdict(cfg)
+
+
+def load_policy(run_dir: Path, config: dict[str, Any]) -> Policy:
+    """The greedy policy of a DQN run (its best seed), for ``agentax.runs.load_policy``."""
+    from agentax.runs import latest_checkpoint, load_tree
+
+    cfg = config_from_dict(config["config"])
+    if config.get("runner_kind", "compiled") == "host":
+        from agentax.envs.gym import GymnasiumEnv
+
+        env = GymnasiumEnv(config["env"])
+        obs = jnp.zeros(env.observation_space().shape, jnp.float32)
+        target = jax.eval_shape(lambda: init(jax.random.key(0), obs, num_actions_of(env.action_space()), cfg))
+        env.close()
+        agent, _ = load_tree(latest_checkpoint(run_dir), target)
+        return greedy_policy(agent)
+    from agentax.envs import make_jax
+    from agentax.train.compiled import RunnerConfig, restore_policy
+
+    env = make_jax(config["env"])
+    return restore_policy(run_dir, make_train(env, cfg), RunnerConfig(**config["runner"]))
 
 
 def config_from_dict(values: dict) -> DQNConfig:
@@ -573,6 +694,7 @@ __all__ = [
     "greedy_policy",
     "init",
     "learn",
+    "load_policy",
     "make_learn",
     "make_train",
     "preset",

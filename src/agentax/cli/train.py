@@ -31,6 +31,7 @@ from agentax.errors import UsageError
 ALGOS: dict[str, str] = {
     "reinforce": "agentax.agents.reinforce",
     "ppo": "agentax.agents.ppo",
+    "dqn": "agentax.agents.dqn",
 }
 HOST_ALGOS = ("ppo",)  # algorithms with a host loop for Gymnasium-only envs
 
