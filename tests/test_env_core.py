@@ -192,3 +192,10 @@ def test_box_with_scalar_and_infinite_bounds():
     samples = np.asarray(jax.vmap(unbounded.sample)(jax.random.split(jax.random.key(12), 100)))
     assert np.all(np.isfinite(samples)) and np.all(np.abs(samples) <= 1e6)
     assert unbounded.contains(np.array([1e30, -1e30, 0.0]))
+
+
+def test_box_names_its_bounds():
+    assert str(Box(0, 255, (84, 84, 4))) == "Box(shape=(84, 84, 4), low=0, high=255)"
+    cartpole_like = Box(-np.array([4.8, np.inf]), np.array([4.8, np.inf]), (2,))
+    assert str(cartpole_like) == "Box(shape=(2,), low=[-4.8, -inf], high=[4.8, inf])"
+    assert str(Box(np.arange(20.0), 30.0, (20,))) == "Box(shape=(20,), low=0..19, high=30)"

@@ -84,7 +84,18 @@ class Box:
         return bool(x.shape == self.shape and np.all(x >= self.low) and np.all(x <= self.high))
 
     def __str__(self) -> str:
-        return f"Box(shape={self.shape}, low={np.min(self.low):.3g}, high={np.max(self.high):.3g})"
+        low, high = _bounds_str(self.low, self.shape), _bounds_str(self.high, self.shape)
+        return f"Box(shape={self.shape}, low={low}, high={high})"
+
+
+def _bounds_str(bound: Any, shape: tuple[int, ...]) -> str:
+    """One number where all entries agree, each entry for small boxes (CartPole's), else the range."""
+    bound = np.broadcast_to(np.asarray(bound, np.float64), shape)
+    if bound.size == 0 or np.all(bound == bound.flat[0]):
+        return f"{bound.flat[0]:.3g}" if bound.size else "[]"
+    if bound.size <= 8:
+        return "[" + ", ".join(f"{value:.3g}" for value in bound.flat) + "]"
+    return f"{np.min(bound):.3g}..{np.max(bound):.3g}"
 
 
 class Environment(abc.ABC):
@@ -97,24 +108,21 @@ class Environment(abc.ABC):
     id: str = "Environment"
 
     @abc.abstractmethod
-    def default_params(self) -> EnvParams:
-        ...
+    def default_params(self) -> EnvParams: ...
 
     @abc.abstractmethod
-    def reset_env(self, key: Array, params: EnvParams) -> tuple[Array, EnvState]:
-        ...
+    def reset_env(self, key: Array, params: EnvParams) -> tuple[Array, EnvState]: ...
 
     @abc.abstractmethod
-    def step_env(self, key: Array, state: EnvState, action: Array, params: EnvParams) -> tuple[TimeStep, EnvState]:
-        ...
+    def step_env(
+        self, key: Array, state: EnvState, action: Array, params: EnvParams
+    ) -> tuple[TimeStep, EnvState]: ...
 
     @abc.abstractmethod
-    def observation_space(self, params: EnvParams | None = None) -> Discrete | Box:
-        ...
+    def observation_space(self, params: EnvParams | None = None) -> Discrete | Box: ...
 
     @abc.abstractmethod
-    def action_space(self, params: EnvParams | None = None) -> Discrete | Box:
-        ...
+    def action_space(self, params: EnvParams | None = None) -> Discrete | Box: ...
 
     def reset(self, key: Array, params: EnvParams | None = None) -> tuple[Array, EnvState]:
         return self.reset_env(key, self.default_params() if params is None else params)
