@@ -12,6 +12,7 @@ Run: ``python benchmarks/run.py envs``.
 from __future__ import annotations
 
 import math
+import os
 import time
 
 import gymnasium as gym
@@ -164,10 +165,14 @@ def run() -> dict:
             eval_steps / eval_seconds / loop,
         ]
     )
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    cpus = "one CPU" if usable == 1 else f"{usable} CPUs"
     notes = (
         "Env steps per second of CartPole-v1 with random actions (auto-reset on), best of "
-        f"{REPEATS} runs of ≥ {MIN_SECONDS:g} s each, all measured in one process, pinned to one CPU as "
-        "`import agentax` does (the cure for the XLA CPU hang; Gymnasium is single-threaded anyway). "
+        f"{REPEATS} runs of ≥ {MIN_SECONDS:g} s each, all measured in one process on {cpus} "
+        "(`import agentax` pins a process to one CPU, the cure for the XLA CPU hang; Gymnasium is "
+        "single-threaded anyway; two cores with `AGENTAX_PIN_CPU=0`, or "
+        "`XLA_FLAGS=--xla_cpu_multi_thread_eigen=false`, showed no consistent gain when tried). "
         "agentax: one jitted `lax.scan` of `vmap(env.step)`; the random actions are drawn inside the scan "
         "and each step splits a key per env, both counted; compile time (s) is measured apart. "
         "Gymnasium gets its random actions drawn in advance (not counted). "
