@@ -1,6 +1,7 @@
 """The compiled runner, and the XLA CPU hang it must never meet again (DESIGN.md, "Known hazards")."""
 
 import os
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -65,3 +66,86 @@ def test_vmapped_chunk_called_repeatedly_never_hangs():
     if len(os.sched_getaffinity(0)) > 1:
         masks = result.stdout.split("affinity", 1)[1].strip()
         assert masks.count("(") == 1, f"some thread escaped the one-CPU pin: {masks}"
+
+
+# The runner itself: seeds, determinism, interruption and resume, on a tiny PPO.
+
+import dataclasses  # noqa: E402
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+
+from agentax import _xla  # noqa: E402
+from agentax.agents import ppo  # noqa: E402
+from agentax.envs import make_jax  # noqa: E402
+from agentax.errors import UsageError  # noqa: E402
+from agentax.runs import Run, checkpoints, read_metrics  # noqa: E402
+from agentax.train.compiled import RunnerConfig, train  # noqa: E402
+
+
+@pytest.fixture(autouse=True, scope="module")
+def compilation_cache(tmp_path_factory):
+    """Runs of the same program compile once (the persistent cache the CLI uses)."""
+    os.environ["AGENTAX_JAX_CACHE"] = str(tmp_path_factory.mktemp("jax-cache"))
+    _xla.enable_compilation_cache()
+    yield
+    del os.environ["AGENTAX_JAX_CACHE"]
+
+
+TINY = dataclasses.replace(
+    ppo.PPOConfig(), total_steps=12 * 64, num_envs=4, num_steps=16, num_minibatches=2, update_epochs=2
+)
+ENV = make_jax("CartPole-v1")
+
+
+def _train(runner, run=None, **kwargs):
+    return train(ppo.make_train(ENV, TINY), ENV, runner, run, **kwargs)
+
+
+def _params(result, seed_index):
+    return jax.tree.leaves(jax.tree.map(lambda x: np.asarray(x[seed_index]), result.state.agent.params))
+
+
+@pytest.mark.timeout(180)
+def test_seed_alone_equals_seed_inside_a_vmapped_batch_and_reruns_are_identical():
+    batch = _train(RunnerConfig(seed=0, num_seeds=3, updates_per_chunk=4, eval_episodes=3))
+    alone = _train(RunnerConfig(seed=2, num_seeds=1, updates_per_chunk=4, eval_episodes=3))
+    again = _train(RunnerConfig(seed=2, num_seeds=1, updates_per_chunk=4, eval_episodes=3))
+    for got, want in zip(_params(alone, 0), _params(batch, 2), strict=True):
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+    assert [r["return_seed0"] for r in alone.rows] == pytest.approx([r["return_seed2"] for r in batch.rows])
+    assert alone.rows == [
+        {**r, "steps_per_second": a["steps_per_second"], "wall_seconds": a["wall_seconds"]}
+        for r, a in zip(again.rows, alone.rows, strict=True)
+    ]
+    for got, want in zip(_params(alone, 0), _params(again, 0), strict=True):
+        np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.timeout(180)
+def test_interrupted_run_resumes_to_the_same_end_and_a_torn_checkpoint_is_a_clear_error(tmp_path):
+    runner = RunnerConfig(seed=0, num_seeds=2, updates_per_chunk=4, eval_episodes=3)
+    whole = _train(runner, Run.create(tmp_path / "whole", {"algo": "ppo", "env": ENV.id}))
+    run = Run.create(tmp_path / "cut", {"algo": "ppo", "env": ENV.id})
+    cut = _train(runner, run, max_chunks=1)  # as if killed after the first checkpoint
+    assert cut.updates == 4 and not (tmp_path / "cut" / "eval.json").exists()
+
+    shutil.copytree(tmp_path / "cut", tmp_path / "torn")  # the same run with a torn checkpoint
+    newest = checkpoints(tmp_path / "torn")[-1]
+    newest.write_bytes(newest.read_bytes()[: newest.stat().st_size // 2])
+    with pytest.raises(UsageError, match=newest.name):
+        _train(runner, Run.open(tmp_path / "torn"), resume=True)
+
+    resumed = _train(runner, Run.open(tmp_path / "cut"), resume=True)
+    assert resumed.updates == whole.updates == 12
+    assert resumed.env_steps == whole.env_steps == 12 * 64
+    for got, want in zip(_params(resumed, 1), _params(whole, 1), strict=True):
+        np.testing.assert_array_equal(got, want)
+    rows = read_metrics(tmp_path / "cut")
+    assert [r["env_steps"] for r in rows] == [r["env_steps"] for r in read_metrics(tmp_path / "whole")]
+    assert (tmp_path / "cut" / "eval.json").exists() and (tmp_path / "cut" / "curve.png").exists()
+
+
+def test_runner_config_rejects_zero_seeds():
+    with pytest.raises(UsageError, match="seeds"):
+        RunnerConfig(num_seeds=0)
