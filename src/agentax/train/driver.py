@@ -270,7 +270,8 @@ def train_dqn_host(
                 if cfg.prioritized:
                     host.update_priorities(buffer, sample.indices, np.asarray(metrics["td_error"]))
             loss = float(metrics["loss"])
-        if steps.count >= next_log or steps.count >= cfg.total_steps:
+        finished = steps.count >= cfg.total_steps or (cfg.max_episodes and episodes.count >= cfg.max_episodes)
+        if steps.count >= next_log or finished:
             next_log += log_every_steps
             log = HostLog(
                 env_steps=steps.count,

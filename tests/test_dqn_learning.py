@@ -1,0 +1,71 @@
+"""DQN learns CartPole through both runners (fixed seeds, CI-sized); the lecture's episode schedule."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from agentax.agents import dqn
+from agentax.envs import make_jax
+from agentax.envs.gym import GymnasiumEnv
+from agentax.evaluate import host_episode_returns
+from agentax.train.compiled import RunnerConfig, train
+from agentax.train.driver import train_dqn_host
+
+# The tuned preset, cut down: 16 learning steps per 64 env steps instead of 128 per 256.
+SMALL = dqn.preset("default", gradient_steps=16, train_frequency=16, freeze_at_return=None, total_steps=8_192)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_dqn_improves_on_the_compiled_runner_and_freezes():
+    """From a near-random start to a greedy policy far above random (~22, see LECTURE-FACTS' basic
+    policy at ~42); the seed freezes once 4 greedy side episodes average 150 and learns no more."""
+    cfg = dataclasses.replace(SMALL, freeze_at_return=150.0, freeze_episodes=4)
+    env = make_jax("CartPole-v1")
+    result = train(
+        dqn.make_train(env, cfg), env, RunnerConfig(seed=0, updates_per_chunk=32, eval_episodes=10)
+    )
+    first, last = result.rows[0], result.rows[-1]
+    assert last["env_steps"] == pytest.approx(8_192)
+    assert first["mean_return"] < 40  # ε is still high in the first 2,048 steps
+    assert result.eval["mean_return"] > 120, result.eval
+    state = result.state
+    assert bool(state.greedy.frozen[0]) and np.mean(np.asarray(state.greedy.returns[0])) >= 150
+    full_run = ((8_192 - 1_024) // 64 + 1) * 16  # learning phases from step 1,024 on, 16 steps each
+    assert int(state.agent.step[0]) < full_run
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_dqn_improves_through_the_host_driver():
+    env = GymnasiumEnv("CartPole-v1", SMALL.num_envs)
+    agent, logs = train_dqn_host(env, SMALL, seed=0, log_every_steps=2_048)
+    assert [log.env_steps for log in logs] == [2_048, 4_096, 6_144, 8_192]
+    # Learning phases after every 64 env steps from step 1,024 on: (8,192 − 1,024) / 64 + 1 = 113,
+    # 16 learning steps each.
+    assert logs[-1].learning_steps == 113 * 16
+    assert logs[0].mean_return < 40 < 100 < logs[-1].mean_return
+    returns, _ = host_episode_returns(GymnasiumEnv("CartPole-v1", 8), dqn.greedy_policy(agent), 8, seed=123)
+    assert returns.mean() > 100, returns  # Gymnasium's own CartPole, greedy policy
+    env.close()
+
+
+@pytest.mark.timeout(240)
+def test_lecture_schedule_counts_episodes():
+    """The lecture: one learning step at the end of each episode once 50 are done; nothing after the last."""
+    cfg = dataclasses.replace(dqn.PRESETS["lecture"].config, max_episodes=55, total_steps=2_000)
+    env = make_jax("CartPole-v0")
+    result = train(
+        dqn.make_train(env, cfg), env, RunnerConfig(seed=0, updates_per_chunk=2_000, eval_episodes=1)
+    )
+    state = result.state
+    assert int(state.episodes.completed[0]) == 55  # collection stopped after the 55th episode
+    assert int(state.agent.step[0]) == 5  # episodes 51..55: one learning step each
+    # ε = max(1 − episode/500, 0.01) is still ≥ 0.89 in these episodes: nearly random, short episodes,
+    # and the env steps stop counting with the 55th.
+    assert 55 * 8 < int(state.episodes.env_steps[0]) < 55 * 60
+    host_env = GymnasiumEnv("CartPole-v0", 1)
+    agent, logs = train_dqn_host(host_env, cfg, seed=0, log_every_steps=10_000)
+    assert logs[-1].episodes == 55 and int(agent.step) == 5
+    host_env.close()
