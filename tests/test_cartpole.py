@@ -70,6 +70,7 @@ def play_gymnasium(version: str, num_episodes: int = 100) -> dict[str, np.ndarra
                 rows[key].append(value)
             if terminated or truncated:
                 break
+    env.close()
     return {key: np.array(value) for key, value in rows.items()}
 
 
@@ -146,6 +147,7 @@ def test_initial_states_are_distributed_as_gymnasiums():
     obs = np.asarray(obs, np.float64)
     gym_vec = gymnasium.make_vec("CartPole-v1", num_envs=n, vectorization_mode="vector_entry_point")
     theirs, _ = gym_vec.reset(seed=2)
+    gym_vec.close()
     assert np.all(np.abs(obs) <= 0.05) and np.all(state.time == 0)
     np.testing.assert_array_equal(obs[:, 2], state.theta)
     grid = np.linspace(-0.05, 0.05, 201)
