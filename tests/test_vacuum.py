@@ -111,3 +111,17 @@ def test_render_frame_and_path():
     assert image.shape == (240, 240, 3) and image.dtype == np.uint8
     assert (image == [40, 110, 220]).all(axis=-1).sum() > 500  # the blue path is drawn
     assert not np.array_equal(image, frame)
+
+
+def test_step_auto_resets_after_thirty_minutes():
+    # The 900th step (time 899 -> 900) truncates; step returns the next episode's first state: a clean slate.
+    dirty = jnp.zeros((20, 20), bool)  # everything vacuumed
+    state = state_at(2.0, 2.0, 0.0, dirty).replace(time=jnp.int32(899))
+    ts, after = ENV.step(jax.random.key(4), state, FORWARD, PARAMS)
+    assert bool(ts.truncated) and not bool(ts.terminated) and float(ts.reward) == 0.0
+    assert int(after.time) == 0 and bool(np.asarray(after.dirty).all())
+    assert float(ts.final_obs[0]) == pytest.approx(2.5 / 5.0)  # moved 0.5 m east before the reset
+    np.testing.assert_allclose(ts.obs, ENV.get_obs(after, PARAMS))
+    # One step earlier nothing resets.
+    ts, after = ENV.step(jax.random.key(4), state.replace(time=jnp.int32(898)), FORWARD, PARAMS)
+    assert not bool(ts.truncated) and int(after.time) == 899 and float(after.x) == pytest.approx(2.5)

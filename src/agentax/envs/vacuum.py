@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from agentax.envs.cartpole import threefry2x32, uniform4
 from agentax.envs.core import Box, Environment, TimeStep
 from agentax.policies import Policy
 
@@ -93,12 +94,22 @@ class Vacuum(Environment):
 
     def reset_env(self, key: jax.Array, params: VacuumParams) -> tuple[jax.Array, VacuumState]:
         low, high = params.robot_radius, params.room_size - params.robot_radius
-        u = jax.random.uniform(key, (3,), jnp.float32)
+        u = uniform4(key, 0.0, 1.0)  # jax.random.uniform(key, (4,)) through an unrolled hash; 3 are used
         x, y = low + (high - low) * u[:2]
         heading = jnp.pi * (2.0 * u[2] - 1.0)
         dirty = jnp.ones((params.grid_size, params.grid_size), bool)
         state = VacuumState(x, y, heading, dirty, jnp.bool_(False), jnp.int32(0))
         return self.get_obs(state, params), state
+
+    def step(
+        self, key: jax.Array, state: VacuumState, action: jax.Array, params: VacuumParams | None = None
+    ) -> tuple[TimeStep, VacuumState]:
+        """``Environment.step`` (auto-reset) without its key split: ``step_env`` draws nothing."""
+        params = self.default_params() if params is None else params
+        ts, next_state = self.step_env(key, state, action, params)
+        _, reset_state = self.reset_env(key, params)
+        state = jax.tree.map(lambda r, s: jnp.where(ts.done, r, s), reset_state, next_state)
+        return ts.replace(obs=self.get_obs(state, params)), state
 
     def step_env(
         self, key: jax.Array, state: VacuumState, action: jax.Array, params: VacuumParams
@@ -185,11 +196,23 @@ def _trajectory(env: Vacuum, policy: Policy, num_steps: int, key: jax.Array, par
     return states, rewards
 
 
+def _uniform2(key: jax.Array) -> jax.Array:
+    """Two float32 uniforms in [0, 1) ``[2]``: the two words of one Threefry-2x32 hash of ``key``.
+
+    Half the hashes of ``jax.random.uniform(key, (2,))`` and unrolled, so XLA fuses it (faster on CPU).
+    """
+    if str(jax.random.key_impl(key)) != "threefry2x32":
+        return jax.random.uniform(key, (2,), jnp.float32)
+    data = jax.random.key_data(key)
+    bits = jnp.stack(threefry2x32(data[0], data[1], jnp.uint32(0), jnp.uint32(1)))
+    return jax.lax.bitcast_convert_type((bits >> 9) | jnp.uint32(0x3F800000), jnp.float32) - 1.0
+
+
 def vacuum_policy(p: float | jax.Array, r: float | jax.Array) -> Policy:
     """The lecture's policy: with probability ``p`` move forward, else turn by a uniform angle in [−r, r]."""
 
     def policy(obs: jax.Array, key: jax.Array) -> jax.Array:
-        u = jax.random.uniform(key, (2,), jnp.float32)
+        u = _uniform2(key)
         forward = u[0] < p
         angle = (2.0 * u[1] - 1.0) * r
         return jnp.stack([forward.astype(jnp.float32), jnp.asarray(angle, jnp.float32)])
