@@ -132,6 +132,20 @@ PRESETS: dict[str, Preset] = {
         updates_per_chunk=20,
         stop_at_solved=True,
     ),
+    "pendulum": Preset(
+        PPOConfig(
+            total_steps=200_000,
+            num_envs=4,
+            num_steps=512,
+            learning_rate=1e-3,
+            discount_factor=0.9,
+            gae_lambda=0.95,
+            num_minibatches=8,
+            update_epochs=10,
+            ent_coef=0.0,
+        ),
+        "continuous control (Pendulum-v1, host loop): Gaussian policy, γ 0.9, 10 epochs",
+    ),
 }
 
 

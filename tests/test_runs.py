@@ -1,0 +1,121 @@
+"""The run folder: config, metrics, checkpoints (atomic, no pickle, clear errors), eval.json, curves."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from agentax.errors import UsageError
+from agentax.runs import (
+    Run,
+    checkpoints,
+    default_run_dir,
+    latest_checkpoint,
+    load_policy,
+    load_tree,
+    plot_curves,
+    read_config,
+    read_metrics,
+    save_tree,
+)
+
+
+def test_default_run_dir_names_algo_env_and_time(tmp_path):
+    path = default_run_dir("ppo", "CartPole-v1", root=tmp_path)
+    assert path.parent == tmp_path and path.name.startswith("ppo-CartPole-v1-")
+    path.mkdir()
+    assert default_run_dir("ppo", "CartPole-v1", root=tmp_path) != path  # never reuses a folder
+
+
+def test_create_writes_config_and_refuses_an_existing_run(tmp_path):
+    run = Run.create(tmp_path / "r", {"algo": "ppo", "env": "CartPole-v1", "config": {"hidden": (64, 64)}})
+    assert read_config(run.path) == {"algo": "ppo", "env": "CartPole-v1", "config": {"hidden": [64, 64]}}
+    with pytest.raises(UsageError, match="already holds a run"):
+        Run.create(tmp_path / "r", {"algo": "ppo", "env": "CartPole-v1"})
+    with pytest.raises(UsageError, match="holds no run"):
+        read_config(tmp_path)
+
+
+def test_metrics_csv_rows_and_truncation(tmp_path):
+    run = Run.create(tmp_path / "r", {"algo": "ppo", "env": "CartPole-v1"})
+    for step in (100, 200, 300):
+        run.log(
+            {
+                "env_steps": step,
+                "mean_return": step / 10,
+                "return_seed0": step / 10,
+                "eval_return": float("nan"),
+            }
+        )
+    run.close()
+    rows = read_metrics(run.path)
+    assert [r["env_steps"] for r in rows] == [100, 200, 300]
+    assert rows[1]["mean_return"] == 20.0 and np.isnan(rows[1]["eval_return"])
+    assert list((run.path / "tensorboard").glob("events.out.tfevents.*"))
+    run.truncate_metrics(200)
+    assert [r["env_steps"] for r in read_metrics(run.path)] == [100, 200]
+    with pytest.raises(ValueError, match="not columns"):
+        Run.open(run.path).log({"env_steps": 400, "surprise": 1.0})
+
+
+def test_checkpoint_round_trip_with_typed_keys_and_no_temporary_left(tmp_path):
+    tree = {"w": jnp.arange(6.0).reshape(2, 3), "step": jnp.int32(7), "key": jax.random.key(3)}
+    path = save_tree(tmp_path / "ckpt-1.msgpack", tree, {"updates": 1})
+    assert [p.name for p in tmp_path.iterdir()] == ["ckpt-1.msgpack"]
+    restored, meta = load_tree(path, jax.eval_shape(lambda: tree))
+    assert meta == {"updates": 1}
+    np.testing.assert_array_equal(restored["w"], tree["w"])
+    assert int(restored["step"]) == 7
+    np.testing.assert_array_equal(jax.random.key_data(restored["key"]), jax.random.key_data(tree["key"]))
+    assert b"pickle" not in path.read_bytes()
+
+
+def test_corrupt_or_mismatched_checkpoint_names_the_file(tmp_path):
+    tree = {"w": jnp.ones((2, 3))}
+    path = save_tree(tmp_path / "ckpt-1.msgpack", tree)
+    with pytest.raises(UsageError, match="ckpt-1.msgpack"):
+        load_tree(path, {"w": jnp.ones((3, 3))})  # another configuration's shapes
+    path.write_bytes(b"\x00garbage")
+    with pytest.raises(UsageError, match="ckpt-1.msgpack"):
+        load_tree(path, tree)
+
+
+def test_keeps_the_newest_checkpoints(tmp_path):
+    run = Run.create(tmp_path / "r", {"algo": "ppo", "env": "CartPole-v1"})
+    for updates in (10, 20, 30):
+        run.save_checkpoint(updates, {"w": jnp.zeros(2)}, {"updates": updates})
+    assert [p.name for p in checkpoints(run.path)] == ["ckpt-20.msgpack", "ckpt-30.msgpack"]
+    assert latest_checkpoint(run.path).name == "ckpt-30.msgpack"
+    with pytest.raises(UsageError, match="no checkpoint"):
+        latest_checkpoint(tmp_path)
+
+
+def test_eval_json_pooled_and_per_seed(tmp_path):
+    run = Run.create(tmp_path / "r", {"algo": "ppo", "env": "CartPole-v1"})
+    returns = np.array([[10.0, 20.0], [30.0, 50.0]])
+    run.write_eval(returns, np.ones((2, 2), int))
+    result = json.loads((run.path / "eval.json").read_text())
+    assert result["mean_return"] == 27.5 and result["episodes"] == 4
+    assert result["min_return"] == 10.0 and result["max_return"] == 50.0
+    assert result["std_return"] == pytest.approx(np.std([10, 20, 30, 50]))
+    assert [s["mean_return"] for s in result["per_seed"]] == [15.0, 40.0]
+
+
+def test_plot_curves_overlays_runs(tmp_path):
+    for name in ("a", "b"):
+        run = Run.create(tmp_path / name, {"algo": "ppo", "env": "CartPole-v1"})
+        for step in (1, 2, 3):
+            run.log({"env_steps": step, "mean_return": step, "return_seed0": step, "return_seed1": step + 1})
+        run.close()
+    out = plot_curves([tmp_path / "a", tmp_path / "b"], tmp_path / "curves.png")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_load_policy_rejects_unknown_algorithms_and_empty_folders(tmp_path):
+    Run.create(tmp_path / "r", {"algo": "alchemy", "env": "CartPole-v1"})
+    with pytest.raises(UsageError, match="unknown algorithm 'alchemy'"):
+        load_policy(tmp_path / "r")
+    with pytest.raises(UsageError, match="no config.json"):
+        load_policy(tmp_path)
