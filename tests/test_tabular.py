@@ -106,7 +106,7 @@ def test_sparse_gridworld_value_is_the_geometric_sum_of_step_costs():
 
 
 def test_dense_and_sparse_forms_agree_on_a_random_mdp():
-    dense = random_mdp(jax.random.key(0), 300, 4)
+    dense = random_mdp(0, 300, 4)
     sparse = dense.to_sparse()
     assert sparse.next_states.shape == (300, 4, 300)
     np.testing.assert_allclose(
@@ -246,3 +246,17 @@ def test_q_value_iterates_converge_in_under_20_iterations_on_the_lecture_mdp():
     # Q_1 = R̄ (error ~50 at s2); the lecture's picture shows the error flat after < 20 iterations
     # on a linear scale: below 10% of the first error within 20 iterations, then 1e-3 by 120.
     assert errors[19] < 0.1 * errors[0] and errors[-1] < 1e-3
+
+
+def test_error_bounds_stop_early_within_tol_of_v_star():
+    # MacQueen's bounds: the midpoint is within tol of V* (here V* itself from a tight residual run).
+    for mdp in (lecture_mdp(), random_mdp(1, 200, 3), frozenlake("4x4", sparse=True)):
+        exact = np.asarray(value_iteration(mdp, 0.9, tol=1e-7).values)
+        bounded = value_iteration(mdp, 0.9, tol=1e-3, error_bounds=True)
+        assert bool(bounded.converged)
+        assert np.abs(np.asarray(bounded.values) - exact).max() <= 1e-3
+    # A random dense MDP mixes in one step: the bounds close in a handful of iterations, while the
+    # residual rule needs dozens at γ = 0.9 (the mean value converges only at rate γ).
+    assert int(value_iteration(random_mdp(1, 200, 3), 0.9, tol=1e-3, error_bounds=True).num_iterations) <= 6
+    with pytest.raises(UsageError, match="below 1"):
+        value_iteration(gridworld(5, slip=0.5), 1.0, error_bounds=True)

@@ -505,15 +505,20 @@ def gridworld(size: int = 100, slip: float = 0.1, step_reward: float = -1.0) -> 
     )
 
 
-def random_mdp(key: Array, num_states: int, num_actions: int) -> TabularMDP:
+def random_mdp(seed: int, num_states: int, num_actions: int) -> TabularMDP:
     """A dense random MDP: each row ``T[s, a]`` is a normalised uniform(0, 1) vector over all next
-    states, rewards ``R[s, a]`` uniform(0, 1). Built in JAX (a 10,000 × 8 table is 3.2 GB of float32)."""
-    transition_key, reward_key = jax.random.split(key)
-    matrix = jax.random.uniform(transition_key, (num_states, num_actions, num_states), jnp.float32)
-    matrix = matrix / matrix.sum(-1, keepdims=True)
+    states, rewards ``R[s, a]`` uniform(0, 1), start uniform, no terminal state. Drawn with NumPy's
+    generator in float32 (a 10,000 × 8 table is 3.2 GB; JAX's counter-based keys take minutes)."""
+    rng = np.random.default_rng(seed)
+    matrix = np.empty((num_states, num_actions, num_states), np.float32)
+    block = max(1, 2**24 // (num_actions * num_states))  # rows per draw: no float64 temporaries
+    for start in range(0, num_states, block):
+        rows = rng.random((min(block, num_states - start), num_actions, num_states), dtype=np.float32)
+        matrix[start : start + block] = rows / rows.sum(-1, keepdims=True)
+    rewards = rng.random((num_states, num_actions), dtype=np.float32)
     return TabularMDP(
-        matrix,
-        jax.random.uniform(reward_key, (num_states, num_actions), jnp.float32),
+        jax.device_put(matrix),  # one copy (jnp.asarray would make two of a 3.2 GB table)
+        jnp.asarray(rewards),
         jnp.ones((num_states, num_actions), bool),
         jnp.full((num_states,), 1.0 / num_states, jnp.float32),
         jnp.zeros((num_states,), bool),
