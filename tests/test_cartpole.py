@@ -26,7 +26,8 @@ import numpy as np
 import pytest
 from jax.extend.random import threefry_2x32
 
-from agentax.envs.cartpole import CartPole, CartPoleState, cartpole_v0, cartpole_v1, threefry2x32, uniform4
+from agentax.envs.cartpole import CartPole, CartPoleState, cartpole_v0, cartpole_v1
+from agentax.envs.core import threefry2x32, uniform4
 
 pytestmark = pytest.mark.timeout(120)
 VERSIONS = {"v0": (cartpole_v0, 200), "v1": (cartpole_v1, 500)}

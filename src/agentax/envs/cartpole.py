@@ -10,8 +10,8 @@ Speed (benchmarks/bench_envs.py): the auto-reset of a batched ``step`` draws a f
 env on every step, so the random draws, not the physics, set the pace. Two things keep them cheap,
 without changing any distribution: the dynamics are deterministic, so ``step`` hands its whole key
 to the reset instead of splitting it (~1.3x at 8,192 envs, measured); and the four start values
-come from two Threefry hashes (:func:`uniform4`) where ``jax.random.uniform(key, (4,))`` spends
-four, computed by an unrolled hash that XLA fuses (:func:`threefry2x32`; together ~1.8x).
+come from two Threefry hashes (``core.uniform4``) where ``jax.random.uniform(key, (4,))`` spends
+four, computed by an unrolled hash that XLA fuses (``core.threefry2x32``; together ~1.8x).
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from agentax.envs.core import Box, Discrete, Environment, TimeStep
+from agentax.envs.core import Box, Discrete, Environment, TimeStep, uniform4
+from agentax.envs.core import threefry2x32 as threefry2x32  # re-exported: envs/vacuum.py imports it from here
 
 
 @struct.dataclass
@@ -150,51 +151,6 @@ def draw_cartpole(x: float, theta: float, x_threshold: float, length: float, wid
     patch[distance <= 5] = (202, 152, 101)  # the pole, 10 pixels wide
     patch[np.linalg.norm(pixels - axle, axis=-1) <= 5] = (129, 132, 203)  # the axle
     return frame
-
-
-def uniform4(key: jax.Array, low: float, high: float) -> jax.Array:
-    """Four float32 values uniform in ``[low, high)`` ``[4]``, from two Threefry-2x32 hashes of ``key``.
-
-    Exactly what ``jax.random.uniform(key, (4,), float32, low, high)`` draws with non-partitionable
-    Threefry (``jax.threefry_partitionable(False)``): the hash of counters (0, 2) and (1, 3), 23
-    random mantissa bits per value. Keys of other PRNG implementations go to ``jax.random.uniform``.
-    """
-    if jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key):
-        if str(jax.random.key_impl(key)) != "threefry2x32":
-            return jax.random.uniform(key, (4,), jnp.float32, low, high)
-        key = jax.random.key_data(key)
-    elif key.shape != (2,):  # a raw key of another implementation
-        return jax.random.uniform(key, (4,), jnp.float32, low, high)
-    bits_0, bits_2 = threefry2x32(key[0], key[1], jnp.uint32(0), jnp.uint32(2))
-    bits_1, bits_3 = threefry2x32(key[0], key[1], jnp.uint32(1), jnp.uint32(3))
-    bits = jnp.stack([bits_0, bits_1, bits_2, bits_3])
-    unit = jax.lax.bitcast_convert_type((bits >> 9) | jnp.uint32(0x3F800000), jnp.float32) - 1.0  # [0, 1)
-    return jnp.maximum(low, unit * (high - low) + low)
-
-
-_ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
-
-
-def threefry2x32(
-    key_0: jax.Array, key_1: jax.Array, x_0: jax.Array, x_1: jax.Array
-) -> tuple[jax.Array, jax.Array]:
-    """The Threefry-2x32 hash (Salmon et al. 2011, 20 rounds), unrolled with constant rotations.
-
-    Bit for bit ``jax.extend.random.threefry_2x32``, whose CPU lowering loops over its five
-    four-round blocks with the rotation amounts as loop data; unrolled, XLA fuses the 20 rounds into
-    one elementwise kernel (CartPole's batched ``step`` ~1.4x faster at 8,192 envs, measured).
-    """
-    key_2 = key_0 ^ key_1 ^ jnp.uint32(0x1BD11BDA)
-    schedule = (key_0, key_1, key_2)
-    x_0, x_1 = x_0 + key_0, x_1 + key_1
-    for block in range(5):
-        for rotation in _ROTATIONS[block % 2]:
-            x_0 = x_0 + x_1
-            x_1 = (x_1 << jnp.uint32(rotation)) | (x_1 >> jnp.uint32(32 - rotation))
-            x_1 = x_1 ^ x_0
-        x_0 = x_0 + schedule[(block + 1) % 3]
-        x_1 = x_1 + schedule[(block + 2) % 3] + jnp.uint32(block + 1)
-    return x_0, x_1
 
 
 def cartpole_v0() -> CartPole:

@@ -98,6 +98,55 @@ def _bounds_str(bound: Any, shape: tuple[int, ...]) -> str:
     return f"{np.min(bound):.3g}..{np.max(bound):.3g}"
 
 
+# Random draws for resets that run on every batched step (the auto-reset computes a fresh start for
+# every env, every step, so their cost shows in steps/s): CartPole's and the vacuum's.
+
+
+def uniform4(key: jax.Array, low: float, high: float) -> jax.Array:
+    """Four float32 values uniform in ``[low, high)`` ``[4]``, from two Threefry-2x32 hashes of ``key``.
+
+    Exactly what ``jax.random.uniform(key, (4,), float32, low, high)`` draws with non-partitionable
+    Threefry (``jax.threefry_partitionable(False)``): the hash of counters (0, 2) and (1, 3), 23
+    random mantissa bits per value. Keys of other PRNG implementations go to ``jax.random.uniform``.
+    """
+    if jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key):
+        if str(jax.random.key_impl(key)) != "threefry2x32":
+            return jax.random.uniform(key, (4,), jnp.float32, low, high)
+        key = jax.random.key_data(key)
+    elif key.shape != (2,):  # a raw key of another implementation
+        return jax.random.uniform(key, (4,), jnp.float32, low, high)
+    bits_0, bits_2 = threefry2x32(key[0], key[1], jnp.uint32(0), jnp.uint32(2))
+    bits_1, bits_3 = threefry2x32(key[0], key[1], jnp.uint32(1), jnp.uint32(3))
+    bits = jnp.stack([bits_0, bits_1, bits_2, bits_3])
+    unit = jax.lax.bitcast_convert_type((bits >> 9) | jnp.uint32(0x3F800000), jnp.float32) - 1.0  # [0, 1)
+    return jnp.maximum(low, unit * (high - low) + low)
+
+
+_ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
+
+
+def threefry2x32(
+    key_0: jax.Array, key_1: jax.Array, x_0: jax.Array, x_1: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """The Threefry-2x32 hash (Salmon et al. 2011, 20 rounds), unrolled with constant rotations.
+
+    Bit for bit ``jax.extend.random.threefry_2x32``, whose CPU lowering loops over its five
+    four-round blocks with the rotation amounts as loop data; unrolled, XLA fuses the 20 rounds into
+    one elementwise kernel (CartPole's batched ``step`` ~1.4x faster at 8,192 envs, measured).
+    """
+    key_2 = key_0 ^ key_1 ^ jnp.uint32(0x1BD11BDA)
+    schedule = (key_0, key_1, key_2)
+    x_0, x_1 = x_0 + key_0, x_1 + key_1
+    for block in range(5):
+        for rotation in _ROTATIONS[block % 2]:
+            x_0 = x_0 + x_1
+            x_1 = (x_1 << jnp.uint32(rotation)) | (x_1 >> jnp.uint32(32 - rotation))
+            x_1 = x_1 ^ x_0
+        x_0 = x_0 + schedule[(block + 1) % 3]
+        x_1 = x_1 + schedule[(block + 2) % 3] + jnp.uint32(block + 1)
+    return x_0, x_1
+
+
 class Environment(abc.ABC):
     """Base of agentax's JAX environments: subclasses write ``reset_env`` and ``step_env``.
 
