@@ -23,6 +23,11 @@ n-step returns      ``n_step`` > 1                 r is a discounted sum of n re
 Without a target network (``target_update_period=0``, the lecture's plain DQN) both Q_select and
 Q_target are the online network, and ``double`` changes nothing.
 
+Per-seed early stopping (``freeze_at_return``, compiled runner): greedy side episodes play alongside
+training; once their mean reaches the threshold that seed learns no more. DQN on CartPole tends to
+unlearn a solved policy (the lecture's "catastrophic forgetting"); in a batch of seeds vmapped
+together, the seeds that solved early keep their policy while the others go on.
+
 The algorithm is pure functions: ``init``, ``act`` and ``learn = make_learn(cfg)``, the last
 picking the loss pieces once, outside ``jit``. Runners own the loop: ``make_train(env, cfg)`` gives
 the compiled runner's ``init(key)`` / ``update(state)`` (collection, replay and learning of JAX envs

@@ -310,13 +310,15 @@ def run_dqn_host(
     stop_at_return: float | None = None,
     resume: bool = False,
     progress: bool = False,
+    on_row: Callable[[dict], None] | None = None,
 ) -> dict[str, Any]:
     """DQN on Gymnasium env ``env_id`` through the driver, writing ``run`` (an ``agentax.runs.Run``).
 
     At each logging interval: a metrics row (``env_steps``, ``mean_return`` of the last training
     episodes, ``eval_return`` of the greedy policy over ``eval_episodes`` episodes, loss, ε), a
     checkpoint of the learner, and an early stop once ``eval_return >= stop_at_return``. At the end
-    eval.json (on fresh evaluation seeds) and curve.png. Returns the final evaluation.
+    eval.json (on fresh evaluation seeds) and curve.png; ``on_row`` also receives each row. Returns the
+    final evaluation.
     """
     from agentax.envs.gym import GymnasiumEnv
     from agentax.evaluate import host_episode_returns
@@ -362,6 +364,8 @@ def run_dqn_host(
         }
         last.update(steps=log.env_steps, time=now)
         solved = stop_at_return is not None and row["eval_return"] >= stop_at_return
+        if on_row is not None:
+            on_row(row)
         if run is not None:
             run.log(row)
             meta = {
@@ -425,3 +429,67 @@ def _progress_bar(enabled: bool, total_steps: int):
     bar.add_task("dqn", total=total_steps)
     bar.start()
     return bar
+
+
+def train_cli(algo: str, module: Any, run_args: Any, cfg: dqn.DQNConfig, preset: Any, out: Any) -> int:
+    """``agentax train dqn --env <Gymnasium id>``: check the env, create the run folder, train on the host.
+
+    Same arguments as ``agentax.train.host.train_cli``; ``agentax.cli.train`` sends DQN on a
+    Gymnasium-only env here. A continuous action space is refused before anything is written.
+    """
+    import dataclasses
+    import sys
+    from pathlib import Path
+
+    from agentax.cli.train import parse_stop
+    from agentax.envs.gym import GymnasiumEnv
+    from agentax.errors import UsageError
+    from agentax.runs import Run
+
+    if run_args.seeds != 1:
+        raise UsageError(f"{run_args.env} steps on the host: train one seed per process (--seeds 1)")
+    probe = GymnasiumEnv(run_args.env, 1)
+    dqn.num_actions_of(probe.action_space())
+    spec = probe.vector_env.spec
+    probe.close()
+    threshold = dataclasses.make_dataclass("Threshold", ["reward_threshold"])(
+        getattr(spec, "reward_threshold", None)
+    )
+    runner = {"seed": run_args.seed, "eval_episodes": preset.eval_episodes, "log_every_steps": 2_048}
+    runner["stop_at_return"] = parse_stop(run_args.stop_at_return, preset, threshold)
+    config = {
+        "algo": algo,
+        "env": run_args.env,
+        "preset": run_args.preset,
+        "runner_kind": "host",
+        "runner": runner,
+        "config": module.config_to_dict(cfg),
+    }
+    run = Run.create(Path(out), config)
+    print(f"training {algo} on {run_args.env} (host driver) into {out}", file=sys.stderr)
+    return _train_and_report(run, cfg, resume=False, progress=run_args.progress)
+
+
+def resume_cli(module: Any, run: Any, cfg: dqn.DQNConfig, progress: bool) -> int:
+    """``agentax train --resume DIR`` for a DQN run on the host driver."""
+    return _train_and_report(run, cfg, resume=True, progress=progress)
+
+
+def _train_and_report(run: Any, cfg: dqn.DQNConfig, *, resume: bool, progress: bool) -> int:
+    from agentax.cli.train import report
+
+    runner = run.config["runner"]
+    start = time.perf_counter()
+    evaluation = run_dqn_host(
+        run.config["env"],
+        cfg,
+        run,
+        seed=runner["seed"],
+        log_every_steps=runner["log_every_steps"],
+        eval_episodes=runner["eval_episodes"],
+        stop_at_return=runner["stop_at_return"],
+        resume=resume,
+        progress=progress,
+    )
+    report(evaluation, run.path, time.perf_counter() - start)
+    return 0

@@ -1,0 +1,66 @@
+"""``agentax train dqn``: a tiny run with every variant flag, its run folder, evaluate, bad input."""
+
+import json
+
+import pytest
+
+from agentax.cli import main
+
+
+@pytest.mark.timeout(240)
+def test_train_dqn_with_every_flag_writes_a_run(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["train", "dqn", "--env", "CartPole-v1", "--double", "--dueling", "--per", "--n-step", "2"]
+    argv += [
+        "--target-update",
+        "10",
+        "--seeds",
+        "2",
+        "--total-steps",
+        "2048",
+        "--hidden",
+        "16",
+        "--num-envs",
+        "2",
+    ]
+    argv += ["--train-frequency", "16", "--gradient-steps", "4", "--learning-starts", "256"]
+    argv += ["--stop-at-return", "none", "--out", str(out), "--no-progress"]
+    assert main(argv) == 0
+    config = json.loads((out / "config.json").read_text())
+    assert config["algo"] == "dqn" and config["runner"]["num_seeds"] == 2
+    chosen = {key: config["config"][key] for key in ("double", "dueling", "prioritized", "n_step")}
+    assert chosen == {"double": True, "dueling": True, "prioritized": True, "n_step": 2}
+    assert config["config"]["target_update_period"] == 10
+    evaluation = json.loads((out / "eval.json").read_text())
+    assert len(evaluation["per_seed"]) == 2 and evaluation["env_steps"] == 2048
+    assert (out / "curve.png").is_file() and (out / "metrics.csv").read_text().startswith("env_steps,")
+    capsys.readouterr()
+    assert main(["evaluate", "--policy", str(out), "--episodes", "3"]) == 0
+    assert "mean" in capsys.readouterr().out.lower()
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["train", "dqn", "--env", "Pendulum-v1"], "Pendulum-v1"),
+        (["train", "dqn", "--preset", "nope"], "choose from default, lecture"),
+        (["train", "dqn", "--discount-factor", "1.5"], "discount_factor"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_code_2(argv, message, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1, err
+
+
+def test_continuous_actions_are_refused_before_a_run_folder_exists(tmp_path):
+    """The host route (``agentax.train.driver.train_cli``) names the problem: DQN needs discrete actions."""
+    from agentax.agents import dqn
+    from agentax.cli.train import parse
+    from agentax.errors import UsageError
+    from agentax.train import driver
+
+    run_args, cfg, preset = parse("dqn", ["--env", "Pendulum-v1"])
+    with pytest.raises(UsageError, match="DQN needs a discrete action space.*Box"):
+        driver.train_cli("dqn", dqn, run_args, cfg, preset, tmp_path / "run")
+    assert not (tmp_path / "run").exists()
