@@ -110,6 +110,35 @@ def _possible_actions(possible_actions: Any, num_states: int, num_actions: int) 
     return mask
 
 
+def _nested_table(transition_probabilities: Any) -> tuple[np.ndarray, np.ndarray]:
+    """``T [S, A, S]`` and the mask of rows given, from nested lists with ``None`` for impossible actions."""
+    rows = list(transition_probabilities)
+    num_states = len(rows)
+    num_actions = max((len(r) for r in rows if r is not None), default=0)
+    if num_states == 0 or num_actions == 0:
+        raise UsageError("an MDP needs at least one state and one action")
+    given = np.ones((num_states, num_actions), bool)
+    matrix = np.zeros((num_states, num_actions, num_states))
+    for s, row in enumerate(rows):
+        if row is None or len(row) != num_actions:
+            raise UsageError(
+                f"transition_probabilities[{s}] has {0 if row is None else len(row)} actions, "
+                f"expected {num_actions}"
+            )
+        for a, probabilities in enumerate(row):
+            if probabilities is None:
+                given[s, a] = False
+                continue
+            probabilities = np.asarray(probabilities, np.float64)
+            if probabilities.shape != (num_states,):
+                raise UsageError(
+                    f"transition_probabilities[{s}][{a}] has shape {probabilities.shape}, "
+                    f"expected ({num_states},): one probability per next state"
+                )
+            matrix[s, a] = probabilities
+    return matrix, given
+
+
 @struct.dataclass
 class MarkovChain:
     """A Markov chain: ``transition_probabilities[s, s']``, and ``terminal[s]`` states it never leaves."""
@@ -193,30 +222,14 @@ class TabularMDP:
         ``initial_distribution`` defaults to starting in state 0; ``terminal_states`` is a mask or a
         list of state indices (default: none).
         """
-        rows = list(transition_probabilities)
-        num_states = len(rows)
-        num_actions = max((len(r) for r in rows), default=0)
-        if num_states == 0 or num_actions == 0:
-            raise UsageError("an MDP needs at least one state and one action")
-        inferred = np.ones((num_states, num_actions), bool)
-        matrix = np.zeros((num_states, num_actions, num_states))
-        for s, row in enumerate(rows):
-            if row is None or len(row) != num_actions:
-                raise UsageError(
-                    f"transition_probabilities[{s}] has {0 if row is None else len(row)} actions, "
-                    f"expected {num_actions}"
-                )
-            for a, probabilities in enumerate(row):
-                if probabilities is None:
-                    inferred[s, a] = False
-                    continue
-                probabilities = np.asarray(probabilities, np.float64)
-                if probabilities.shape != (num_states,):
-                    raise UsageError(
-                        f"transition_probabilities[{s}][{a}] has shape {probabilities.shape}, "
-                        f"expected ({num_states},): one probability per next state"
-                    )
-                matrix[s, a] = probabilities
+        if isinstance(transition_probabilities, np.ndarray | jax.Array):
+            matrix = np.asarray(transition_probabilities, np.float64)
+            if matrix.ndim != 3 or matrix.shape[0] != matrix.shape[2]:
+                raise UsageError(f"transition_probabilities has shape {matrix.shape}, expected [S, A, S]")
+            inferred = np.ones(matrix.shape[:2], bool)
+        else:
+            matrix, inferred = _nested_table(transition_probabilities)
+        num_states, num_actions = inferred.shape
         mask = _possible_actions(
             inferred if possible_actions is None else possible_actions, num_states, num_actions
         )
