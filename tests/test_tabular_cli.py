@@ -30,6 +30,16 @@ def test_solve_value_iteration_and_td_print_v(capsys):
     assert len(td["V"]) == 3 and td["steps"] == 2000 and "Q" not in td
 
 
+def test_solve_cliffwalking_walks_around_the_cliff(capsys):
+    result = solve_json(capsys, "--mdp", "cliffwalking", "--method", "value-iteration")
+    # The shortest safe path from the start (36): up, 11 × right, down = 13 steps of reward −1,
+    # so V*(36) = −(1 − 0.9^13) / (1 − 0.9) = −7.4581; the goal (47) is terminal.
+    assert result["V"][36] == pytest.approx(-(1 - 0.9**13) / (1 - 0.9), abs=1e-4)
+    assert result["V"][47] == 0.0
+    assert result["policy"][36] == 0  # up, away from the cliff
+    assert len(result["V"]) == 48
+
+
 def test_solve_table_and_plot(capsys, tmp_path):
     plot = tmp_path / "compare.png"
     assert (
