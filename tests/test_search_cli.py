@@ -50,15 +50,9 @@ def test_vacuum_grid_run_folder(tmp_path):
     argv = ["search", "vacuum", "--method", "grid", "--grid-size", "3", "--episodes", "1",
             "--eval-episodes", "4", "--out", str(out)]  # fmt: skip
     assert main(argv) == 0
-    for name in (
-        "config.json",
-        "metrics.csv",
-        "curve.png",
-        "heatmap.png",
-        "eval.json",
-        "best_params.msgpack",
-    ):  # noqa: E501
+    for name in ("config.json", "metrics.csv", "curve.png", "heatmap.png", "path.png", "eval.json"):
         assert (out / name).is_file(), name
+    assert (out / "best_params.msgpack").is_file()
     rows = list(csv.DictReader((out / "metrics.csv").open()))
     assert len(rows) == 9  # 3 values of p × 3 of r
     best_row = max(rows, key=lambda row: float(row["mean_return"]))
