@@ -130,6 +130,8 @@ def test_discount_factor_one_on_a_terminating_mdp_and_bad_input():
         q_value_iteration(lecture_mdp(), 1.1)
     with pytest.raises(UsageError, match="unknown algorithm 'sarsa-lambda'"):
         q_learning(jax.random.key(0), lecture_mdp(), QLearningConfig(algorithm="sarsa-lambda"))
+    with pytest.raises(UsageError, match=r"epsilon_start is 1.5, outside \[0, 1\]"):
+        q_learning(jax.random.key(0), lecture_mdp(), QLearningConfig(epsilon_start=1.5))
     with pytest.raises(UsageError, match="multiple of log_interval"):
         td_learning(jax.random.key(0), lecture_mdp(), TDConfig(num_steps=150, log_interval=100))
 

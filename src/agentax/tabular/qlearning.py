@@ -201,6 +201,14 @@ def check_config(mdp: MDP, config: QLearningConfig) -> None:
             raise UsageError(f"unknown {what} {value!r}; choose from {', '.join(choices)}")
     if not isinstance(config.discount_factor, jax.core.Tracer):
         check_discount_factor(mdp, config.discount_factor)
+    for name in ("epsilon_start", "epsilon_end"):
+        value = getattr(config, name)
+        if not isinstance(value, jax.core.Tracer) and not 0.0 <= float(value) <= 1.0:
+            raise UsageError(f"{name} is {value}, outside [0, 1]")
+    for name in ("learning_rate", "learning_rate_decay", "exploration_bonus"):
+        value = getattr(config, name)
+        if not isinstance(value, jax.core.Tracer) and float(value) < 0.0:
+            raise UsageError(f"{name} is {value}; it must be >= 0")
     check_run_lengths(config.num_steps, config.log_interval, config.max_steps_in_episode)
 
 
