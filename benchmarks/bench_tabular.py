@@ -211,6 +211,7 @@ def run() -> dict:
             "MDP",
             "S × A",
             "form",
+            "stopping rule",
             "iterations",
             "compile s",
             "agentax s",
