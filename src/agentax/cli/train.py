@@ -42,8 +42,8 @@ class RunArgs:
 
     env: str = "CartPole-v1"
     """environment id (agentax's JAX envs train compiled; other Gymnasium ids on the host)"""
-    preset: str = "default"
-    """named, tuned settings to start from"""
+    preset: str = "auto"
+    """named, tuned settings to start from; 'auto' picks the algorithm's preset for the env, else 'default'"""
     seed: int = 0
     """seed of the first agent (agent k uses seed + k)"""
     seeds: int = 1
@@ -88,7 +88,10 @@ def parse_stop(value: str, preset: Any, env: Any) -> float | None:
 def parse(algo: str, argv: list[str]) -> tuple[RunArgs, Any, Any]:
     """``(run_args, algorithm config, preset)`` from the command line."""
     module = _module(algo)
-    preset_name = _option(argv, "--preset", "default")
+    preset_name = _option(argv, "--preset", "auto")
+    if preset_name == "auto":
+        env_id = _option(argv, "--env", RunArgs.env)
+        preset_name = getattr(module, "DEFAULT_PRESETS", {}).get(env_id, "default")
     if preset_name not in module.PRESETS:
         raise UsageError(f"unknown {algo} preset {preset_name!r}; choose from {', '.join(module.PRESETS)}")
     preset = module.PRESETS[preset_name]

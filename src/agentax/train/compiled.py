@@ -15,8 +15,8 @@
   seed's TrainState (acts on one observation).
 
 **The runner** compiles one program, ``jax.jit(jax.vmap(chunk))``, where ``chunk`` scans
-``update`` ``updates_per_chunk`` times (a shared, unbatched count masks the updates of a last,
-shorter chunk through ``lax.cond``, so no second program is compiled) and then, when asked,
+``update`` ``updates_per_chunk`` times (a shared, unbatched count discards the updates past the
+end in a last, shorter chunk, so no second program is compiled) and then, when asked,
 evaluates the greedy policy with :func:`agentax.evaluate.episode_returns` on fresh evaluation
 keys — inside the same program. Seed ``k`` of a batch starting at ``seed`` uses
 ``jax.random.key(seed + k)``, so seed ``k`` run alone gives the same numbers as inside a batch.
@@ -118,19 +118,16 @@ def init_states(algorithm: CompiledAlgorithm, keys: jax.Array) -> TrainState:
 def make_chunk(algorithm: CompiledAlgorithm, env: Environment, updates_per_chunk: int, eval_episodes: int):
     """``chunk(state, num_active, do_eval, eval_key) -> (state, metrics, returns, lengths)`` of ONE seed.
 
-    Runs ``num_active`` (≤ ``updates_per_chunk``) updates; ``metrics`` are their means; the
+    Keeps ``num_active`` (≤ ``updates_per_chunk``) updates; ``metrics`` are their means; the
     evaluation runs only if ``do_eval`` (else zeros). Vmap it over seeds with
-    ``in_axes=(0, None, None, 0)`` so the two flags stay unbatched and the ``cond``s stay real.
+    ``in_axes=(0, None, None, 0)`` so the two flags stay unbatched and the ``cond`` stays real.
     """
 
     def chunk(state, num_active, do_eval, eval_key):
-        metrics_shape = jax.eval_shape(algorithm.update, state)[1]
-
         def body(state, i):
-            def idle(state):
-                return state, jax.tree.map(lambda m: jnp.zeros(m.shape, m.dtype), metrics_shape)
-
-            return jax.lax.cond(i < num_active, algorithm.update, idle, state)
+            new_state, metrics = algorithm.update(state)
+            keep = i < num_active  # unbatched: a select of whole arrays, no per-seed branching
+            return jax.tree.map(lambda new, old: jnp.where(keep, new, old), new_state, state), metrics
 
         state, metrics = jax.lax.scan(body, state, jnp.arange(updates_per_chunk))
         weight = (jnp.arange(updates_per_chunk) < num_active).astype(jnp.float32)
@@ -267,6 +264,10 @@ def train(
                 "mean_return": mean_return,
                 **{f"return_seed{k}": float(r) for k, r in enumerate(per_seed)},
                 "eval_return": eval_mean,
+                **{
+                    f"eval_seed{k}": float(np.mean(r)) if do_eval else math.nan
+                    for k, r in enumerate(eval_returns)
+                },
                 "steps_per_second": (env_steps - steps_before) / max(seconds, 1e-9),
                 "wall_seconds": wall,
                 **{name: float(np.mean(value)) for name, value in metrics.items()},
