@@ -8,7 +8,15 @@ import numpy as np
 import pytest
 
 from agentax.envs import JAX_ENVS, make_jax
-from agentax.envs.vacuum import Vacuum, VacuumState, evaluate_settings, render_path, vacuum_policy
+from agentax.envs.vacuum import (
+    Vacuum,
+    VacuumState,
+    evaluate_settings,
+    pack_cells,
+    render_path,
+    unpack_cells,
+    vacuum_policy,
+)
 from agentax.evaluate import episode_returns
 
 ENV = Vacuum()
@@ -17,9 +25,14 @@ FORWARD = jnp.array([1.0, 0.0])
 
 
 def state_at(x, y, heading, dirty=None):
-    dirty = jnp.ones((20, 20), bool) if dirty is None else dirty
+    dirty = pack_cells(jnp.ones((20, 20), bool) if dirty is None else dirty)
     position = jnp.float32(x), jnp.float32(y), jnp.float32(heading)
     return VacuumState(*position, dirty, jnp.bool_(False), jnp.int32(0))
+
+
+def cells(state):
+    """The dirty cells of ``state`` (stacked or not) as bool ``[..., 20, 20]``."""
+    return unpack_cells(np.asarray(state.dirty), 20)
 
 
 def test_registered_and_episode_is_thirty_minutes():
@@ -37,7 +50,7 @@ def test_forward_move_by_hand():
     ts, state = ENV.step_env(jax.random.key(0), state_at(1.1, 1.1, 0.0), FORWARD, PARAMS)
     assert float(state.x) == pytest.approx(1.6) and float(state.y) == pytest.approx(1.1)
     assert float(ts.reward) == 2.0
-    cleaned = np.argwhere(~np.asarray(state.dirty))
+    cleaned = np.argwhere(~cells(state))
     np.testing.assert_array_equal(cleaned, [[4, 5], [4, 6]])
     assert not bool(state.bumped) and not bool(ts.terminated)
 
@@ -58,7 +71,7 @@ def test_rotation_turns_in_place_and_cleans_its_cell():
     assert float(state.heading) == pytest.approx(4.0 - 2 * math.pi, abs=1e-5)
     assert (float(state.x), float(state.y)) == pytest.approx((1.1, 1.1))
     assert float(ts.reward) == 1.0  # the cell it turns in: (row 4, col 4)
-    assert not bool(np.asarray(state.dirty)[4, 4])
+    assert not cells(state)[4, 4]
 
 
 @pytest.mark.timeout(120)
@@ -66,7 +79,7 @@ def test_dust_conserved_and_robot_stays_in_room():
     settings = [(0.9, 3.0), (0.5, 0.5), (1.0, 0.0)]
     for key, (p, r) in zip(jax.random.split(jax.random.key(3), 3), settings, strict=True):
         states, rewards = ENV.trajectory(vacuum_policy(p, r), key)
-        remaining = np.asarray(states.dirty).sum(axis=(1, 2)) * float(PARAMS.dust_per_cell)  # [T + 1]
+        remaining = cells(states).sum(axis=(1, 2)) * float(PARAMS.dust_per_cell)  # [T + 1]
         picked_so_far = np.concatenate([[0.0], np.cumsum(np.asarray(rewards))])
         np.testing.assert_allclose(picked_so_far + remaining, 400.0)  # 20 * 20 cells, 1 unit each
         low, high = 0.17, 5.0 - 0.17
@@ -119,9 +132,22 @@ def test_step_auto_resets_after_thirty_minutes():
     state = state_at(2.0, 2.0, 0.0, dirty).replace(time=jnp.int32(899))
     ts, after = ENV.step(jax.random.key(4), state, FORWARD, PARAMS)
     assert bool(ts.truncated) and not bool(ts.terminated) and float(ts.reward) == 0.0
-    assert int(after.time) == 0 and bool(np.asarray(after.dirty).all())
+    assert int(after.time) == 0 and cells(after).all()
     assert float(ts.final_obs[0]) == pytest.approx(2.5 / 5.0)  # moved 0.5 m east before the reset
     np.testing.assert_allclose(ts.obs, ENV.get_obs(after, PARAMS))
     # One step earlier nothing resets.
     ts, after = ENV.step(jax.random.key(4), state.replace(time=jnp.int32(898)), FORWARD, PARAMS)
     assert not bool(ts.truncated) and int(after.time) == 899 and float(after.x) == pytest.approx(2.5)
+
+
+def test_cells_pack_into_bits():
+    # 20 * 20 = 400 cells -> ceil(400 / 32) = 13 words; cell (row 1, column 3) is index 23: bit 23 of word 0,
+    # cell (19, 19) is index 399 = 12 * 32 + 15: bit 15 of word 12.
+    grid = np.zeros((20, 20), bool)
+    grid[1, 3] = grid[19, 19] = True
+    words = np.asarray(pack_cells(grid))
+    assert words.shape == (13,) and words.dtype == np.uint32
+    assert words[0] == 1 << 23 and words[12] == 1 << 15 and words[1:12].sum() == 0
+    random = np.random.default_rng(0).random((3, 20, 20)) < 0.5
+    np.testing.assert_array_equal(unpack_cells(np.asarray(pack_cells(random)), 20), random)
+    assert np.asarray(pack_cells(np.ones((20, 20), bool)))[12] == (1 << 16) - 1  # only 400 - 384 = 16 bits

@@ -66,11 +66,33 @@ class VacuumState:
     x: jax.Array  # float32 [], metres, the robot's centre
     y: jax.Array  # float32 []
     heading: jax.Array  # float32 [], radians in [-pi, pi)
-    dirty: (
-        jax.Array
-    )  # bool [grid_size, grid_size]: the cell still holds its dust; [row = y cell, column = x cell]
+    dirty: jax.Array  # uint32 [num_words]: the cells still holding dust, as bits (see pack_cells)
     bumped: jax.Array  # bool []: the last move stopped at a wall
     time: jax.Array  # int32 []: steps taken in this episode
+
+
+def pack_cells(cells: jax.Array) -> jax.Array:
+    """Bool cells ``[..., grid_size, grid_size]`` as bits ``uint32 [..., ceil(grid_size² / 32)]``.
+
+    Cell ``(row, column)`` is bit ``i % 32`` of word ``i // 32``, ``i = row · grid_size + column``. The
+    floor travels packed because the env protocol's auto-reset selects between the stepped and a fresh
+    room for every env on every step: 13 words instead of 400 bools made ``evaluate_settings`` 1.2-1.7×
+    faster on the 2-core machine (measured side by side).
+    """
+    cells = jnp.asarray(cells, bool)
+    flat = cells.reshape(*cells.shape[:-2], -1)
+    padding = -flat.shape[-1] % 32
+    flat = jnp.pad(flat, [(0, 0)] * (flat.ndim - 1) + [(0, padding)])
+    bits = flat.reshape(*flat.shape[:-1], -1, 32).astype(jnp.uint32) << jnp.arange(32, dtype=jnp.uint32)
+    return bits.sum(axis=-1, dtype=jnp.uint32)
+
+
+def unpack_cells(words, grid_size: int):
+    """The inverse of :func:`pack_cells`: bool ``[..., grid_size, grid_size]`` (NumPy in, NumPy out)."""
+    xp = np if isinstance(words, np.ndarray) else jnp
+    bits = (words[..., :, None] >> xp.arange(32, dtype=xp.uint32)) & 1
+    flat = bits.reshape(*words.shape[:-1], -1)[..., : grid_size * grid_size]
+    return flat.reshape(*words.shape[:-1], grid_size, grid_size).astype(bool)
 
 
 def _wrap_angle(angle: jax.Array) -> jax.Array:
@@ -97,7 +119,7 @@ class Vacuum(Environment):
         u = uniform4(key, 0.0, 1.0)  # jax.random.uniform(key, (4,)) through an unrolled hash; 3 are used
         x, y = low + (high - low) * u[:2]
         heading = jnp.pi * (2.0 * u[2] - 1.0)
-        dirty = jnp.ones((params.grid_size, params.grid_size), bool)
+        dirty = pack_cells(jnp.ones((params.grid_size, params.grid_size), bool))
         state = VacuumState(x, y, heading, dirty, jnp.bool_(False), jnp.int32(0))
         return self.get_obs(state, params), state
 
@@ -125,13 +147,15 @@ class Vacuum(Environment):
             _fraction_before_wall(state.y, travel_y, low, high),
         )
         fraction = jnp.minimum(fraction, 1.0)
-        dirty, cells_cleaned = state.dirty, jnp.int32(0)
+        dirty, cells_cleaned = state.dirty, jnp.uint32(0)
         for k in range(1, params.cleaning_points + 1):  # vacuum evenly spaced points of the path
             along = fraction * k / params.cleaning_points
             column = self._cell(state.x + along * travel_x, params)
             row = self._cell(state.y + along * travel_y, params)
-            cells_cleaned = cells_cleaned + dirty[row, column]
-            dirty = dirty.at[row, column].set(False)
+            cell = (row * params.grid_size + column).astype(jnp.uint32)
+            word, bit = (cell >> 5).astype(jnp.int32), cell & jnp.uint32(31)
+            cells_cleaned = cells_cleaned + ((dirty[word] >> bit) & jnp.uint32(1))
+            dirty = dirty.at[word].set(dirty[word] & ~(jnp.uint32(1) << bit))
         picked = (cells_cleaned * params.dust_per_cell).astype(jnp.float32)
         state = VacuumState(
             x=jnp.clip(state.x + fraction * travel_x, low, high),
@@ -273,7 +297,7 @@ def _to_pixels(x, y, params: VacuumParams, size: int):
 
 def render_room(state: VacuumState, params: VacuumParams, pixels_per_cell: int = 12) -> np.ndarray:
     """The room from above ``[H, W, 3]`` uint8 (H = W = grid_size · pixels_per_cell): dust, floor, robot."""
-    image = _floor_image(state.dirty, pixels_per_cell)
+    image = _floor_image(unpack_cells(np.asarray(state.dirty), params.grid_size), pixels_per_cell)
     size = image.shape[0]
     rows, columns = np.mgrid[0:size, 0:size] + 0.5
     cx, cy = _to_pixels(state.x, state.y, params, size)
