@@ -312,7 +312,16 @@ def train(
     result.state = state
     returns, lengths = np.asarray(returns), np.asarray(lengths)
     if run is not None:
-        result.eval = run.write_eval(returns, lengths, env_steps=env_steps, updates=updates)
+        result.eval = run.write_eval(
+            returns,
+            lengths,
+            env_steps=env_steps,
+            updates=updates,
+            solved_env_steps=solved_env_steps,
+            solved_seconds=solved_seconds,
+            compile_seconds=compile_seconds,
+            train_seconds=train_seconds,
+        )
         run.plot()
         run.close()
     else:
