@@ -36,11 +36,13 @@ class PlanningResult:
         return np.asarray(self.residuals)[: int(self.num_iterations)]
 
 
-def q_backup(mdp: MDP, values: Array, discount_factor: Array) -> Array:
+def q_backup(mdp: MDP, values: Array, discount_factor: Array, expected_rewards: Array | None = None) -> Array:
     """``Q(s, a) = Σ_s' T(s, a, s') [R(s, a, s') + γ V(s')]`` with ``V = 0`` at terminal states:
-    ``[S, A]``, 0 in terminal states, −inf for impossible actions."""
+    ``[S, A]``, 0 in terminal states, −inf for impossible actions. Loops pass ``expected_rewards``
+    (``mdp.expected_rewards()``, ``[S, A]``) computed once, so an iteration reads the table once."""
+    expected_rewards = mdp.expected_rewards() if expected_rewards is None else expected_rewards
     next_values = jnp.where(mdp.terminal, 0.0, values)
-    q_values = mdp.expected_rewards() + discount_factor * mdp.expected_next_values(next_values)
+    q_values = expected_rewards + discount_factor * mdp.expected_next_values(next_values)
     q_values = jnp.where(mdp.terminal[:, None], 0.0, q_values)
     return jnp.where(mdp.possible_actions, q_values, -jnp.inf)
 
@@ -85,7 +87,8 @@ def _iterate(backup, initial: Array, tol: Array, max_iterations: int, gap=None) 
 def _value_iteration(
     mdp: MDP, discount_factor: Array, tol: Array, max_iterations: int, error_bounds: bool = False
 ) -> PlanningResult:
-    backup = lambda values: state_values(mdp, q_backup(mdp, values, discount_factor))
+    rewards = mdp.expected_rewards()
+    backup = lambda values: state_values(mdp, q_backup(mdp, values, discount_factor, rewards))
     initial = jnp.zeros(mdp.num_states, jnp.float32)
     if not error_bounds:
         return _iterate(backup, initial, tol, max_iterations)[0]
@@ -104,7 +107,8 @@ def _value_iteration(
 
 @partial(jax.jit, static_argnames="max_iterations")
 def _q_value_iteration(mdp: MDP, discount_factor: Array, tol: Array, max_iterations: int) -> PlanningResult:
-    backup = lambda q_values: q_backup(mdp, state_values(mdp, q_values), discount_factor)
+    rewards = mdp.expected_rewards()
+    backup = lambda q_values: q_backup(mdp, state_values(mdp, q_values), discount_factor, rewards)
     initial = jnp.where(mdp.possible_actions, 0.0, -jnp.inf).astype(jnp.float32)
     return _iterate(backup, initial, tol, max_iterations)[0]
 
@@ -152,8 +156,10 @@ def q_value_iteration(
 def q_value_iterates(mdp: MDP, discount_factor: Array, num_iterations: int) -> Array:
     """The first ``num_iterations`` Q-value-iteration tables ``Q_1 .. Q_n``, ``[n, S, A]`` (for plots)."""
 
+    rewards = mdp.expected_rewards()
+
     def step(q_values, _):
-        q_values = q_backup(mdp, state_values(mdp, q_values), discount_factor)
+        q_values = q_backup(mdp, state_values(mdp, q_values), discount_factor, rewards)
         return q_values, q_values
 
     initial = jnp.where(mdp.possible_actions, 0.0, -jnp.inf).astype(jnp.float32)
