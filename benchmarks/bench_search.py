@@ -36,7 +36,7 @@ from agentax.evaluate import episode_returns
 from agentax.search import cem, genetic
 from agentax.search.population import FlatPolicy, make_env, make_fitness, select_best
 
-SEEDS = (0, 1, 2)
+SEEDS = (0, 1, 2, 3, 4)
 MAX_GENERATIONS = 60
 FRESH_EPISODES = 100
 VACUUM_SETTINGS = 1024
