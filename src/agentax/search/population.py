@@ -229,10 +229,10 @@ def write_json(path: pathlib.Path, obj) -> None:
 def load_net_policy(run_dir: pathlib.Path, config: dict) -> Policy:
     """The greedy policy saved by a GA or CEM run (``best_params.msgpack`` + ``config.json``)."""
     run_dir = pathlib.Path(run_dir)
-    net = NetConfig(
-        **{name: config["net"][name] for name in ("activation", "sigmoid_head")},
-        hidden=tuple(config["net"]["hidden"]),
-    )
+    try:
+        net = NetConfig(**{**config["net"], "hidden": tuple(config["net"]["hidden"])})
+    except (KeyError, TypeError) as error:
+        raise UsageError(f"{run_dir}/config.json does not describe the policy network ({error})") from None
     flat = FlatPolicy.create(make_env(config["env"], net), net)
     path = run_dir / "best_params.msgpack"
     try:
