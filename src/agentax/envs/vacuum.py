@@ -20,9 +20,13 @@ The model (every number is a field of :class:`VacuumParams`):
 * **Observation** ``[5]`` float32: what the robot senses: ``[x / room_size, y / room_size,
   cos(heading), sin(heading), bumped]``. The lecture's (p, r) policy ignores it.
 
+The state keeps the floor's dirty cells as bits (:func:`pack_cells`, :func:`unpack_cells`).
+
 The lecture's stochastic policy is :func:`vacuum_policy`: with probability p move forward, with
 probability 1 − p rotate by a random angle in [−r, r]. :func:`evaluate_settings` evaluates thousands of
-(p, r) settings, several episodes each, in one vmapped, jitted call.
+(p, r) settings, several episodes each, in one vmapped, jitted call. ``Vacuum.render_frame`` draws the
+room (dust, clean floor, robot and heading); :func:`render_path` draws a whole episode's path (from
+``Vacuum.trajectory``) over the floor it left behind.
 """
 
 from __future__ import annotations
