@@ -175,11 +175,10 @@ def search_vacuum(args: VacuumArgs) -> int:
         ],
     )  # fmt: skip
     plot_heatmap(result, out / "heatmap.png")
+    # One episode of the best setting drawn over the room, like the lecture's illustration.
     path_key = jax.random.fold_in(jax.random.key(args.seed), EVAL_STREAM)
     states, _ = Vacuum().trajectory(vacuum_policy(result.best_p, result.best_r), path_key)
-    imageio.imwrite(
-        out / "path.png", render_path(states)
-    )  # one episode of the best setting, as in the lecture
+    imageio.imwrite(out / "path.png", render_path(states))
     _plot_curve(
         out / "curve.png",
         np.arange(1, means.size + 1),
