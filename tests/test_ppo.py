@@ -49,7 +49,7 @@ def test_config_validation_names_the_bad_value():
         ppo.preset("nope")
 
 
-def test_learn_reduces_the_loss_on_a_fixed_rollout():
+def test_one_update_moves_the_policy_and_reports_finite_losses():
     env = make_jax("CartPole-v1")
     cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, num_envs=4, num_steps=16, update_epochs=10)
     algorithm = ppo.make_train(env, cfg)

@@ -84,7 +84,17 @@ def test_killed_run_resumes_to_the_full_number_of_steps(tmp_path):
     out = tmp_path / "run"
     env = {**os.environ, "AGENTAX_JAX_CACHE": str(tmp_path / "cache")}
     total = 60 * 512  # 60 updates of 4 envs × 128 steps, 6 chunks
-    command = [sys.executable, "-m", "agentax.cli", "train", "ppo", "--total-steps", str(total)]
+    command = [
+        sys.executable,
+        "-m",
+        "agentax.cli",
+        "train",
+        "ppo",
+        "--preset",
+        "default",
+        "--total-steps",
+        str(total),
+    ]
     command += ["--stop-at-return", "none", "--out", str(out), "--no-progress"]
     process = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
