@@ -235,7 +235,7 @@ PRESETS: dict[str, Preset] = {
     "lecture": Preset(
         LECTURE,
         "the lecture's DQN: 600 episodes of CartPole-v0, a learning step per episode, no target network",
-        updates_per_chunk=2_000,
+        updates_per_chunk=1_000,
         eval_every_chunks=1,
         eval_episodes=20,
     ),
