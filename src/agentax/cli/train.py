@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-import math
 import sys
 import time
 from dataclasses import dataclass
@@ -241,8 +240,9 @@ def resume(run_dir: Path, progress: bool = True) -> int:
     from agentax.train.compiled import RunnerConfig
 
     env = make_jax(config["env"])
-    runner = RunnerConfig(**config["runner"])
-    if not math.isfinite(float(runner.stop_at_return or 0)):
-        raise UsageError(f"{run_dir}/config.json: stop_at_return must be finite")
+    try:
+        runner = RunnerConfig(**config["runner"])
+    except (KeyError, TypeError) as error:
+        raise UsageError(f"{run_dir}/config.json has no valid 'runner' settings ({error})") from None
     print(f"resuming {algo} on {config['env']} from {run_dir}", file=sys.stderr)
     return _train_compiled(module, env, cfg, runner, Run.open(run_dir), resume=True, progress=progress)

@@ -32,11 +32,13 @@ for the XLA CPU hang this program, called over and over, once met.
 
 from __future__ import annotations
 
+import json
 import math
 import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -333,9 +335,6 @@ def restore_policy(
     run_dir, algorithm: CompiledAlgorithm, runner: RunnerConfig, seed_index: int | None = None
 ) -> Policy:
     """The greedy policy of one seed of a run's newest checkpoint (the best seed by eval.json if None)."""
-    import json
-    from pathlib import Path
-
     keys = seed_keys(runner.seed, runner.num_seeds)
     target = jax.eval_shape(jax.vmap(algorithm.init), keys)
     state, _ = load_tree(latest_checkpoint(run_dir), target)
