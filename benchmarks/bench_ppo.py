@@ -72,6 +72,14 @@ def sb3_python() -> Path | None:
         return None
 
 
+def _all_cpus() -> None:
+    """Undo agentax's one-CPU pin (inherited by child processes) for a reference run."""
+    try:
+        os.sched_setaffinity(0, range(os.cpu_count() or 1))
+    except OSError:
+        pass
+
+
 def whole_process(seeds: int, cache: Path) -> dict:
     """Run ``agentax train ppo --env CartPole-v1`` as a subprocess; its wall-clock and eval.json."""
     with tempfile.TemporaryDirectory() as folder:
@@ -80,7 +88,7 @@ def whole_process(seeds: int, cache: Path) -> dict:
         command += ["--seeds", str(seeds), "--out", str(out), "--no-progress"]
         env = {**os.environ, "AGENTAX_JAX_CACHE": str(cache)}
         start = time.perf_counter()
-        subprocess.run(command, check=True, capture_output=True, env=env, timeout=600)
+        subprocess.run(command, check=True, capture_output=True, env=env, timeout=600, preexec_fn=_all_cpus)
         wall = time.perf_counter() - start
         return {"wall": wall, **json.loads((out / "eval.json").read_text())}
 
@@ -125,7 +133,13 @@ def run() -> dict:
     sb3 = None
     python = sb3_python()
     if python is not None:
-        done = subprocess.run([str(python), "-c", SB3_SCRIPT], capture_output=True, text=True, timeout=900)
+        done = subprocess.run(
+            [str(python), "-c", SB3_SCRIPT],
+            capture_output=True,
+            text=True,
+            timeout=900,
+            preexec_fn=_all_cpus,  # agentax pinned this process to one CPU; SB3 gets them all
+        )
         if done.returncode == 0:
             sb3 = json.loads(done.stdout.strip().splitlines()[-1])
 
