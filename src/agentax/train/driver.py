@@ -215,7 +215,8 @@ def train_dqn_host(
 
     Collects ``cfg.train_frequency`` steps per env (or episodes, with ``schedule_unit="episodes"``)
     per driver run, then runs ``cfg.gradient_steps`` jitted ``dqn`` learning steps on host-sampled
-    batches. Every ``log_every_steps`` env steps calls ``on_log(log, agent)``; a truthy answer stops
+    batches (uniform replay: all of them in one compiled call, a ``lax.scan`` over the batches).
+    Every ``log_every_steps`` env steps calls ``on_log(log, agent)``; a truthy answer stops
     training early. ``resume_from=(agent, env_steps, episodes)`` continues a checkpointed agent (its
     schedules where they were; the replay buffer, not checkpointed, refills). Returns the final
     ``DQNState`` and the logs.
@@ -240,7 +241,9 @@ def train_dqn_host(
     observers = [ReplayObserver(buffer, cfg.n_step, cfg.discount_factor), steps, episodes, returns, lengths]
 
     act = jax.jit(_act_and_split)
-    learn = jax.jit(dqn.make_learn(cfg))
+    learn_step = dqn.make_learn(cfg)
+    learn = jax.jit(learn_step)
+    learn_many = jax.jit(lambda agent, samples: jax.lax.scan(learn_step, agent, samples))
     holder = {"agent": agent}
 
     def collect_policy(obs: np.ndarray, policy_key: jax.Array) -> tuple[np.ndarray, jax.Array]:
@@ -259,17 +262,21 @@ def train_dqn_host(
     while steps.count < cfg.total_steps and not (cfg.max_episodes and episodes.count >= cfg.max_episodes):
         time_step, policy_key = driver.run(time_step, policy_key)
         started = episodes.count > cfg.learning_starts if by_episode else steps.count >= cfg.learning_starts
-        if started and buffer_size(buffer) > 0:
+        if started and buffer_size(buffer) > 0 and cfg.prioritized:
             beta = float(dqn.importance_exponent_at(cfg, steps.count))
-            for _ in range(cfg.gradient_steps):
-                if cfg.prioritized:
-                    sample = host.sample_prioritized(buffer, rng, cfg.batch_size, beta)
-                else:
-                    sample = host.sample(buffer, rng, cfg.batch_size)
+            for _ in range(cfg.gradient_steps):  # each batch depends on the priorities the last one set
+                sample = host.sample_prioritized(buffer, rng, cfg.batch_size, beta)
                 holder["agent"], metrics = learn(holder["agent"], sample)
-                if cfg.prioritized:
-                    host.update_priorities(buffer, sample.indices, np.asarray(metrics["td_error"]))
+                host.update_priorities(buffer, sample.indices, np.asarray(metrics["td_error"]))
             loss = float(metrics["loss"])
+        elif started and buffer_size(buffer) > 0:
+            # Uniform batches do not depend on learning: draw all of them, then learn in one call.
+            samples = host.sample(buffer, rng, cfg.batch_size * cfg.gradient_steps)
+            samples = jax.tree.map(
+                lambda x: x.reshape(cfg.gradient_steps, cfg.batch_size, *x.shape[1:]), samples
+            )
+            holder["agent"], metrics = learn_many(holder["agent"], samples)
+            loss = float(metrics["loss"][-1])
         finished = steps.count >= cfg.total_steps or (cfg.max_episodes and episodes.count >= cfg.max_episodes)
         if steps.count >= next_log or finished:
             next_log += log_every_steps
