@@ -224,3 +224,14 @@ def test_one_step_accumulator_is_the_identity():
 def test_replay_sample_is_a_pytree():
     sample = ReplaySample(transition=batch_of([1.0]), indices=jnp.zeros(1, jnp.int32), weights=jnp.ones(1))
     assert len(jax.tree.leaves(sample)) == 9
+
+
+def test_n_step_return_function():
+    from agentax.returns import n_step_return
+
+    no, yes = jnp.array([False, False, False]), jnp.array([False, True, False])
+    # 2 + 0.5 · 4 + 0.25 · 8 = 6 over all 3 steps; cut after step 1 when it ends: 2 + 2 = 4 over 2.
+    ret, k = n_step_return(jnp.array([2.0, 4.0, 8.0]), no, no, 0.5)
+    assert (float(ret), int(k)) == (6.0, 3)
+    assert tuple(map(float, n_step_return(jnp.array([2.0, 4.0, 8.0]), yes, no, 0.5))) == (4.0, 2.0)
+    assert tuple(map(float, n_step_return(jnp.array([2.0, 4.0, 8.0]), no, yes, 0.5))) == (4.0, 2.0)

@@ -105,6 +105,22 @@ def gae(
     return advantages, advantages + values
 
 
+def n_step_return(
+    reward: jax.Array, terminated: jax.Array, truncated: jax.Array, discount_factor: float
+) -> tuple[jax.Array, jax.Array]:
+    """The n-step return of a window of ``n`` consecutive steps of one env, and its length ``k``.
+
+    ``r_0 + γ r_1 + … + γ^(k−1) r_(k−1)``, summed up to and including the first step whose episode
+    ended (``k = n`` if none did): the return DQN bootstraps from with ``γ^k`` (unless that step
+    terminated). ``reward``, ``terminated``, ``truncated``: ``[n]``. Vmap over envs.
+    """
+    done = jnp.logical_or(terminated, truncated)
+    ended_before = jnp.cumsum(done) - done  # [n]: an episode ended strictly before step i
+    alive = ended_before == 0
+    discount = discount_factor ** jnp.arange(reward.shape[0], dtype=jnp.float32)
+    return jnp.sum(alive * discount * reward), jnp.sum(alive).astype(jnp.int32)
+
+
 @struct.dataclass
 class EpisodeStats:
     """Returns of the episodes of ``num_envs`` envs, updated step by step inside ``jit``.

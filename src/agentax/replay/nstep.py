@@ -19,6 +19,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from agentax.replay.core import Transition
+from agentax.returns import n_step_return
 
 
 @struct.dataclass
@@ -33,18 +34,6 @@ def init(n: int, example_batch: Transition) -> NStepState:
         raise ValueError(f"n-step returns need n >= 1, got {n}")
     window = jax.tree.map(lambda x: jnp.zeros((n, *x.shape), x.dtype), example_batch)
     return NStepState(window=window, count=jnp.int32(0))
-
-
-def n_step_return(
-    reward: jax.Array, terminated: jax.Array, truncated: jax.Array, discount_factor: float
-) -> tuple[jax.Array, jax.Array]:
-    """The discounted sum of ``reward`` ``[n]`` up to and including the first step that ends the
-    episode, and the number of steps summed ``k`` (``n`` if none ended). Vmap over envs."""
-    done = jnp.logical_or(terminated, truncated)
-    ended_before = jnp.cumsum(done) - done  # [n]: episode ends strictly before step i
-    alive = ended_before == 0
-    discount = discount_factor ** jnp.arange(reward.shape[0], dtype=jnp.float32)
-    return jnp.sum(alive * discount * reward), jnp.sum(alive).astype(jnp.int32)
 
 
 def _n_step_transition(window: Transition, discount_factor: float) -> Transition:
