@@ -43,8 +43,8 @@ shape = (num_states, num_states)
 P = [sp.csr_matrix((probabilities[:, a].ravel(), (rows, next_states[:, a].ravel())), shape=shape)
      for a in range(num_actions)]
 gamma, tol = float(data["discount_factor"]), float(data["tol"])
-times = []
-while len(times) < 20 and sum(times) < 1.0:  # best of repeats, as for agentax and NumPy
+times, begin = [], time.perf_counter()
+while len(times) < 20 and time.perf_counter() - begin < 1.0:  # best of repeats, as for agentax and NumPy
     vi = mdptoolbox.mdp.ValueIteration(P, rewards, gamma, epsilon=tol * gamma / (1 - gamma), max_iter=100000)
     start = time.perf_counter(); vi.run(); times.append(time.perf_counter() - start)
 print(json.dumps({"seconds": min(times), "iterations": int(vi.iter), "V": list(map(float, vi.V))}))
