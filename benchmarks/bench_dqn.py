@@ -197,7 +197,7 @@ def run() -> dict:
         "DQN's `default` preset (RL-Zoo's CartPole-v1 DQN as the starting point — 2.3e-3 learning rate, "
         "batch 64, 128 learning steps per 256 env steps, ε to 0.04 — plus Double DQN, 3-step returns, a "
         "64-64 network, and "
-        "per-seed freezing once 8 greedy side episodes average 475). The compiled rows time from "
+        "per-seed freezing once 8 greedy side episodes each reach 475). The compiled rows time from "
         "the start of `train` (compile included; also shown apart) to the first evaluation whose mean over "
         "seeds reaches 475; "
         "'solved' counts seeds whose final evaluation (20 fresh episodes) is ≥ 475. Learner updates are "

@@ -20,7 +20,7 @@ SMALL = dqn.preset("default", gradient_steps=16, train_frequency=16, freeze_at_r
 @pytest.mark.timeout(240)
 def test_dqn_improves_on_the_compiled_runner_and_freezes():
     """From a near-random start to a greedy policy far above random (~22, see LECTURE-FACTS' basic
-    policy at ~42); the seed freezes once 4 greedy side episodes average 150 and learns no more."""
+    policy at ~42); the seed freezes once 4 greedy side episodes each reach 150 and learns no more."""
     cfg = dataclasses.replace(SMALL, freeze_at_return=150.0, freeze_episodes=4)
     env = make_jax("CartPole-v1")
     result = train(
@@ -31,7 +31,7 @@ def test_dqn_improves_on_the_compiled_runner_and_freezes():
     assert first["mean_return"] < 40  # ε is still high in the first 2,048 steps
     assert result.eval["mean_return"] > 120, result.eval
     state = result.state
-    assert bool(state.greedy.frozen[0]) and np.mean(np.asarray(state.greedy.returns[0])) >= 150
+    assert bool(state.greedy.frozen[0]) and np.min(np.asarray(state.greedy.returns[0])) >= 150
     full_run = ((8_192 - 1_024) // 64 + 1) * 16  # learning phases from step 1,024 on, 16 steps each
     assert int(state.agent.step[0]) < full_run
 

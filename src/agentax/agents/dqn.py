@@ -121,8 +121,8 @@ class DQNConfig:
     total_steps: int = 60_000
     """Env steps of the whole run (summed over envs)."""
     freeze_at_return: float | None = None
-    """Early stopping per seed (compiled runner): stop learning once the greedy policy's last
-    ``freeze_episodes`` episodes, played on side envs during training, average at least this."""
+    """Early stopping per seed (compiled runner): stop learning once each of the greedy policy's last
+    ``freeze_episodes`` episodes, played on side envs during training, returned at least this."""
     freeze_episodes: int = 8
     """Greedy episodes (and side envs) behind ``freeze_at_return``."""
 
@@ -226,7 +226,7 @@ PRESETS: dict[str, Preset] = {
     "default": Preset(
         DQNConfig(freeze_at_return=475.0),
         "tuned for CartPole-v1: Double DQN, 3-step returns, 128 learning steps per 256 env steps; "
-        "each seed stops learning once its greedy policy averages 475; stops when solved",
+        "each seed stops learning once 8 greedy episodes in a row reach 475; stops when solved",
         updates_per_chunk=4,
         eval_every_chunks=1,
         eval_episodes=20,
@@ -460,7 +460,7 @@ class GreedyMonitor:
     """Side envs played by the greedy policy during training, for per-seed early stopping.
 
     Their finished episodes' returns go into a ring of the last ``freeze_episodes``; once it is full
-    and its mean reaches ``freeze_at_return`` the seed is ``frozen``: it keeps collecting (so the
+    and every return in it reaches ``freeze_at_return`` the seed is ``frozen``: it keeps collecting (so the
     runner's schedule is unchanged) but learns no more. Costs one extra small forward pass per step.
     """
 
@@ -480,8 +480,8 @@ def monitor_step(
     params: Any,
     threshold: float,
 ) -> GreedyMonitor:
-    """One greedy step of every side env; record finished returns; freeze once the ring's mean reaches
-    ``threshold``."""
+    """One greedy step of every side env; record finished returns; freeze once every return in the
+    ring reaches ``threshold``."""
     num = monitor.obs.shape[0]
     action = jnp.argmax(agent.network.apply(agent.params, monitor.obs), axis=-1)
     time_step, env_state = vmap_step(jax.random.split(key, num), monitor.env_state, action, params)
@@ -490,7 +490,7 @@ def monitor_step(
     slot = (monitor.finished + jnp.cumsum(done) - 1) % num  # ring slots of this step's finished episodes
     returns = monitor.returns.at[jnp.where(done, slot, num)].set(running, mode="drop")
     finished = monitor.finished + done.sum(dtype=jnp.int32)
-    solved = (finished >= num) & (returns.mean() >= threshold)
+    solved = (finished >= num) & (returns.min() >= threshold)
     return GreedyMonitor(
         env_state=env_state,
         obs=time_step.obs.astype(jnp.float32),
