@@ -171,10 +171,10 @@ def bench_case(name: str, form: str, mdp, python: Path | None, error_bounds: boo
         form,
         "MacQueen bounds" if error_bounds else "residual",
         int(result.num_iterations),
-        round(compile_seconds, 2),
-        round(seconds, 4),
-        round(numpy_seconds, 4),
-        round(numpy_seconds / seconds, 2),
+        float(f"{compile_seconds:.3g}"),
+        float(f"{seconds:.3g}"),
+        float(f"{numpy_seconds:.3g}"),
+        float(f"{numpy_seconds / seconds:.3g}"),
         float(f"{np.abs(reference - values).max():.2g}"),
     ]
     successors = mdp.next_states.shape[-1] if hasattr(mdp, "next_states") else mdp.num_states
@@ -184,8 +184,8 @@ def bench_case(name: str, form: str, mdp, python: Path | None, error_bounds: boo
         return row + ["-", "-", "-", "-"]
     return row + [
         toolbox["iterations"],
-        round(toolbox["seconds"], 4),
-        round(toolbox["seconds"] / seconds, 2),
+        float(f"{toolbox['seconds']:.3g}"),
+        float(f"{toolbox['seconds'] / seconds:.3g}"),
         float(f"{np.abs(np.asarray(toolbox['V']) - values).max():.2g}"),
     ]
 
