@@ -4,9 +4,13 @@
 was seen to stop for good — 0 % CPU, waiting in ``BlockUntilReady`` — on the first or second call
 of a jitted PPO train program vmapped over seeds (11 of 12 processes). XLA flags that limit its
 thread pools did not help; pinning the process to one CPU did (8 of 8 calls completed at the
-same throughput). :func:`pin_cpu` applies that cure. It must run before jax creates its CPU
-client, because only threads created after ``sched_setaffinity`` inherit the mask (checked: all
-14 threads of a process that ran a jitted, vmapped program carry the one-CPU mask).
+same throughput). Reproduced again with jaxlib 0.10.2: the compiled runner's 8-seed PPO
+program hung in 7 of 7 unpinned processes (every XLA thread idle, the main thread in
+``BlockUntilReady`` fetching a result), and finished in 7 of 7 pinned ones (6 of them 41 calls
+each); small hand-written vmapped PPO chunks did not hang either way. :func:`pin_cpu` applies
+the cure. It must run before jax creates its CPU client, because only threads created after
+``sched_setaffinity`` inherit the mask (checked: all 14 threads of a process that ran a jitted,
+vmapped program carry the one-CPU mask).
 ``agentax/__init__.py`` calls it first thing, so every program that imports agentax gets it.
 
 Processes are spread over the allowed CPUs (by pytest-xdist worker number, else by pid), so two
