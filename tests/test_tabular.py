@@ -22,6 +22,7 @@ from agentax.tabular import (
     value_iteration,
 )
 from agentax.tabular.planning import q_value_iterates
+from agentax.tabular.qlearning import epsilon_schedule
 
 # Q* of the lecture MDP at discount factor 0.9, by hand: in s1 staying (a0) is worth 0 forever, so
 # V*(s1) = 0; Q*(s0, a0) = 0.7 (10 + 0.9 Q*(s0, a0)) + 0.3 (0.9 · 0) → Q*(s0, a0) = 7 / 0.37 = 18.9189;
@@ -145,6 +146,21 @@ def test_td_error_and_epsilon_greedy_probabilities_by_hand():
         jnp.array([1.0, 0.0, 2.0, 9.0]), jnp.array([True, True, True, False]), 0.3
     )
     np.testing.assert_allclose(probabilities, [0.1, 0.1, 0.8, 0.0], atol=1e-6)
+
+
+def test_epsilon_schedules_from_the_config():
+    constant = epsilon_schedule(QLearningConfig(epsilon_start=0.2))
+    linear = epsilon_schedule(
+        QLearningConfig(epsilon_schedule="linear", epsilon_end=0.1, epsilon_decay_steps=100)
+    )
+    exponential = epsilon_schedule(
+        QLearningConfig(epsilon_schedule="exponential", epsilon_end=0.0, epsilon_decay_rate=0.99)
+    )
+    assert float(constant(500)) == pytest.approx(0.2)
+    # Linear: 1 − (1 − 0.1) · 50 / 100 = 0.55 halfway, then 0.1 for good.
+    assert float(linear(50)) == pytest.approx(0.55) and float(linear(1_000)) == pytest.approx(0.1)
+    # Exponential: 0.99^100 = 0.3660.
+    assert float(exponential(100)) == pytest.approx(0.3660, abs=1e-4)
 
 
 @pytest.mark.slow
