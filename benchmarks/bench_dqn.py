@@ -196,6 +196,7 @@ def run() -> dict:
     notes = (
         "DQN's `default` preset (RL-Zoo's CartPole-v1 DQN as the starting point — 2.3e-3 learning rate, "
         "batch 64, 128 learning steps per 256 env steps, ε to 0.04 — plus Double DQN, 3-step returns, a "
+        "target network synced every 256 learning steps, a "
         "64-64 network, and "
         "per-seed freezing once 8 greedy side episodes each reach 475). The compiled rows time from "
         "the start of `train` (compile included; also shown apart) to the first evaluation whose mean over "

@@ -12,8 +12,16 @@ from agentax.evaluate import host_episode_returns
 from agentax.train.compiled import RunnerConfig, train
 from agentax.train.driver import train_dqn_host
 
-# The tuned preset, cut down: 16 learning steps per 64 env steps instead of 128 per 256.
-SMALL = dqn.preset("default", gradient_steps=16, train_frequency=16, freeze_at_return=None, total_steps=8_192)
+# The tuned preset, cut down: 16 learning steps per 64 env steps instead of 128 per 256, the target
+# network synced every 128 learning steps.
+SMALL = dqn.preset(
+    "default",
+    gradient_steps=16,
+    train_frequency=16,
+    target_update_period=128,
+    freeze_at_return=None,
+    total_steps=8_192,
+)
 
 
 @pytest.mark.slow

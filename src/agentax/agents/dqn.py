@@ -73,7 +73,7 @@ class DQNConfig:
     """The dueling head's baseline: "max" (Q = V + A − max A, the lecture) or "mean" (A − mean A)."""
     double: bool = True
     """Double DQN: the online network picks the next action, the target network values it."""
-    target_update_period: Annotated[int, tyro.conf.arg(aliases=("--target-update",))] = 128
+    target_update_period: Annotated[int, tyro.conf.arg(aliases=("--target-update",))] = 256
     """Learning steps between target-network updates; 0: no target network (bootstrap from online)."""
     target_update_tau: float = 1.0
     """Share of the online weights mixed into the target at each update: 1 copies, 0.01 is Polyak."""
