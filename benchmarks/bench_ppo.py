@@ -219,7 +219,9 @@ def run() -> dict:
         "10 epochs × 2 minibatches, γ 0.98, GAE 0.8. 'Whole process' is the wall-clock of "
         "`agentax train ppo --env CartPole-v1 [--seeds 8]` as a subprocess, start-up and run folder "
         "included; 'empty cache' compiles, 'warm cache' loads the compiled programs from the persistent "
-        "JAX cache. Env steps/s counts all seeds, training only." + sb3_note
+        "JAX cache. The host-loop reference runs inside this process (imports done, its small act/learn "
+        "programs from the warm cache), so its wall-clock has no start-up in it. Env steps/s counts all "
+        "seeds, training only." + sb3_note
     )
     return {
         "name": "ppo",
