@@ -24,7 +24,9 @@ class DemoArgs:
     seed: int = 0
     """random seed of training and evaluation"""
     out: str | None = None
-    """run folder (default runs/demo/ppo-CartPole-v1-<time>); the GIF goes into it as episode.gif"""
+    """run folder (default runs/demo/ppo-CartPole-v1-<time>, or <video>-run beside --video)"""
+    video: str | None = None
+    """where to write the animation of the trained agent (.gif or .mp4; default <run folder>/episode.gif)"""
     progress: bool = True
     """show a progress bar while training"""
 
@@ -41,7 +43,7 @@ def main(argv: list[str]) -> int:
     from agentax.envs import make_jax
     from agentax.evaluate import evaluate
     from agentax.policies import basic_policy
-    from agentax.render import save_episode
+    from agentax.render import check_video_path, save_episode
     from agentax.runs import Run, default_run_dir
     from agentax.train.compiled import RunnerConfig, restore_policy, train
 
@@ -54,7 +56,14 @@ def main(argv: list[str]) -> int:
         eval_episodes=preset.eval_episodes,
         stop_at_return=env.reward_threshold,
     )
-    out = Path(args.out) if args.out else default_run_dir("ppo", env.id, root="runs/demo")
+    if args.video:
+        check_video_path(args.video)
+    if args.out:
+        out = Path(args.out)
+    elif args.video:
+        out = default_run_dir("ppo", env.id, root=Path(args.video).parent)
+    else:
+        out = default_run_dir("ppo", env.id, root="runs/demo")
     config = {
         "algo": "ppo",
         "env": env.id,
@@ -81,6 +90,10 @@ def main(argv: list[str]) -> int:
         start = time.perf_counter()
         stats = evaluate(env, candidate, args.episodes, args.seed + 1)
         console.print(stats_table(env.id, name, stats, args.seed + 1, time.perf_counter() - start))
-    path, episode = save_episode(env, policy, out / "episode.gif", args.seed)
-    console.print(f"wrote {out / 'curve.png'} (learning curve) and {path} (return {episode.total_return:g})")
+    path, episode = save_episode(env, policy, args.video or out / "episode.gif", args.seed)
+    print(f"wrote {out / 'curve.png'}: the learning curve")
+    print(
+        f"wrote {path}: one episode of the trained agent, "
+        f"return {episode.total_return:g} over {episode.length} steps"
+    )
     return 0
