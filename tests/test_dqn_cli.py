@@ -42,7 +42,7 @@ def test_train_dqn_with_every_flag_writes_a_run(tmp_path, capsys):
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["train", "dqn", "--env", "Pendulum-v1"], "Pendulum-v1"),
+        (["train", "dqn", "--env", "Pendulum-v1"], "DQN needs a discrete action space"),
         (["train", "dqn", "--preset", "nope"], "choose from default, lecture"),
         (["train", "dqn", "--discount-factor", "1.5"], "discount_factor"),
     ],
@@ -53,14 +53,18 @@ def test_bad_input_is_one_line_and_exit_code_2(argv, message, capsys):
     assert message in err and len(err.splitlines()) == 1, err
 
 
-def test_continuous_actions_are_refused_before_a_run_folder_exists(tmp_path):
-    """The host route (``agentax.train.driver.train_cli``) names the problem: DQN needs discrete actions."""
-    from agentax.agents import dqn
-    from agentax.cli.train import parse
-    from agentax.errors import UsageError
-    from agentax.train import driver
+def test_continuous_actions_are_refused_before_a_run_folder_exists(tmp_path, capsys):
+    """Gymnasium envs go to the host driver, which names the problem: DQN needs discrete actions."""
+    out = tmp_path / "run"
+    assert main(["train", "dqn", "--env", "Pendulum-v1", "--out", str(out)]) == 2
+    assert "Box" in capsys.readouterr().err
+    assert not out.exists()
 
-    run_args, cfg, preset = parse("dqn", ["--env", "Pendulum-v1"])
-    with pytest.raises(UsageError, match="DQN needs a discrete action space.*Box"):
-        driver.train_cli("dqn", dqn, run_args, cfg, preset, tmp_path / "run")
-    assert not (tmp_path / "run").exists()
+
+def test_a_gymnasium_env_trains_through_the_host_driver(tmp_path):
+    out = tmp_path / "acrobot"
+    assert main(["train", "dqn", "--env", "Acrobot-v1", "--total-steps", "1000", "--out", str(out)]) == 0
+    config = json.loads((out / "config.json").read_text())
+    assert config["runner_kind"] == "host" and config["env"] == "Acrobot-v1"
+    evaluation = json.loads((out / "eval.json").read_text())
+    assert -500 <= evaluation["mean_return"] <= 0  # Acrobot pays -1 a step for at most 500 steps

@@ -32,7 +32,8 @@ ALGOS: dict[str, str] = {
     "ppo": "agentax.agents.ppo",
     "dqn": "agentax.agents.dqn",
 }
-HOST_ALGOS = ("ppo",)  # algorithms with a host loop for Gymnasium-only envs
+# algorithms with a host loop for Gymnasium-only envs: module with train_cli and resume_cli
+HOST_RUNNERS = {"ppo": "agentax.train.host", "dqn": "agentax.train.driver"}
 
 
 @dataclass(frozen=True)
@@ -175,13 +176,12 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Any) -> int:
         run = Run.create(out, config)
         print(f"training {algo} on {run_args.env} ({run_args.seeds} seed(s)) into {out}", file=sys.stderr)
         return _train_compiled(module, env, cfg, runner, run, resume=False, progress=run_args.progress)
-    if algo not in HOST_ALGOS:
+    if algo not in HOST_RUNNERS:
         raise UsageError(
             f"{algo} trains only on agentax's JAX envs; {run_args.env!r} is not one. "
-            f"Use ppo for Gymnasium envs, or a JAX env: {', '.join(_jax_env_ids())}"
+            f"Use {' or '.join(HOST_RUNNERS)} for Gymnasium envs, or a JAX env: {', '.join(_jax_env_ids())}"
         )
-    from agentax.train import host
-
+    host = importlib.import_module(HOST_RUNNERS[algo])
     return host.train_cli(algo, module, run_args, cfg, preset, out)
 
 
@@ -233,8 +233,7 @@ def resume(run_dir: Path, progress: bool = True) -> int:
     cfg = module.config_from_dict(config["config"])
     _xla.enable_compilation_cache()
     if config.get("runner_kind") == "host":
-        from agentax.train import host
-
+        host = importlib.import_module(HOST_RUNNERS[algo])
         return host.resume_cli(module, Run.open(run_dir), cfg, progress)
     from agentax.envs import make_jax
     from agentax.train.compiled import RunnerConfig
