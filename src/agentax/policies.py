@@ -27,7 +27,9 @@ def random_policy(action_space: Discrete | Box) -> Policy:
     return lambda obs, key: action_space.sample(key)
 
 
-def epsilon_greedy(key: jax.Array, q_values: jax.Array, epsilon: jax.Array, mask: jax.Array | None = None) -> jax.Array:
+def epsilon_greedy(
+    key: jax.Array, q_values: jax.Array, epsilon: jax.Array, mask: jax.Array | None = None
+) -> jax.Array:
     """With probability ``epsilon`` a random (possible) action, else ``argmax Q``.
 
     q_values: ``[num_actions]``; mask: ``[num_actions]`` bool of possible actions (all if None).
@@ -49,9 +51,13 @@ def linear_schedule(start: float, end: float, duration: float) -> Callable[[jax.
 
     The lecture's ε = max(1 − episode / 500, 0.01) is ``linear_schedule(1.0, 0.01, 495)``.
     """
-    return lambda t: jnp.float32(start) + (end - start) * jnp.clip(jnp.asarray(t, jnp.float32) / duration, 0.0, 1.0)
+    return lambda t: (
+        jnp.float32(start) + (end - start) * jnp.clip(jnp.asarray(t, jnp.float32) / duration, 0.0, 1.0)
+    )
 
 
 def exponential_schedule(start: float, end: float, decay: float) -> Callable[[jax.Array], jax.Array]:
     """``end + (start − end) · decay^t``: starts at ``start``, tends to ``end``."""
-    return lambda t: jnp.float32(end) + (start - end) * jnp.power(jnp.float32(decay), jnp.asarray(t, jnp.float32))
+    return lambda t: (
+        jnp.float32(end) + (start - end) * jnp.power(jnp.float32(decay), jnp.asarray(t, jnp.float32))
+    )

@@ -22,8 +22,8 @@ keys — inside the same program. Seed ``k`` of a batch starting at ``seed`` use
 ``jax.random.key(seed + k)``, so seed ``k`` run alone gives the same numbers as inside a batch.
 
 Between chunks, back in Python, it logs a row (metrics.csv, TensorBoard, a rich progress bar),
-checkpoints the whole TrainState (so a resumed run continues exactly), and stops early once the
-evaluation's mean over seeds reaches ``stop_at_return``. At the end it evaluates the greedy
+checkpoints the whole TrainState (so a resumed run continues exactly), and stops early once
+every seed's evaluation mean reaches ``stop_at_return`` (solved means solved on every seed). At the end it evaluates the greedy
 policies once more on fresh keys, writes eval.json and curve.png.
 
 Every process that imports agentax is pinned to one CPU first (:mod:`agentax._xla`), the cure
@@ -275,7 +275,7 @@ def train(
                 **{name: float(np.mean(value)) for name, value in metrics.items()},
             }
             rows.append(row)
-            if do_eval and runner.stop_at_return is not None and eval_mean >= runner.stop_at_return:
+            if do_eval and runner.stop_at_return is not None and min(map(np.mean, eval_returns)) >= runner.stop_at_return:
                 solved_env_steps, solved_seconds = env_steps, time.perf_counter() - start
             meta = {
                 "updates": updates,
