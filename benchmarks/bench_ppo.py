@@ -5,7 +5,7 @@ Rows, all measured in this run:
 - the whole ``agentax train ppo --env CartPole-v1`` process (start-up, compile, training until the
   first evaluation — 20 greedy episodes per seed — reaches a mean of 475, the final evaluation and
   the run folder), with an empty and with a warm compilation cache, for 1 seed and for 8 seeds
-  vmapped into one program (their pooled evaluation must reach 475);
+  vmapped into one program (every seed's evaluation must reach 475);
 - the compiled runner's throughput (``cartpole-fast`` preset, 51,200 steps per seed, no early
   stop): env steps per second of training (all seeds), compile apart;
 - the reference that installs everywhere: the same PPO on Gymnasium's own CartPole-v1 through the
@@ -213,8 +213,9 @@ def run() -> dict:
             " stable-baselines3/torch could not be installed in `.bench-venv` here, so there is no SB3 row."
         )
     notes = (
-        "Solving = the first evaluation (20 greedy episodes per seed on fresh seeds, pooled over seeds) "
-        "with a mean return ≥ 475, checked every 2,560 env steps per seed; the runs stop there. "
+        "Solving = the first evaluation (20 greedy episodes per seed on fresh seeds) "
+        "in which every seed's mean return is ≥ 475, checked every 2,560 env steps per seed; "
+        "the runs stop there. "
         "The `cartpole-fast` preset: 8 envs × 32 steps, lr 3e-3 and clip 0.2 annealed, "
         "10 epochs × 2 minibatches, γ 0.98, GAE 0.8. 'Whole process' is the wall-clock of "
         "`agentax train ppo --env CartPole-v1 [--seeds 8]` as a subprocess, start-up and run folder "

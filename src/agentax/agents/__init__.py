@@ -8,8 +8,11 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
+
+from agentax.errors import UsageError
 
 
 @dataclass(frozen=True)
@@ -28,3 +31,18 @@ class Preset:
     """evaluation episodes per seed"""
     stop_at_solved: bool = False
     """stop once the evaluation reaches the env's solved threshold (the ``--stop-at-return`` default)"""
+
+
+def config_to_dict(cfg: Any) -> dict[str, Any]:
+    """A frozen config as plain JSON-ready values (for ``config.json``)."""
+    return dataclasses.asdict(cfg)
+
+
+def config_from_dict(cls: type, values: dict[str, Any]) -> Any:
+    """Rebuild a ``cls`` config from ``config.json`` (lists back to tuples); unknown keys are an error."""
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(values) - names
+    if unknown:
+        known = ", ".join(sorted(names))
+        raise UsageError(f"unknown {cls.__name__} settings {sorted(unknown)}; known: {known}")
+    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})

@@ -50,6 +50,7 @@ import optax
 import tyro
 from flax import struct
 
+from agentax import agents
 from agentax.agents import Preset
 from agentax.envs.core import Discrete, Environment
 from agentax.errors import UsageError
@@ -656,8 +657,8 @@ def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None):
 # ---------------------------------------------------------------- saved runs
 
 
-def config_to_dict(cfg: DQNConfig) -> dict:
-    return dataclasses.asdict(cfg)
+def config_to_dict(cfg: DQNConfig) -> dict[str, Any]:
+    return agents.config_to_dict(cfg)
 
 
 def load_policy(run_dir: Path, config: dict[str, Any]) -> Policy:
@@ -681,11 +682,8 @@ def load_policy(run_dir: Path, config: dict[str, Any]) -> Policy:
     return restore_policy(run_dir, make_train(env, cfg), RunnerConfig(**config["runner"]))
 
 
-def config_from_dict(values: dict) -> DQNConfig:
-    """A ``DQNConfig`` from its ``asdict`` form (as saved in ``config.json``); unknown keys are ignored."""
-    names = {f.name for f in dataclasses.fields(DQNConfig)}
-    values = {k: (tuple(v) if k == "hidden" else v) for k, v in values.items() if k in names}
-    return DQNConfig(**values)
+def config_from_dict(values: dict[str, Any]) -> DQNConfig:
+    return agents.config_from_dict(DQNConfig, values)
 
 
 __all__ = [

@@ -18,7 +18,6 @@ the compiled runner (JAX envs, vmapped over seeds), ``agentax.train.host`` for G
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,6 +27,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from agentax import agents
 from agentax.agents import Preset
 from agentax.envs.core import Box, Discrete, Environment
 from agentax.errors import UsageError
@@ -402,18 +402,11 @@ def make_train(env: Environment, cfg: PPOConfig, env_params: Any = None):
 
 
 def config_to_dict(cfg: PPOConfig) -> dict[str, Any]:
-    return dataclasses.asdict(cfg)
+    return agents.config_to_dict(cfg)
 
 
 def config_from_dict(values: dict[str, Any]) -> PPOConfig:
-    fields = {f.name for f in dataclasses.fields(PPOConfig)}
-    unknown = set(values) - fields
-    if unknown:
-        raise UsageError(f"unknown PPO settings {sorted(unknown)}; known: {', '.join(sorted(fields))}")
-    values = dict(values)
-    if "hidden" in values:
-        values["hidden"] = tuple(values["hidden"])
-    return PPOConfig(**values)
+    return agents.config_from_dict(PPOConfig, values)
 
 
 def load_policy(run_dir: Path, config: dict[str, Any]) -> Policy:

@@ -20,7 +20,6 @@ steps after an episode's end are masked out.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,6 +29,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from agentax import agents
 from agentax.agents import Preset
 from agentax.envs.core import Discrete, Environment
 from agentax.errors import UsageError
@@ -217,19 +217,11 @@ def make_train(env: Environment, cfg: ReinforceConfig, env_params: Any = None):
 
 
 def config_to_dict(cfg: ReinforceConfig) -> dict[str, Any]:
-    return dataclasses.asdict(cfg)
+    return agents.config_to_dict(cfg)
 
 
 def config_from_dict(values: dict[str, Any]) -> ReinforceConfig:
-    fields = {f.name for f in dataclasses.fields(ReinforceConfig)}
-    unknown = set(values) - fields
-    if unknown:
-        raise UsageError(f"unknown REINFORCE settings {sorted(unknown)}; known: {', '.join(sorted(fields))}")
-    values = dict(values)
-    for name in ("hidden", "baseline_hidden"):
-        if name in values:
-            values[name] = tuple(values[name])
-    return ReinforceConfig(**values)
+    return agents.config_from_dict(ReinforceConfig, values)
 
 
 def load_policy(run_dir: Path, config: dict[str, Any]) -> Policy:

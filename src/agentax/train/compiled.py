@@ -23,8 +23,8 @@ keys — inside the same program. Seed ``k`` of a batch starting at ``seed`` use
 
 Between chunks, back in Python, it logs a row (metrics.csv, TensorBoard, a rich progress bar),
 checkpoints the whole TrainState (so a resumed run continues exactly), and stops early once
-every seed's evaluation mean reaches ``stop_at_return`` (solved means solved on every seed). At the end it evaluates the greedy
-policies once more on fresh keys, writes eval.json and curve.png.
+every seed's evaluation mean reaches ``stop_at_return`` (solved means solved on every seed).
+At the end it evaluates the greedy policies once more on fresh keys, writes eval.json and curve.png.
 
 Every process that imports agentax is pinned to one CPU first (:mod:`agentax._xla`), the cure
 for the XLA CPU hang this program, called over and over, once met.
@@ -275,7 +275,8 @@ def train(
                 **{name: float(np.mean(value)) for name, value in metrics.items()},
             }
             rows.append(row)
-            if do_eval and runner.stop_at_return is not None and min(map(np.mean, eval_returns)) >= runner.stop_at_return:
+            target = runner.stop_at_return
+            if do_eval and target is not None and min(map(np.mean, eval_returns)) >= target:  # every seed
                 solved_env_steps, solved_seconds = env_steps, time.perf_counter() - start
             meta = {
                 "updates": updates,
