@@ -17,7 +17,7 @@ COMMANDS: dict[str, str] = {
     "evaluate": "evaluate a policy (basic, random, or a trained run) over N episodes",
     "play": "play one episode and write it as a GIF or MP4",
     "demo": "the main job: train an agent on CartPole and show the result",
-    "train": "train an agent (reinforce, ppo, ...) into a run folder; --resume DIR continues one",
+    "train": "train an agent (reinforce, ppo, dqn) into a run folder; --resume DIR continues one",
     "plot": "overlay the learning curves of run folders into one PNG",
     "search": "policy search: (p, r) of the vacuum robot by grid/random search; GA or CEM on CartPole",
     "solve": "solve a tabular MDP: value / Q-value iteration, TD, Q-learning, SARSA (--plot compares)",
