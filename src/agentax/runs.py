@@ -60,7 +60,7 @@ def default_run_dir(algo: str, env_id: str, root: str | Path = "runs") -> Path:
     return candidate
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
+def write_atomic(path: Path, data: bytes) -> None:
     """Write ``data`` to a temporary name in the same folder, then rename it over ``path``."""
     tmp = path.with_name(f".{path.name}.tmp")
     with open(tmp, "wb") as f:
@@ -68,6 +68,11 @@ def _write_atomic(path: Path, data: bytes) -> None:
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
+
+
+def write_json(path: Path, obj: Any) -> None:
+    """``obj`` as indented JSON, written atomically (numbers from numpy included)."""
+    write_atomic(Path(path), (json.dumps(obj, indent=2, default=_json_default) + "\n").encode())
 
 
 def read_config(run_dir: str | Path) -> dict[str, Any]:
@@ -110,7 +115,7 @@ def save_tree(path: str | Path, tree: Any, meta: dict[str, Any] | None = None) -
     host = jax.tree.map(lambda x: np.asarray(jax.random.key_data(x) if _is_key(x) else x), tree)
     payload = {"state": serialization.to_state_dict(host), "meta": json.dumps(meta or {})}
     path = Path(path)
-    _write_atomic(path, serialization.msgpack_serialize(payload))
+    write_atomic(path, serialization.msgpack_serialize(payload))
     return path
 
 
@@ -207,9 +212,7 @@ class Run:
         if not {"algo", "env"} <= config.keys():
             raise ValueError("a run's config needs 'algo' and 'env' keys")
         (path / "checkpoints").mkdir(parents=True, exist_ok=True)
-        _write_atomic(
-            path / "config.json", (json.dumps(config, indent=2, default=_json_default) + "\n").encode()
-        )
+        write_json(path / "config.json", config)
         return cls(path, config)
 
     @classmethod
@@ -269,7 +272,7 @@ class Run:
             ],
             **extra,
         }
-        _write_atomic(self.path / "eval.json", (json.dumps(result, indent=2) + "\n").encode())
+        write_json(self.path / "eval.json", result)
         return result
 
     def plot(self) -> Path:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import datetime
+import io
 import pathlib
 import sys
 import time
@@ -26,10 +27,12 @@ import imageio.v3 as imageio
 import jax
 import numpy as np
 import tyro
+from flax import serialization
 
 from agentax.envs.vacuum import Vacuum, render_path, vacuum_policy
 from agentax.errors import UsageError
 from agentax.evaluate import episode_returns
+from agentax.runs import write_atomic, write_json
 from agentax.search import cem, genetic
 from agentax.search.grid import GridSearchConfig, grid_search
 from agentax.search.population import (
@@ -38,9 +41,7 @@ from agentax.search.population import (
     make_env,
     make_fitness,
     run_generations,
-    save_params,
     select_final,
-    write_json,
 )
 from agentax.search.random_search import RandomSearchConfig, random_search
 from agentax.search.settings import plot_heatmap
@@ -129,12 +130,11 @@ def run_folder(out: pathlib.Path | None, method: str, env_id: str) -> pathlib.Pa
 
 
 def write_csv(path: pathlib.Path, rows: list[dict]) -> None:
-    temp = path.with_name(f".{path.name}.tmp")
-    with temp.open("w", newline="") as file:
-        writer = csv.DictWriter(file, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    temp.replace(path)
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=list(rows[0]))
+    writer.writeheader()
+    writer.writerows(rows)
+    write_atomic(path, text.getvalue().encode())
 
 
 def search_vacuum(args: VacuumArgs) -> int:
@@ -188,7 +188,8 @@ def search_vacuum(args: VacuumArgs) -> int:
         f"{args.method} search over (p, r)",
     )
     summary = result.summary() | {"seconds": seconds}
-    save_params(out / "best_params.msgpack", {"p": np.float32(result.best_p), "r": np.float32(result.best_r)})
+    best = {"p": np.float32(result.best_p), "r": np.float32(result.best_r)}
+    write_atomic(out / "best_params.msgpack", serialization.to_bytes(best))
     write_json(out / "eval.json", summary)
     lo, hi = result.ci95
     print(
@@ -283,7 +284,8 @@ def search_cartpole(args: CartPoleArgs) -> int:
     )
     summary = _evaluate_best(env, flat, best_params, selection_scores, args, seconds, int(generations[-1]))
     write_json(out / "eval.json", summary)
-    save_params(out / "best_params.msgpack", np.asarray(best_params[summary["seed"] - args.seed], np.float32))
+    best = np.asarray(best_params[summary["seed"] - args.seed], np.float32)
+    write_atomic(out / "best_params.msgpack", serialization.to_bytes(best))
     print(
         "best policy (seed {seed}): return {mean_return:.1f} ± {std_return:.1f}, {episodes} fresh episodes "
         "(min {min_return:.0f}, max {max_return:.0f}); {generations} generations in {seconds:.1f} s".format(

@@ -12,11 +12,8 @@ so differences in fitness come from the policies rather than from luck of the dr
 
 from __future__ import annotations
 
-import json
 import math
-import os
 import pathlib
-import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -202,28 +199,6 @@ def run_generations(
         if on_generation is not None and on_generation(generation, metrics):
             break
     return state
-
-
-def save_params(path: pathlib.Path, tree) -> None:
-    """Write ``tree`` as msgpack (``flax.serialization``) to a temp file, then rename it: no half files."""
-    path = pathlib.Path(path)
-    data = serialization.to_bytes(jax.tree.map(np.asarray, tree))
-    handle, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(handle, "wb") as file:
-            file.write(data)
-        os.replace(temp, path)
-    except BaseException:
-        pathlib.Path(temp).unlink(missing_ok=True)
-        raise
-
-
-def write_json(path: pathlib.Path, obj) -> None:
-    """``obj`` as indented JSON, written to a temp file and renamed."""
-    path = pathlib.Path(path)
-    temp = path.with_name(f".{path.name}.tmp")
-    temp.write_text(json.dumps(obj, indent=2) + "\n")
-    os.replace(temp, path)
 
 
 def load_net_policy(run_dir: pathlib.Path, config: dict) -> Policy:
