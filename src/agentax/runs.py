@@ -21,6 +21,7 @@ and ``agentax train --resume DIR`` work on any of them::
 from __future__ import annotations
 
 import csv
+import dataclasses
 import datetime
 import importlib
 import json
@@ -73,6 +74,19 @@ def write_atomic(path: Path, data: bytes) -> None:
 def write_json(path: Path, obj: Any) -> None:
     """``obj`` as indented JSON, written atomically (numbers from numpy included)."""
     write_atomic(Path(path), (json.dumps(obj, indent=2, default=_json_default) + "\n").encode())
+
+
+def run_config(algo: str, env_id: str, preset: str, runner_kind: str, runner: Any, config: dict) -> dict:
+    """What a trainer's ``config.json`` holds: the algorithm, env, preset, runner and its settings."""
+    runner = dataclasses.asdict(runner) if dataclasses.is_dataclass(runner) else dict(runner)
+    return {
+        "algo": algo,
+        "env": env_id,
+        "preset": preset,
+        "runner_kind": runner_kind,
+        "runner": runner,
+        "config": config,
+    }
 
 
 def read_config(run_dir: str | Path) -> dict[str, Any]:

@@ -44,7 +44,7 @@ def main(argv: list[str]) -> int:
     from agentax.evaluate import evaluate
     from agentax.policies import basic_policy
     from agentax.render import check_video_path, save_episode
-    from agentax.runs import Run, default_run_dir
+    from agentax.runs import Run, default_run_dir, run_config
     from agentax.train.compiled import RunnerConfig, restore_policy, train
 
     _xla.enable_compilation_cache()
@@ -64,14 +64,7 @@ def main(argv: list[str]) -> int:
         out = default_run_dir("ppo", env.id, root=Path(args.video).parent)
     else:
         out = default_run_dir("ppo", env.id, root="runs/demo")
-    config = {
-        "algo": "ppo",
-        "env": env.id,
-        "preset": "cartpole-fast",
-        "runner_kind": "compiled",
-        "runner": vars(runner),
-        "config": ppo.config_to_dict(preset.config),
-    }
+    config = run_config("ppo", env.id, "cartpole-fast", "compiled", runner, ppo.config_to_dict(preset.config))
     console = Console()
     console.print(f"[bold]Training PPO on {env.id}[/] (preset cartpole-fast) into {out}")
     start = time.perf_counter()

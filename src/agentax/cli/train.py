@@ -147,7 +147,7 @@ def _is_jax_env(env_id: str) -> bool:
 def start(algo: str, run_args: RunArgs, cfg: Any, preset: Any) -> int:
     """Create the run folder and train."""
     from agentax import _xla
-    from agentax.runs import Run, default_run_dir
+    from agentax.runs import Run, default_run_dir, run_config
 
     module = _module(algo)
     _xla.enable_compilation_cache()
@@ -165,15 +165,8 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Any) -> int:
             eval_episodes=preset.eval_episodes,
             stop_at_return=parse_stop(run_args.stop_at_return, preset, env),
         )
-        config = {
-            "algo": algo,
-            "env": run_args.env,
-            "preset": run_args.preset,
-            "runner_kind": "compiled",
-            "runner": dataclasses.asdict(runner),
-            "config": module.config_to_dict(cfg),
-        }
-        run = Run.create(out, config)
+        settings = module.config_to_dict(cfg)
+        run = Run.create(out, run_config(algo, run_args.env, run_args.preset, "compiled", runner, settings))
         print(f"training {algo} on {run_args.env} ({run_args.seeds} seed(s)) into {out}", file=sys.stderr)
         return _train_compiled(module, env, cfg, runner, run, resume=False, progress=run_args.progress)
     if algo not in HOST_RUNNERS:

@@ -9,9 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from agentax.envs.vacuum import VacuumParams, vacuum_policy
-from agentax.errors import UsageError
 from agentax.policies import Policy
-from agentax.search.settings import SettingsResult, load_best_setting, search_settings
+from agentax.search.settings import SettingsResult, check_search_config, load_best_setting, search_settings
 
 
 @dataclass(frozen=True)
@@ -28,15 +27,7 @@ class RandomSearchConfig:
     """Fresh episodes of the best setting for its reported mean and confidence interval."""
 
     def __post_init__(self):
-        for name in ("num_settings", "num_episodes"):
-            if getattr(self, name) < 1:
-                raise UsageError(f"{name.replace('_', ' ')} must be >= 1, got {getattr(self, name)}")
-        if self.final_episodes < 2:
-            raise UsageError(
-                f"final episodes must be >= 2 for a confidence interval, got {self.final_episodes}"
-            )
-        if not 0 <= self.r_max <= math.pi:
-            raise UsageError(f"r max must be in [0, pi], got {self.r_max}")
+        check_search_config(self, ("num_settings", "num_episodes"))
 
     def settings(self, seed: int) -> tuple[np.ndarray, np.ndarray]:
         """``p, r``, each ``[num_settings]``, uniform and reproducible from ``seed``."""

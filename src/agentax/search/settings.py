@@ -9,6 +9,7 @@ confidence interval come from ``final_episodes`` fresh episodes of that setting,
 from __future__ import annotations
 
 import json
+import math
 import pathlib
 from dataclasses import dataclass
 
@@ -62,6 +63,18 @@ class SettingsResult:
             "search_mean_return": float(self.mean_returns[self.best_index]),
             "settings_evaluated": int(self.p.size),
         }
+
+
+def check_search_config(config, counts: tuple[str, ...]) -> None:
+    """Clear errors for a (p, r) search config: ``counts`` ≥ 1, final episodes ≥ 2, r max in [0, π]."""
+    for name in counts:
+        if getattr(config, name) < 1:
+            raise UsageError(f"{name.replace('_', ' ')} must be >= 1, got {getattr(config, name)}")
+    if config.final_episodes < 2:
+        got = config.final_episodes
+        raise UsageError(f"final episodes must be >= 2 for a confidence interval, got {got}")
+    if not 0 <= config.r_max <= math.pi:
+        raise UsageError(f"r max must be in [0, pi], got {config.r_max}")
 
 
 def search_settings(

@@ -451,7 +451,7 @@ def train_cli(algo: str, module: Any, run_args: Any, cfg: dqn.DQNConfig, preset:
     from agentax.cli.train import parse_stop
     from agentax.envs.gym import GymnasiumEnv
     from agentax.errors import UsageError
-    from agentax.runs import Run
+    from agentax.runs import Run, run_config
 
     if run_args.seeds != 1:
         raise UsageError(f"{run_args.env} steps on the host: train one seed per process (--seeds 1)")
@@ -464,14 +464,7 @@ def train_cli(algo: str, module: Any, run_args: Any, cfg: dqn.DQNConfig, preset:
     )
     runner = {"seed": run_args.seed, "eval_episodes": preset.eval_episodes, "log_every_steps": 2_048}
     runner["stop_at_return"] = parse_stop(run_args.stop_at_return, preset, threshold)
-    config = {
-        "algo": algo,
-        "env": run_args.env,
-        "preset": run_args.preset,
-        "runner_kind": "host",
-        "runner": runner,
-        "config": module.config_to_dict(cfg),
-    }
+    config = run_config(algo, run_args.env, run_args.preset, "host", runner, module.config_to_dict(cfg))
     run = Run.create(Path(out), config)
     print(f"training {algo} on {run_args.env} (host driver) into {out}", file=sys.stderr)
     return _train_and_report(run, cfg, resume=False, progress=run_args.progress)

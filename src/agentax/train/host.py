@@ -11,7 +11,6 @@ restarts its envs (seeded by the iteration number), since a Gymnasium env's stat
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import sys
 import time
@@ -26,7 +25,7 @@ import numpy as np
 from agentax.agents import ppo
 from agentax.errors import UsageError
 from agentax.policies import Policy
-from agentax.runs import Run, latest_checkpoint, load_tree
+from agentax.runs import Run, latest_checkpoint, load_tree, run_config
 
 
 @dataclass(frozen=True)
@@ -206,14 +205,7 @@ def train_cli(algo: str, module: Any, run_args: Any, cfg: ppo.PPOConfig, preset:
     env.close()
     stop = parse_stop(run_args.stop_at_return, preset, _Threshold(solved))
     runner = HostRunnerConfig(seed=run_args.seed, eval_episodes=preset.eval_episodes, stop_at_return=stop)
-    config = {
-        "algo": algo,
-        "env": run_args.env,
-        "preset": run_args.preset,
-        "runner_kind": "host",
-        "runner": dataclasses.asdict(runner),
-        "config": module.config_to_dict(cfg),
-    }
+    config = run_config(algo, run_args.env, run_args.preset, "host", runner, module.config_to_dict(cfg))
     run = Run.create(out, config)
     print(f"training {algo} on {run_args.env} (host loop) into {out}", file=sys.stderr)
     start = time.perf_counter()
