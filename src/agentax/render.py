@@ -12,7 +12,6 @@ from __future__ import annotations
 import os
 import warnings
 from dataclasses import dataclass
-from functools import partial
 from pathlib import Path
 
 import gymnasium
@@ -21,7 +20,7 @@ import jax
 import numpy as np
 
 from agentax.envs import Environment, GymnasiumEnv
-from agentax.envs.core import EnvParams
+from agentax.envs.core import EnvParams, rollout
 from agentax.envs.gym import frames_per_second
 from agentax.errors import UsageError
 from agentax.evaluate import HostPolicy, host_actor
@@ -38,27 +37,6 @@ class Episode:
     total_return: float
     length: int  # steps taken
     fps: float  # frames per second that play the episode in real time
-
-
-@partial(jax.jit, static_argnums=(0, 1, 3))
-def rollout(env: Environment, policy: Policy, key: jax.Array, num_steps: int, params: EnvParams):
-    """Play ``num_steps`` steps from a reset without auto-reset, keeping every state.
-
-    Returns ``(states [num_steps + 1, ...], rewards [num_steps], done [num_steps])``; steps after
-    the first ``done`` belong to no episode and are to be cut off.
-    """
-    reset_key, key = jax.random.split(key)
-    obs, state = env.reset(reset_key, params)
-
-    def body(carry, step_key):
-        obs, state = carry
-        act_key, env_key = jax.random.split(step_key)
-        ts, next_state = env.step_env(env_key, state, policy(obs, act_key), params)
-        return (ts.obs, next_state), (next_state, ts.reward, ts.done)
-
-    _, (states, rewards, done) = jax.lax.scan(body, (obs, state), jax.random.split(key, num_steps))
-    states = jax.tree.map(lambda first, rest: jax.numpy.concatenate([first[None], rest]), state, states)
-    return states, rewards, done
 
 
 def _frame_indices(length: int, max_frames: int) -> np.ndarray:

@@ -16,7 +16,9 @@ the next episode and ``TimeStep.final_obs`` the observation the step really reac
 from __future__ import annotations
 
 import abc
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 import jax
@@ -194,3 +196,26 @@ class Environment(abc.ABC):
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.id!r})"
+
+
+@partial(jax.jit, static_argnums=(0, 1, 3))
+def rollout(
+    env: Environment, policy: Callable[[Array, Array], Array], key: Array, num_steps: int, params: EnvParams
+):
+    """Play ``num_steps`` steps from a reset without auto-reset, keeping every state.
+
+    Returns ``(states [num_steps + 1, ...], rewards [num_steps], done [num_steps])``; steps after
+    the first ``done`` belong to no episode and are to be cut off.
+    """
+    reset_key, key = jax.random.split(key)
+    obs, state = env.reset(reset_key, params)
+
+    def body(carry, step_key):
+        obs, state = carry
+        act_key, env_key = jax.random.split(step_key)
+        ts, next_state = env.step_env(env_key, state, policy(obs, act_key), params)
+        return (ts.obs, next_state), (next_state, ts.reward, ts.done)
+
+    _, (states, rewards, done) = jax.lax.scan(body, (obs, state), jax.random.split(key, num_steps))
+    states = jax.tree.map(lambda first, rest: jnp.concatenate([first[None], rest]), state, states)
+    return states, rewards, done

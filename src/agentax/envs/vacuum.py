@@ -40,7 +40,7 @@ import numpy as np
 from flax import struct
 
 from agentax.envs.cartpole import threefry2x32, uniform4
-from agentax.envs.core import Box, Environment, TimeStep
+from agentax.envs.core import Box, Environment, TimeStep, rollout
 from agentax.policies import Policy
 
 
@@ -205,10 +205,10 @@ class Vacuum(Environment):
     ) -> tuple[VacuumState, jax.Array]:
         """One whole episode of ``policy``: states ``[T + 1]`` (the first from reset) and rewards ``[T]``."""
         params = self.default_params() if params is None else params
-        return _trajectory(self, policy, int(params.max_steps_in_episode), key, params)
+        states, rewards, _ = rollout(self, policy, key, int(params.max_steps_in_episode), params)
+        return states, rewards
 
 
-@partial(jax.jit, static_argnums=(0, 1, 2))
 def _trajectory(env: Vacuum, policy: Policy, num_steps: int, key: jax.Array, params: VacuumParams):
     reset_key, key = jax.random.split(key)
     obs, state = env.reset_env(reset_key, params)
