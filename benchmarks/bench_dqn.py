@@ -30,6 +30,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 BENCH_VENV = ROOT / ".bench-venv"
 SOLVED = 475.0
+WARM_REPEATS = 3  # warm-cache whole-process runs; the median is reported
 
 SB3_SCRIPT = """
 import json, time
@@ -162,7 +163,7 @@ def run() -> dict:
     rows = [compiled_row(1), compiled_row(8), host_row()]
     with tempfile.TemporaryDirectory() as cache:
         cold = cli_row(cache)
-        warm = cli_row(cache)
+        warm = sorted((cli_row(cache) for _ in range(WARM_REPEATS)), key=lambda r: r[0])[WARM_REPEATS // 2]
     for label, (seconds, mean_return, _) in (("cold", cold), ("warm", warm)):
         solved = "1/1" if mean_return >= SOLVED else "0/1"
         rows.append(
@@ -206,7 +207,8 @@ def run() -> dict:
         "(4 envs, SAME_STEP autoreset) through the Driver and calls the same jitted `dqn.learn`; its "
         "wall-clock includes compilation and the periodic evaluations. The process rows run "
         "`python -m agentax.cli train dqn --env CartPole-v1` in a subprocess: first with an empty "
-        "compilation cache, then with the cache the first run filled."
+        "cache (it traces and compiles), then with the cache the first run filled (stored programs and "
+        "their compiled code: no tracing, no compiling; the median of 3 runs)."
     )
     if sb3 is None:
         notes += " Stable-Baselines3 is not installed in `.bench-venv` here, so there is no SB3 row."

@@ -13,10 +13,11 @@ the cure. It must run before jax creates its CPU client, because only threads cr
 vmapped program carry the one-CPU mask).
 ``agentax/__init__.py`` calls it first thing, so every program that imports agentax gets it.
 
-Processes are spread over the allowed CPUs (by pytest-xdist worker number, else by pid), so two
-trainings or two test workers do not share one core. ``AGENTAX_PIN_CPU=0`` turns the pin off,
-``AGENTAX_PIN_CPU=1`` forces it even where an accelerator plugin is installed (where it is off by
-default, since the hang is a CPU-backend one).
+Processes are spread over the allowed CPUs, so two trainings or two test workers do not share
+one core: a pytest-xdist worker by its number, any other process on the CPU the kernel started it
+on (it picks an idle one; choosing by pid put two trainings on one core while the other idled).
+``AGENTAX_PIN_CPU=0`` turns the pin off, ``AGENTAX_PIN_CPU=1`` forces it even where an accelerator
+plugin is installed (where it is off by default, since the hang is a CPU-backend one).
 
 **The compilation cache**: :func:`enable_compilation_cache` keeps compiled programs on disk
 (``~/.cache/agentax/jax``, or ``$AGENTAX_JAX_CACHE``; ``none`` disables it), with the size and
@@ -41,6 +42,11 @@ def _accelerator_expected() -> bool:
     return any(importlib.util.find_spec(name) is not None for name in _ACCELERATOR_PLUGINS)
 
 
+UNPINNED_CPUS: set[int] = set()
+"""The CPUs this process could use before :func:`pin_cpu` (empty if it did not pin): for Python
+threads that run no XLA code, such as :func:`agentax.runs.preload_plotting`."""
+
+
 def pin_cpu() -> int | None:
     """Pin this process (and the threads it creates later) to one allowed CPU; return it.
 
@@ -55,13 +61,26 @@ def pin_cpu() -> int | None:
     if not hasattr(os, "sched_setaffinity"):
         return None
     allowed = sorted(os.sched_getaffinity(0))
+    UNPINNED_CPUS.update(allowed)
     if len(allowed) == 1:
         return allowed[0]
     worker = re.fullmatch(r"gw(\d+)", os.environ.get("PYTEST_XDIST_WORKER", ""))
-    index = int(worker.group(1)) if worker else os.getpid()
-    cpu = allowed[index % len(allowed)]
+    current = _current_cpu()
+    if worker or current not in allowed:
+        cpu = allowed[(int(worker.group(1)) if worker else os.getpid()) % len(allowed)]
+    else:
+        cpu = current
     os.sched_setaffinity(0, {cpu})
     return cpu
+
+
+def _current_cpu() -> int | None:
+    """The CPU this process last ran on (``/proc/self/stat``'s 39th field), None if unknown."""
+    try:
+        with open("/proc/self/stat") as f:
+            return int(f.read().rsplit(")", 1)[1].split()[36])
+    except (OSError, IndexError, ValueError):
+        return None
 
 
 def compilation_cache_dir() -> Path | None:

@@ -69,7 +69,9 @@ def main(argv: list[str]) -> int:
     console.print(f"[bold]Training PPO on {env.id}[/] (preset cartpole-fast) into {out}")
     start = time.perf_counter()
     algorithm = ppo.make_train(env, preset.config)
-    result = train(algorithm, env, runner, Run.create(out, config), progress=args.progress)
+    description = {key: config[key] for key in ("algo", "env", "config")}  # names the stored programs
+    run = Run.create(out, config)
+    result = train(algorithm, env, runner, run, progress=args.progress, program_description=description)
     seconds = time.perf_counter() - start
     solved = (
         f"solved after {result.solved_env_steps:,.0f} env steps"

@@ -188,7 +188,17 @@ def _train_compiled(module, env, cfg, runner, run, *, resume: bool, progress: bo
     from agentax.train.compiled import train
 
     start_time = time.perf_counter()
-    result = train(module.make_train(env, cfg), env, runner, run, resume=resume, progress=progress)
+    # algo, env id and config determine the program (agentax's own envs take no outside params)
+    description = {key: run.config[key] for key in ("algo", "env", "config")}
+    result = train(
+        module.make_train(env, cfg),
+        env,
+        runner,
+        run,
+        resume=resume,
+        progress=progress,
+        program_description=description,
+    )
     report(result.eval, run.path, time.perf_counter() - start_time, result)
     return 0
 

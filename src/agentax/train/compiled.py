@@ -20,6 +20,9 @@ end in a last, shorter chunk, so no second program is compiled) and then, when a
 evaluates the greedy policy with :func:`agentax.evaluate.episode_returns` on fresh evaluation
 keys — inside the same program. Seed ``k`` of a batch starting at ``seed`` uses
 ``jax.random.key(seed + k)``, so seed ``k`` run alone gives the same numbers as inside a batch.
+The program and the one that initialises the TrainState pass it as the flat list of its arrays;
+given a description of what they compute, :mod:`agentax.train.programs` keeps them on disk, so a
+repeated run neither traces nor compiles them.
 
 Between chunks, back in Python, it logs a row (metrics.csv, TensorBoard, a rich progress bar),
 checkpoints the whole TrainState (so a resumed run continues exactly), and stops early once
@@ -49,10 +52,14 @@ from agentax.envs.core import Environment
 from agentax.errors import UsageError
 from agentax.evaluate import episode_returns
 from agentax.policies import Policy
-from agentax.runs import Run, latest_checkpoint, load_tree
+from agentax.runs import Run, latest_checkpoint, load_tree, preload_plotting
+from agentax.train import programs
 
 TrainState = Any
 EVAL_KEY_OFFSET = 1_000_003  # evaluation keys are fold_in(seed key, offset + evaluation number)
+INIT_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
+"""The TrainState's initialisation runs once, so it is compiled without LLVM's optimisations: PPO's
+compiles ~3x faster (its values can differ from an optimised build's in the last bit)."""
 
 
 @dataclass(frozen=True)
@@ -108,24 +115,28 @@ class TrainResult:
     train_seconds: float = 0.0
 
 
-def seed_keys(seed: int, num_seeds: int) -> jax.Array:
-    """The keys of agents ``seed .. seed + num_seeds - 1`` (one per seed, independent of the batch)."""
-    return jnp.stack([jax.random.key(seed + k) for k in range(num_seeds)])
+def seeds_of(runner: RunnerConfig) -> np.ndarray:
+    """The seeds of the runner's agents ``[num_seeds]``: agent k uses ``seed + k``, alone or in a batch."""
+    return np.arange(runner.seed, runner.seed + runner.num_seeds, dtype=np.int32)
 
 
-def init_states(algorithm: CompiledAlgorithm, keys: jax.Array) -> TrainState:
-    return jax.jit(jax.vmap(algorithm.init))(keys)
+def init_from_seeds(algorithm: CompiledAlgorithm) -> Callable[[jax.Array], TrainState]:
+    """``seeds [S] -> TrainState`` with a leading seed axis: ``algorithm.init(jax.random.key(seed))`` each."""
+    return jax.vmap(lambda seed: algorithm.init(jax.random.key(seed)))
 
 
 def make_chunk(algorithm: CompiledAlgorithm, env: Environment, updates_per_chunk: int, eval_episodes: int):
-    """``chunk(state, num_active, do_eval, eval_key) -> (state, metrics, returns, lengths)`` of ONE seed.
+    """``chunk(state, num_active, do_eval, seed_key, evaluation) -> (state, metrics, returns, lengths)``.
 
-    Keeps ``num_active`` (≤ ``updates_per_chunk``) updates; ``metrics`` are their means; the
-    evaluation runs only if ``do_eval`` (else zeros). Vmap it over seeds with
-    ``in_axes=(0, None, None, 0)`` so the two flags stay unbatched and the ``cond`` stays real.
+    One seed's chunk: keeps ``num_active`` (≤ ``updates_per_chunk``) updates; ``metrics`` are their means; the
+    evaluation runs only if ``do_eval`` (else zeros), on episodes keyed by ``fold_in(seed_key,
+    EVAL_KEY_OFFSET + evaluation)``. Vmap it over seeds with ``in_axes=(0, None, None, 0, None)``
+    so the flags stay unbatched and the ``cond`` stays real.
     """
 
-    def chunk(state, num_active, do_eval, eval_key):
+    def chunk(state, num_active, do_eval, seed_key, evaluation):
+        eval_key = jax.random.fold_in(seed_key, EVAL_KEY_OFFSET + evaluation)
+
         def body(state, i):
             new_state, metrics = algorithm.update(state)
             keep = i < num_active  # unbatched: a select of whole arrays, no per-seed branching
@@ -148,10 +159,6 @@ def make_chunk(algorithm: CompiledAlgorithm, env: Environment, updates_per_chunk
     return chunk
 
 
-def _eval_keys(keys: jax.Array, evaluation: int) -> jax.Array:
-    return jax.vmap(jax.random.fold_in, in_axes=(0, None))(keys, EVAL_KEY_OFFSET + evaluation)
-
-
 def _episode_means(stats_before, stats_after) -> np.ndarray:
     """Per seed: mean return of the episodes finished between two EpisodeStats (else their last returns)."""
     completed = np.asarray(stats_after.completed) - np.asarray(stats_before.completed)
@@ -160,6 +167,53 @@ def _episode_means(stats_before, stats_after) -> np.ndarray:
     ever = np.asarray(stats_after.completed) > 0
     fallback = np.where(ever, last, np.nan)
     return np.where(completed > 0, return_sum / np.maximum(completed, 1), fallback)
+
+
+def _programs(
+    algorithm: CompiledAlgorithm,
+    env: Environment,
+    runner: RunnerConfig,
+    seeds: np.ndarray,
+    description: dict[str, Any] | None,
+) -> tuple[TrainState, Callable, Callable]:
+    """``(shapes, init, chunk)``: the TrainState's shapes and the runner's two programs, vmapped over seeds.
+
+    Both take and give the TrainState as the flat list of its arrays (plain lists export, custom
+    pytree nodes do not): ``init(seeds) -> leaves`` and ``chunk(leaves, num_active, do_eval, seeds,
+    evaluation) -> (leaves, metrics, returns, lengths)``. With a ``description`` they come from
+    :mod:`agentax.train.programs`, so a repeated run neither traces nor lowers them.
+    """
+    traced_init = jax.jit(init_from_seeds(algorithm)).trace(seeds)
+    shapes = traced_init.out_info
+    state_tree = jax.tree.structure(shapes)
+    chunk = jax.vmap(
+        make_chunk(algorithm, env, runner.updates_per_chunk, runner.eval_episodes),
+        in_axes=(0, None, None, 0, None),
+    )
+
+    def flat_init(seeds):
+        return jax.tree.leaves(init_from_seeds(algorithm)(seeds))
+
+    def flat_chunk(leaves, num_active, do_eval, seeds, evaluation):
+        keys = jax.vmap(jax.random.key)(seeds)
+        state, metrics, returns, lengths = chunk(
+            jax.tree.unflatten(state_tree, leaves), num_active, do_eval, keys, evaluation
+        )
+        return jax.tree.leaves(state), metrics, returns, lengths
+
+    if description is None:
+        init = traced_init.lower().compile(INIT_COMPILER_OPTIONS)
+        return shapes, lambda seeds: jax.tree.leaves(init(seeds)), jax.jit(flat_chunk, donate_argnums=0)
+    shaping = {
+        **description,
+        "num_seeds": runner.num_seeds,
+        "updates_per_chunk": runner.updates_per_chunk,
+        "eval_episodes": runner.eval_episodes,
+    }
+    init = programs.jit(flat_init, (seeds,), {**shaping, "name": "init"})
+    init = init.lower(seeds).compile(INIT_COMPILER_OPTIONS)
+    example = (jax.tree.leaves(shapes), 0, True, seeds, 0)
+    return shapes, init, programs.jit(flat_chunk, example, {**shaping, "name": "chunk"}, donate_argnums=0)
 
 
 class _Progress:
@@ -203,30 +257,41 @@ def train(
     resume: bool = False,
     progress: bool = False,
     max_chunks: int | None = None,
+    program_description: dict[str, Any] | None = None,
 ) -> TrainResult:
     """Train ``runner.num_seeds`` agents together; log, checkpoint and evaluate into ``run`` (if given).
 
     ``resume=True`` continues ``run`` from its newest checkpoint. ``max_chunks`` stops after that
     many chunks of this call (as an interrupt would), leaving a resumable run.
+    ``program_description`` (JSON-able: algorithm, env, config) names the training program for
+    :mod:`agentax.train.programs`, so a repeated run loads it instead of tracing it; leave it None
+    unless it determines the program (the CLI passes it).
     """
     start = time.perf_counter()
-    keys = seed_keys(runner.seed, runner.num_seeds)
-    chunk = make_chunk(algorithm, env, runner.updates_per_chunk, runner.eval_episodes)
-    program = jax.jit(jax.vmap(chunk, in_axes=(0, None, None, 0)), donate_argnums=0)
+    seeds = seeds_of(runner)
+    shapes, init_program, chunk_program = _programs(algorithm, env, runner, seeds, program_description)
+    state_tree = jax.tree.structure(shapes)
 
     meta: dict[str, Any] = {"updates": 0, "evaluations": 0, "elapsed": 0.0}
     if resume:
         if run is None:
             raise ValueError("resume needs the run to resume")
-        target = jax.eval_shape(jax.vmap(algorithm.init), keys)
-        state, meta = load_tree(latest_checkpoint(run.path), target)
+        state, meta = load_tree(latest_checkpoint(run.path), shapes)
         run.truncate_metrics(meta["env_steps"])
     else:
-        state = init_states(algorithm, keys)
+        state = jax.tree.unflatten(state_tree, init_program(seeds))
 
+    if run is not None:
+        preload_plotting()  # for curve.png, while XLA (which lets go of the GIL) loads or compiles
     compile_start = time.perf_counter()
-    compiled = program.lower(state, 0, True, keys).compile()
+    compiled = chunk_program.lower(jax.tree.leaves(state), 0, True, seeds, 0).compile()
     compile_seconds = time.perf_counter() - compile_start
+
+    def call(state, num_active, do_eval, evaluation):
+        leaves, metrics, returns, lengths = compiled(
+            jax.tree.leaves(state), num_active, do_eval, seeds, evaluation
+        )
+        return jax.tree.unflatten(state_tree, leaves), metrics, returns, lengths
 
     updates, evaluations = int(meta["updates"]), int(meta["evaluations"])
     elapsed_before = float(meta["elapsed"])
@@ -246,9 +311,7 @@ def train(
             last = updates + num_active >= algorithm.num_updates
             do_eval = last or chunk_number % runner.eval_every_chunks == 0
             chunk_start = time.perf_counter()
-            state, metrics, eval_returns, _ = compiled(
-                state, num_active, do_eval, _eval_keys(keys, evaluations)
-            )
+            state, metrics, eval_returns, _ = call(state, num_active, do_eval, evaluations)
             new_stats, metrics, eval_returns = jax.device_get((state.episodes, metrics, eval_returns))
             seconds = time.perf_counter() - chunk_start
             updates += num_active
@@ -310,8 +373,7 @@ def train(
     if updates < algorithm.num_updates and solved_env_steps is None:
         return result  # stopped early by max_chunks: resumable, not finished
 
-    final_keys = _eval_keys(keys, evaluations)
-    state, _, returns, lengths = compiled(state, 0, True, final_keys)
+    state, _, returns, lengths = call(state, 0, True, evaluations)
     result.state = state
     returns, lengths = np.asarray(returns), np.asarray(lengths)
     if run is not None:
@@ -336,8 +398,7 @@ def restore_policy(
     run_dir, algorithm: CompiledAlgorithm, runner: RunnerConfig, seed_index: int | None = None
 ) -> Policy:
     """The greedy policy of one seed of a run's newest checkpoint (the best seed by eval.json if None)."""
-    keys = seed_keys(runner.seed, runner.num_seeds)
-    target = jax.eval_shape(jax.vmap(algorithm.init), keys)
+    target = jax.eval_shape(init_from_seeds(algorithm), seeds_of(runner))
     state, _ = load_tree(latest_checkpoint(run_dir), target)
     if seed_index is None:
         seed_index = 0
