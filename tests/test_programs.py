@@ -92,3 +92,11 @@ def test_runner_gives_the_same_training_from_stored_programs(cache):
         assert [row["mean_return"] for row in other.rows] == [row["mean_return"] for row in traced.rows]
         assert [row["policy_loss"] for row in other.rows] == [row["policy_loss"] for row in traced.rows]
         assert other.eval == traced.eval
+
+
+def test_only_the_newest_programs_are_kept(cache, monkeypatch):
+    monkeypatch.setattr(programs, "KEEP", 2)
+    for n in range(3):
+        fn, _ = make_counted()
+        programs.jit(fn, ARGS, {"name": "double", "n": n})(*ARGS)
+    assert len(list(cache.glob("*.jaxexport"))) == 2

@@ -26,6 +26,9 @@ import jax
 
 from agentax import _xla
 
+KEEP = 256
+"""Programs kept: past this many, the least recently written go (each is ~0.1-1 MB)."""
+
 
 def program_dir() -> Path | None:
     """Where lowered programs are kept: beside the compiled ones (None when that cache is off)."""
@@ -89,6 +92,13 @@ def jit(
             exported = export.export(jax.jit(fn))(*example_args)
             directory.mkdir(parents=True, exist_ok=True)
             write_atomic(path, bytes(exported.serialize()))
+            _forget_oldest(directory)
         except Exception:  # not exportable (e.g. a custom pytree in the results): just trace
             return jax.jit(fn, donate_argnums=donate_argnums)
     return jax.jit(exported.call, donate_argnums=donate_argnums)
+
+
+def _forget_oldest(directory: Path) -> None:
+    stored = sorted(directory.glob("*.jaxexport"), key=lambda path: path.stat().st_mtime)
+    for path in stored[:-KEEP]:
+        path.unlink(missing_ok=True)
