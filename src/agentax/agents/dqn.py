@@ -536,7 +536,7 @@ def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None):
     learning has started, runs ``gradient_steps`` learning steps. ``init`` and ``update`` are pure and
     vmap over seeds.
     """
-    from agentax.train.compiled import CompiledAlgorithm
+    from agentax.train.compiled import CompiledAlgorithm, any_seed
 
     cfg.validate()
     params = env.default_params() if env_params is None else env_params
@@ -622,6 +622,12 @@ def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None):
     def skip_learning(state: TrainState) -> tuple[TrainState, dict]:
         return state, {"loss": jnp.float32(0.0), "q_mean": jnp.float32(0.0)}
 
+    def learn_where(state: TrainState, due: jax.Array) -> tuple[TrainState, dict]:
+        """Learn, keeping the result only where ``due`` (a branch taken when any seed is due)."""
+        learned, metrics = learn_phase(state)
+        skipped, zeros = skip_learning(state)
+        return jax.tree.map(lambda new, old: jnp.where(due, new, old), (learned, metrics), (skipped, zeros))
+
     def update_fn(state: TrainState) -> tuple[TrainState, dict]:
         episodes_before = state.episodes.completed
         length = 1 if by_episode else cfg.train_frequency
@@ -641,7 +647,7 @@ def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None):
         if monitoring:
             due = due & ~state.greedy.frozen
             extra = {"frozen": state.greedy.frozen.astype(jnp.float32)}
-        state, metrics = jax.lax.cond(due, learn_phase, skip_learning, state)
+        state, metrics = jax.lax.cond(any_seed(due), lambda s: learn_where(s, due), skip_learning, state)
         learning_steps = state.agent.step.astype(jnp.float32)
         return state, {**metrics, "epsilon": epsilon[-1], "learning_steps": learning_steps, **extra}
 

@@ -118,6 +118,22 @@ class TrainResult:
     train_seconds: float = 0.0
 
 
+SEED_AXIS = "seeds"  # the name of the runner's vmap axis over seeds
+
+
+def any_seed(flag: jax.Array) -> jax.Array:
+    """Whether ``flag`` holds for any seed of the runner's batch, as one unbatched bool.
+
+    Under the runner's vmap a ``lax.cond`` on a per-seed flag becomes a select that runs both
+    branches for every seed; on ``any_seed(flag)`` it stays a branch (the branch then keeps its
+    result only where ``flag`` holds). Outside the runner (no seed axis) this is ``flag`` itself.
+    """
+    try:
+        return jax.lax.psum(flag.astype(jnp.int32), SEED_AXIS) > 0
+    except NameError:  # not traced under the runner's vmap
+        return flag
+
+
 def seeds_of(runner: RunnerConfig) -> np.ndarray:
     """The seeds of the runner's agents ``[num_seeds]``: agent k uses ``seed + k``, alone or in a batch."""
     return np.arange(runner.seed, runner.seed + runner.num_seeds, dtype=np.int32)
@@ -192,6 +208,7 @@ def _programs(
     chunk = jax.vmap(
         make_chunk(algorithm, env, runner.updates_per_chunk, runner.eval_episodes),
         in_axes=(0, None, None, 0, None),
+        axis_name=SEED_AXIS,
     )
 
     def flat_init(seeds):
