@@ -94,3 +94,12 @@ def test_bad_video_paths_are_rejected_before_playing(tmp_path, name, message):
     with pytest.raises(UsageError, match="cannot write video"):
         write_video(np.zeros((2, 4, 4, 3), np.uint8), tmp_path / "file" / "x.gif")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]  # nothing half-written left behind
+
+
+def test_gif_of_few_colours_is_exact(tmp_path):
+    rng = np.random.default_rng(0)
+    colours = rng.integers(0, 256, (6, 3), dtype=np.uint8)
+    frames = colours[rng.integers(0, 6, (40, 12, 10))]  # (T, H, W, 3), 6 colours in all
+    frames[-1] = colours[5]  # a colour-poor last frame still maps exactly
+    back = iio.imread(write_video(frames, tmp_path / "few.gif"), index=None)
+    np.testing.assert_array_equal(back[..., :3], frames)
