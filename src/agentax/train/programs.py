@@ -18,6 +18,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -27,7 +28,7 @@ import jax
 from agentax import _xla
 
 KEEP = 256
-"""Programs kept: past this many, the least recently written go (each is ~0.1-1 MB)."""
+"""Programs kept: past this many, the least recently used go (each is ~0.1-1 MB)."""
 
 
 def program_dir() -> Path | None:
@@ -85,16 +86,20 @@ def jit(
     if path.is_file():
         try:
             exported = export.deserialize(bytearray(path.read_bytes()))
+            os.utime(path)  # recently used: kept longest
         except Exception:  # a damaged or foreign file: trace afresh and replace it
             path.unlink(missing_ok=True)
     if exported is None:
         try:
             exported = export.export(jax.jit(fn))(*example_args)
+        except Exception:  # not exportable (e.g. a custom pytree in the results): just trace
+            return jax.jit(fn, donate_argnums=donate_argnums)
+        try:
             directory.mkdir(parents=True, exist_ok=True)
             write_atomic(path, bytes(exported.serialize()))
             _forget_oldest(directory)
-        except Exception:  # not exportable (e.g. a custom pytree in the results): just trace
-            return jax.jit(fn, donate_argnums=donate_argnums)
+        except (OSError, ImportError):  # a read-only cache, or no flatbuffers: use it, unsaved
+            pass
     return jax.jit(exported.call, donate_argnums=donate_argnums)
 
 
