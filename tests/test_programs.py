@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from agentax import _xla
 from agentax.agents import ppo
 from agentax.envs import make_jax
 from agentax.train import programs
@@ -100,3 +101,14 @@ def test_only_the_newest_programs_are_kept(cache, monkeypatch):
         fn, _ = make_counted()
         programs.jit(fn, ARGS, {"name": "double", "n": n})(*ARGS)
     assert len(list(cache.glob("*.jaxexport"))) == 2
+
+
+def test_a_cache_folder_that_cannot_be_made_only_costs_the_cache(tmp_path, monkeypatch):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    monkeypatch.setenv("AGENTAX_JAX_CACHE", str(blocker / "cache"))  # mkdir fails under a file
+    assert _xla.enable_compilation_cache() is None
+    fn, traces = make_counted()
+    out, totals = programs.jit(fn, ARGS, {"name": "double"})(*ARGS)
+    np.testing.assert_array_equal(out[0], [0.0, 2.0, 4.0])
+    assert float(totals["total"]) == 7.0 and len(traces) == 1

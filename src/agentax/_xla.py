@@ -92,13 +92,19 @@ def compilation_cache_dir() -> Path | None:
 
 
 def enable_compilation_cache() -> Path | None:
-    """Turn on jax's persistent compilation cache for every program, however small or quick."""
+    """Turn on jax's persistent compilation cache for every program, however small or quick.
+
+    Where the folder cannot be made (a read-only home, say) training goes on without it.
+    """
     import jax
 
     path = compilation_cache_dir()
     if path is None:
         return None
-    path.mkdir(parents=True, exist_ok=True)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
