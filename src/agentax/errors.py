@@ -1,8 +1,24 @@
-"""Errors a user can cause and fix; the CLI prints them on one line and exits with code 2."""
+"""Errors a user can cause and fix; the CLI prints them on one line and exits with a code of its own."""
 
 
 class UsageError(ValueError):
-    """Bad input: an unknown name, a value out of range, a file that holds no run.
+    """Bad input: an unknown name, a value out of range, a file that holds no run (exit code 2).
 
     The message says what was wrong and, where there is a choice, what the valid choices are.
     """
+
+
+class TrainingDiverged(RuntimeError):
+    """A loss or a parameter became NaN or infinite (exit code 3).
+
+    The message names the metric and the env step and says what to change; the run folder keeps its
+    last finite checkpoint.
+    """
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C during a training (exit code 130); ``run_dir`` says what ``agentax train --resume`` continues."""
+
+    def __init__(self, run_dir: str | None = None):
+        super().__init__(run_dir)
+        self.run_dir = run_dir
