@@ -139,3 +139,39 @@ def test_bad_input_from_the_shell(argv, tmp_path):
     assert result.returncode == 2 and result.stdout == ""
     assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
     assert "choose" in result.stderr or "must end in" in result.stderr
+
+
+def _raising(error):
+    def command_main(argv):
+        raise error
+
+    return command_main
+
+
+def test_a_diverged_training_is_one_line_and_exit_code_3(monkeypatch, capsys):
+    from agentax.cli import envs
+    from agentax.errors import TrainingDiverged
+
+    monkeypatch.setattr(envs, "main", _raising(TrainingDiverged("loss is NaN at env step 4096")))
+    assert main(["envs"]) == 3
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err == "agentax envs: error: loss is NaN at env step 4096\n"
+
+
+@pytest.mark.parametrize(
+    ("run_dir", "line"),
+    [
+        ("runs/ppo-x", "agentax envs: interrupted; continue with: agentax train --resume runs/ppo-x\n"),
+        (None, "agentax envs: interrupted\n"),
+    ],
+)
+def test_an_interrupted_training_says_how_to_resume_and_exit_code_130(run_dir, line, monkeypatch, capsys):
+    from agentax.cli import envs
+    from agentax.errors import TrainingInterrupted
+
+    monkeypatch.setattr(envs, "main", _raising(TrainingInterrupted(run_dir)))
+    assert main(["envs"]) == 130
+    assert capsys.readouterr().err == line
+    monkeypatch.setattr(envs, "main", _raising(KeyboardInterrupt()))  # a plain Ctrl-C
+    assert main(["envs"]) == 130
+    assert capsys.readouterr().err == "agentax envs: interrupted\n"

@@ -14,6 +14,7 @@ from agentax.runs import (
     checkpoints,
     default_run_dir,
     latest_checkpoint,
+    load_checkpoint,
     load_policy,
     load_tree,
     plot_curves,
@@ -86,12 +87,73 @@ def test_corrupt_or_mismatched_checkpoint_names_the_file(tmp_path):
 
 def test_keeps_the_newest_checkpoints(tmp_path):
     run = Run.create(tmp_path / "r", {"algo": "ppo", "env": "CartPole-v1"})
-    for updates in (10, 20, 30):
+    for updates in (10, 20, 30, 40):
         run.save_checkpoint(updates, {"w": jnp.zeros(2)}, {"updates": updates})
-    assert [p.name for p in checkpoints(run.path)] == ["ckpt-20.msgpack", "ckpt-30.msgpack"]
-    assert latest_checkpoint(run.path).name == "ckpt-30.msgpack"
+    assert [p.name for p in checkpoints(run.path)] == [
+        "ckpt-20.msgpack",
+        "ckpt-30.msgpack",
+        "ckpt-40.msgpack",
+    ]
+    assert latest_checkpoint(run.path).name == "ckpt-40.msgpack"
     with pytest.raises(UsageError, match="no checkpoint"):
         latest_checkpoint(tmp_path)
+
+
+def _three_checkpoints(tmp_path):
+    run = Run.create(tmp_path / "r", {"algo": "ppo", "env": "CartPole-v1"})
+    for updates in (10, 20, 30):
+        tree = {"w": jnp.full((2, 3), float(updates)), "key": jax.random.key(updates)}
+        run.save_checkpoint(updates, tree, {"updates": updates})
+    return run.path, jax.eval_shape(lambda: tree)
+
+
+def _truncate(path):
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+
+
+def _junk(path):
+    path.write_bytes(b"\xc1\x00 not msgpack " * 20)
+
+
+@pytest.mark.parametrize("damage", [_truncate, _junk])
+def test_a_damaged_newest_checkpoint_falls_back_to_the_one_before(damage, tmp_path, capsys):
+    run_dir, target = _three_checkpoints(tmp_path)
+    tree, meta, path = load_checkpoint(run_dir, target)  # intact: the newest, no warning
+    assert path.name == "ckpt-30.msgpack" and meta == {"updates": 30} and capsys.readouterr().err == ""
+    damage(run_dir / "checkpoints" / "ckpt-30.msgpack")
+    tree, meta, path = load_checkpoint(run_dir, target)
+    assert path.name == "ckpt-20.msgpack" and meta == {"updates": 20}
+    np.testing.assert_array_equal(tree["w"], np.full((2, 3), 20.0))
+    np.testing.assert_array_equal(jax.random.key_data(tree["key"]), jax.random.key_data(jax.random.key(20)))
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(
+        f"warning: skipping damaged checkpoint {run_dir / 'checkpoints' / 'ckpt-30.msgpack'} ("
+    )
+    assert err.rstrip().endswith(f"); using {run_dir / 'checkpoints' / 'ckpt-20.msgpack'}")
+
+
+def test_two_damaged_checkpoints_warn_twice_and_the_oldest_loads(tmp_path, capsys):
+    run_dir, target = _three_checkpoints(tmp_path)
+    _truncate(run_dir / "checkpoints" / "ckpt-30.msgpack")
+    _junk(run_dir / "checkpoints" / "ckpt-20.msgpack")
+    _, meta, path = load_checkpoint(run_dir, target)
+    assert path.name == "ckpt-10.msgpack" and meta == {"updates": 10}
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 2 and "ckpt-30" in lines[0] and lines[0].endswith("ckpt-20.msgpack")
+    assert "ckpt-20" in lines[1] and lines[1].endswith("ckpt-10.msgpack")
+
+
+def test_no_loadable_checkpoint_is_a_usage_error_naming_the_run(tmp_path):
+    run_dir, target = _three_checkpoints(tmp_path)
+    for path in checkpoints(run_dir):
+        _truncate(path)
+    with pytest.raises(UsageError, match=r"r: none of its 3 checkpoint\(s\) loads.*incomplete input"):
+        load_checkpoint(run_dir, target)
+    run_dir, _ = _three_checkpoints(tmp_path / "other")  # another configuration's shapes
+    with pytest.raises(UsageError, match="none of its 3 .*expected"):
+        load_checkpoint(run_dir, {"w": jax.ShapeDtypeStruct((4,), jnp.float32), "key": target["key"]})
+    with pytest.raises(UsageError, match="no checkpoint"):
+        load_checkpoint(tmp_path, target)
 
 
 def test_eval_json_pooled_and_per_seed(tmp_path):

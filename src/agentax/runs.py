@@ -199,6 +199,43 @@ def latest_checkpoint(run_dir: str | Path) -> Path:
     return found[-1]
 
 
+def load_checkpoint(run_dir: str | Path, target: Any) -> tuple[Any, dict[str, Any], Path]:
+    """The newest checkpoint that loads into ``target``: ``(tree, meta, path)``.
+
+    A damaged file (cut short by a full disk, overwritten, from another configuration) is skipped
+    with one warning line on stderr and the next older one is tried; :meth:`Run.save_checkpoint`
+    keeps three, so a single bad file costs one checkpoint interval rather than the run. If none
+    loads, a :class:`UsageError` names the run folder and the last reason; with no checkpoint at
+    all, the error of :func:`latest_checkpoint`.
+    """
+    import sys
+
+    found = checkpoints(run_dir)
+    if not found:
+        latest_checkpoint(run_dir)  # raises the "has no checkpoint" UsageError
+    reason = ""
+    for i, path in enumerate(reversed(found)):
+        try:
+            tree, meta = load_tree(path, target)
+        except UsageError as error:  # load_tree turns every read/decode/shape failure into this
+            cause = error.__context__  # the original error (raised ``from None``, so kept as context)
+            if cause is None:
+                reason = str(error)
+            else:
+                reason = f"{type(cause).__name__}: {cause}" if str(cause) else type(cause).__name__
+            if i + 1 < len(found):
+                older = found[-(i + 2)]
+                print(
+                    f"warning: skipping damaged checkpoint {path} ({reason}); using {older}", file=sys.stderr
+                )
+            continue
+        return tree, meta, path
+    raise UsageError(
+        f"{run_dir}: none of its {len(found)} checkpoint(s) loads; the oldest, {found[0]}, is damaged "
+        f"or belongs to another configuration ({reason})"
+    )
+
+
 class Run:
     """The open folder of one run: a thin shell that writes, the rest of this module reads.
 
@@ -269,8 +306,11 @@ class Run:
         with open(metrics, "w", newline="") as f:
             csv.writer(f).writerows(kept)
 
-    def save_checkpoint(self, updates: int, tree: Any, meta: dict[str, Any], keep: int = 2) -> Path:
-        """Write ``checkpoints/ckpt-<updates>.msgpack`` atomically; keep the ``keep`` newest."""
+    def save_checkpoint(self, updates: int, tree: Any, meta: dict[str, Any], keep: int = 3) -> Path:
+        """Write ``checkpoints/ckpt-<updates>.msgpack`` atomically; keep the ``keep`` newest.
+
+        More than one is kept so that :func:`load_checkpoint` has an older one to fall back on.
+        """
         path = save_tree(self.path / "checkpoints" / f"{CHECKPOINT_PREFIX}{updates}.msgpack", tree, meta)
         for old in checkpoints(self.path)[:-keep]:
             old.unlink(missing_ok=True)

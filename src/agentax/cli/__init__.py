@@ -2,15 +2,22 @@
 
 Each command lives in its own module under ``agentax.cli`` and exposes ``main(argv) -> int | None``
 built with tyro from typed arguments; this dispatcher imports only the command asked for, so
-start-up stays fast. A :class:`~agentax.errors.UsageError` becomes one line on stderr and exit code 2.
+start-up stays fast. The errors of :mod:`agentax.errors` become one line on stderr and an exit code:
+
+- :class:`~agentax.errors.UsageError` (bad input): ``agentax CMD: error: MESSAGE``, exit code 2;
+- :class:`~agentax.errors.TrainingDiverged` (a NaN or infinite loss): the same line, exit code 3;
+- :class:`~agentax.errors.TrainingInterrupted` (Ctrl-C in a training): ``agentax CMD: interrupted;
+  continue with: agentax train --resume RUN_DIR``, exit code 130 (128 + SIGINT, as a shell reports it);
+  any other ``KeyboardInterrupt``: ``agentax CMD: interrupted``, exit code 130.
 """
 
 from __future__ import annotations
 
 import importlib
+import shlex
 import sys
 
-from agentax.errors import UsageError
+from agentax.errors import TrainingDiverged, TrainingInterrupted, UsageError
 
 COMMANDS: dict[str, str] = {
     "envs": "list the environments with their observation and action spaces",
@@ -46,6 +53,15 @@ def main(argv: list[str] | None = None) -> int:
     except UsageError as error:
         print(f"agentax {name}: error: {error}", file=sys.stderr)
         return 2
+    except TrainingDiverged as error:
+        print(f"agentax {name}: error: {error}", file=sys.stderr)
+        return 3
+    except TrainingInterrupted as interrupt:  # a KeyboardInterrupt, so caught before that one
+        message = "interrupted"
+        if interrupt.run_dir is not None:
+            message += f"; continue with: agentax train --resume {shlex.quote(str(interrupt.run_dir))}"
+        print(f"agentax {name}: {message}", file=sys.stderr)
+        return 130
     except KeyboardInterrupt:
         print(f"agentax {name}: interrupted", file=sys.stderr)
         return 130
