@@ -1,15 +1,17 @@
 """Learning agents, one module per algorithm family: pure ``init`` / ``act`` / ``learn`` functions.
 
 ``reinforce`` (the lecture's policy gradient, with an optional learned baseline), ``ppo``
-(clipped policy optimisation with GAE), ``dqn`` (deep Q-learning and its variants). Each exposes
-``make_train(env, cfg)`` for the compiled runner and ``load_policy(run_dir, config)`` for
-``agentax.runs.load_policy``.
+(clipped policy optimisation with GAE), ``dqn`` (deep Q-learning and its variants). Each follows
+the contract of :mod:`agentax.agents.protocol`: ``make_agent(spec, cfg)`` for the host and parallel
+runners, ``make_train(env, cfg)`` for the compiled one. :data:`ALGORITHMS` is the one registry.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import importlib
 from dataclasses import dataclass
+from types import ModuleType
 from typing import Any
 
 from agentax.errors import UsageError
@@ -46,3 +48,18 @@ def config_from_dict(cls: type, values: dict[str, Any]) -> Any:
         known = ", ".join(sorted(names))
         raise UsageError(f"unknown {cls.__name__} settings {sorted(unknown)}; known: {known}")
     return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
+
+
+ALGORITHMS: dict[str, str] = {
+    "reinforce": "agentax.agents.reinforce",
+    "ppo": "agentax.agents.ppo",
+    "dqn": "agentax.agents.dqn",
+}
+"""Every learning algorithm: its name on the command line and in config.json → its module."""
+
+
+def algorithm(name: str) -> ModuleType:
+    """The module of algorithm ``name``; a ``UsageError`` listing the known ones otherwise."""
+    if name not in ALGORITHMS:
+        raise UsageError(f"unknown algorithm {name!r}; choose from {', '.join(ALGORITHMS)}")
+    return importlib.import_module(ALGORITHMS[name])

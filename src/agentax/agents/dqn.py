@@ -41,7 +41,6 @@ import dataclasses
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Annotated, Any
 
 import jax
@@ -52,6 +51,7 @@ from flax import struct
 
 from agentax import agents
 from agentax.agents import Preset
+from agentax.agents.protocol import Agent, CompiledAlgorithm, EnvSpec, OffPolicy, any_seed
 from agentax.envs.core import Discrete, Environment
 from agentax.errors import UsageError
 from agentax.nets import QNetwork
@@ -439,6 +439,44 @@ def one_step_transition(obs: jax.Array, action: jax.Array, time_step: Any) -> Tr
     )
 
 
+def make_agent(spec: EnvSpec, cfg: DQNConfig) -> Agent:
+    """DQN's pure functions for the host and parallel runners (see ``agentax.agents.protocol``).
+
+    ``act``'s ``progress`` is the env steps (episodes, in the episode schedule) that set ε.
+    """
+    cfg.validate()
+    num_actions = num_actions_of(spec.action_space)
+    learn_step = make_learn(cfg)
+
+    def act_epsilon_greedy(state: DQNState, obs: jax.Array, key: jax.Array, progress: jax.Array):
+        return act(state, obs.astype(jnp.float32), key, epsilon_at(cfg, progress)), {}
+
+    experience = OffPolicy(
+        num_envs=cfg.num_envs,
+        capacity=cfg.buffer_size,
+        batch_size=cfg.batch_size,
+        learning_starts=cfg.learning_starts,
+        train_frequency=cfg.train_frequency,
+        gradient_steps=cfg.gradient_steps,
+        n_step=cfg.n_step,
+        discount_factor=cfg.discount_factor,
+        prioritized=cfg.prioritized,
+        priority_exponent=cfg.priority_exponent,
+        importance_exponent=lambda env_steps: float(importance_exponent_at(cfg, env_steps)),
+        by_episode=cfg.schedule_unit == "episodes",
+        max_episodes=cfg.max_episodes,
+    )
+    return Agent(
+        name="dqn",
+        init=lambda key: init(key, jnp.zeros(spec.obs_shape, jnp.float32), num_actions, cfg),
+        act=act_epsilon_greedy,
+        greedy_policy=greedy_policy,
+        learn=lambda state, sample, key: learn_step(state, sample),
+        experience=experience,
+        total_steps=cfg.total_steps,
+    )
+
+
 # ---------------------------------------------------------------- the compiled runner's program
 
 
@@ -536,8 +574,6 @@ def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None):
     learning has started, runs ``gradient_steps`` learning steps. ``init`` and ``update`` are pure and
     vmap over seeds.
     """
-    from agentax.train.compiled import CompiledAlgorithm, any_seed
-
     cfg.validate()
     params = env.default_params() if env_params is None else env_params
     num_actions = num_actions_of(env.action_space(params))
@@ -667,27 +703,6 @@ def config_to_dict(cfg: DQNConfig) -> dict[str, Any]:
     return agents.config_to_dict(cfg)
 
 
-def load_policy(run_dir: Path, config: dict[str, Any]) -> Policy:
-    """The greedy policy of a DQN run (its best seed), for ``agentax.runs.load_policy``."""
-    from agentax.runs import latest_checkpoint, load_tree
-
-    cfg = config_from_dict(config["config"])
-    if config.get("runner_kind", "compiled") == "host":
-        from agentax.envs.gym import GymnasiumEnv
-
-        env = GymnasiumEnv(config["env"])
-        obs = jnp.zeros(env.observation_space().shape, jnp.float32)
-        target = jax.eval_shape(lambda: init(jax.random.key(0), obs, num_actions_of(env.action_space()), cfg))
-        env.close()
-        agent, _ = load_tree(latest_checkpoint(run_dir), target)
-        return greedy_policy(agent)
-    from agentax.envs import make_jax
-    from agentax.train.compiled import RunnerConfig, restore_policy
-
-    env = make_jax(config["env"])
-    return restore_policy(run_dir, make_train(env, cfg), RunnerConfig(**config["runner"]))
-
-
 def config_from_dict(values: dict[str, Any]) -> DQNConfig:
     return agents.config_from_dict(DQNConfig, values)
 
@@ -703,7 +718,7 @@ __all__ = [
     "greedy_policy",
     "init",
     "learn",
-    "load_policy",
+    "make_agent",
     "make_learn",
     "make_train",
     "preset",

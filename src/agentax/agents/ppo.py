@@ -12,14 +12,13 @@ with the learning rate (and optionally ε) annealed linearly to 0 and gradients 
 norm. Discrete actions use a categorical policy, continuous ones a diagonal Gaussian (actions
 clipped to the space's bounds when stepping the env, the unclipped sample kept for the ratio).
 
-Pure functions: ``init``, ``act`` and ``learn`` serve both runners — ``make_train`` wraps them for
-the compiled runner (JAX envs, vmapped over seeds), ``agentax.train.host`` for Gymnasium envs.
+Pure functions: ``init``, ``act`` and ``learn`` serve every runner — ``make_train`` wraps them for
+the compiled runner (JAX envs, vmapped over seeds), ``make_agent`` for the host and parallel ones.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import jax
@@ -29,10 +28,12 @@ from flax import struct
 
 from agentax import agents
 from agentax.agents import Preset
+from agentax.agents.protocol import Agent, CompiledAlgorithm, EnvSpec, OnPolicy
 from agentax.envs.core import Box, Discrete, Environment
 from agentax.errors import UsageError
 from agentax.nets import ACTIVATIONS, ActorCritic, entropy, gaussian_entropy, gaussian_log_prob, log_prob
 from agentax.policies import Policy
+from agentax.replay import Transition
 from agentax.returns import EpisodeStats, gae, normalize
 
 
@@ -173,42 +174,21 @@ class PPOAgent:
     updates: jax.Array  # int32 []
 
 
-@struct.dataclass
-class Rollout:
-    """``num_steps`` steps of ``num_envs`` envs, time-major ``[T, E, ...]``."""
-
-    obs: jax.Array
-    action: jax.Array
-    log_prob: jax.Array
-    value: jax.Array
-    reward: jax.Array
-    terminated: jax.Array
-    done: jax.Array
-    final_obs: jax.Array
+def is_continuous(spec: EnvSpec) -> bool:
+    return isinstance(spec.action_space, Box)
 
 
-@dataclass(frozen=True)
-class Spec:
-    """What PPO needs to know of an env: observation shape and the action space."""
-
-    obs_shape: tuple[int, ...]
-    action_space: Discrete | Box
-
-    @property
-    def continuous(self) -> bool:
-        return isinstance(self.action_space, Box)
-
-    @property
-    def action_dim(self) -> int:
-        if isinstance(self.action_space, Discrete):
-            return self.action_space.n
-        if len(self.action_space.shape) != 1:
-            raise UsageError(f"PPO needs flat Box actions, got shape {self.action_space.shape}")
-        return self.action_space.shape[0]
+def action_dim(spec: EnvSpec) -> int:
+    """The number of actions (discrete) or the action vector's length (continuous, flat Box only)."""
+    if isinstance(spec.action_space, Discrete):
+        return spec.action_space.n
+    if len(spec.action_space.shape) != 1:
+        raise UsageError(f"PPO needs flat Box actions, got shape {spec.action_space.shape}")
+    return spec.action_space.shape[0]
 
 
-def network(cfg: PPOConfig, spec: Spec) -> ActorCritic:
-    return ActorCritic(spec.action_dim, spec.continuous, tuple(cfg.hidden), cfg.activation)
+def network(cfg: PPOConfig, spec: EnvSpec) -> ActorCritic:
+    return ActorCritic(action_dim(spec), is_continuous(spec), tuple(cfg.hidden), cfg.activation)
 
 
 def optimizer(cfg: PPOConfig) -> optax.GradientTransformation:
@@ -219,7 +199,7 @@ def optimizer(cfg: PPOConfig) -> optax.GradientTransformation:
     return optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(learning_rate, eps=1e-5))
 
 
-def init(key: jax.Array, spec: Spec, cfg: PPOConfig) -> PPOAgent:
+def init(key: jax.Array, spec: EnvSpec, cfg: PPOConfig) -> PPOAgent:
     params = network(cfg, spec).init(key, jnp.zeros(spec.obs_shape, jnp.float32))
     return PPOAgent(params, optimizer(cfg).init(params), jnp.int32(0))
 
@@ -232,32 +212,32 @@ def _log_prob_entropy(actor_out: Any, action: jax.Array, continuous: bool) -> tu
 
 
 def act(
-    params: Any, obs: jax.Array, key: jax.Array, spec: Spec, cfg: PPOConfig
+    params: Any, obs: jax.Array, key: jax.Array, spec: EnvSpec, cfg: PPOConfig
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Sample actions for observations ``[E, *obs_shape]``: ``(action, log_prob [E], value [E])``."""
     actor_out, value = network(cfg, spec).apply(params, obs)
-    if spec.continuous:
+    if is_continuous(spec):
         mean, log_std = actor_out
         action = mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape)
     else:
         action = jax.random.categorical(key, actor_out)
-    return action, _log_prob_entropy(actor_out, action, spec.continuous)[0], value
+    return action, _log_prob_entropy(actor_out, action, is_continuous(spec))[0], value
 
 
-def env_action(action: jax.Array, spec: Spec) -> jax.Array:
+def env_action(action: jax.Array, spec: EnvSpec) -> jax.Array:
     """What the env receives: continuous actions clipped to the space's bounds."""
-    if spec.continuous:
+    if is_continuous(spec):
         return jnp.clip(action, spec.action_space.low, spec.action_space.high)
     return action
 
 
-def greedy_policy(params: Any, spec: Spec, cfg: PPOConfig) -> Policy:
+def greedy_policy(params: Any, spec: EnvSpec, cfg: PPOConfig) -> Policy:
     """The deterministic policy for evaluation: the most probable action (the Gaussian's mean)."""
     net = network(cfg, spec)
 
     def policy(obs: jax.Array, key: jax.Array) -> jax.Array:
         actor_out, _ = net.apply(params, obs)
-        if spec.continuous:
+        if is_continuous(spec):
             return env_action(actor_out[0], spec)
         return jnp.argmax(actor_out, axis=-1).astype(jnp.int32)
 
@@ -273,10 +253,10 @@ def clipped_surrogate_loss(
     return -jnp.minimum(ratio * advantage_t, clipped * advantage_t).mean()
 
 
-def loss_fn(params: Any, batch: dict[str, jax.Array], clip_eps: jax.Array, spec: Spec, cfg: PPOConfig):
+def loss_fn(params: Any, batch: dict[str, jax.Array], clip_eps: jax.Array, spec: EnvSpec, cfg: PPOConfig):
     """The PPO loss of one minibatch (flat ``[B, ...]`` arrays); returns ``(loss, metrics)``."""
     actor_out, value = network(cfg, spec).apply(params, batch["obs"])
-    new_log_prob, entropies = _log_prob_entropy(actor_out, batch["action"], spec.continuous)
+    new_log_prob, entropies = _log_prob_entropy(actor_out, batch["action"], is_continuous(spec))
     advantage = normalize(batch["advantage"]) if cfg.normalize_advantages else batch["advantage"]
     policy_loss = clipped_surrogate_loss(new_log_prob, batch["log_prob"], advantage, clip_eps)
     value_loss = 0.5 * ((value - batch["target"]) ** 2).mean()
@@ -292,25 +272,26 @@ def loss_fn(params: Any, batch: dict[str, jax.Array], clip_eps: jax.Array, spec:
 
 
 def learn(
-    agent: PPOAgent, rollout: Rollout, key: jax.Array, spec: Spec, cfg: PPOConfig
+    agent: PPOAgent, rollout: Transition, key: jax.Array, spec: EnvSpec, cfg: PPOConfig
 ) -> tuple[PPOAgent, dict[str, jax.Array]]:
-    """One PPO iteration on a rollout ``[T, E, ...]``: GAE, then epochs of minibatch SGD."""
+    """One PPO iteration on a rollout ``[T, E, ...]`` (``info`` from :func:`act`): GAE, then epochs
+    of minibatch SGD."""
     net, tx = network(cfg, spec), optimizer(cfg)
-    _, next_values = net.apply(agent.params, rollout.final_obs)  # (T, E): V of the observation reached
+    _, next_values = net.apply(agent.params, rollout.next_obs)  # (T, E): V of the observation reached
     advantages, targets = gae(
         rollout.reward,
-        rollout.value,
+        rollout.info["value"],
         next_values,
         rollout.terminated,
-        rollout.done,
+        rollout.terminated | rollout.truncated,
         cfg.discount_factor,
         cfg.gae_lambda,
     )
-    batch_size = cfg.num_envs * cfg.num_steps
+    batch_size = advantages.size
     flat = {
         "obs": rollout.obs,
         "action": rollout.action,
-        "log_prob": rollout.log_prob,
+        "log_prob": rollout.info["log_prob"],
         "advantage": advantages,
         "target": targets,
     }
@@ -354,18 +335,32 @@ class TrainState:
     episodes: EpisodeStats
 
 
-def spec_of(env: Environment, env_params: Any = None) -> Spec:
-    params = env.default_params() if env_params is None else env_params
-    return Spec(tuple(env.observation_space(params).shape), env.action_space(params))
+def make_agent(spec: EnvSpec, cfg: PPOConfig) -> Agent:
+    """PPO's pure functions for the host and parallel runners (see ``agentax.agents.protocol``)."""
+    cfg.validate()
+    action_dim(spec)  # a clear error for actions PPO cannot take
+
+    def act_with_info(state: PPOAgent, obs: jax.Array, key: jax.Array, progress: jax.Array):
+        action, action_log_prob, value = act(state.params, obs, key, spec, cfg)
+        return action, {"log_prob": action_log_prob, "value": value}
+
+    return Agent(
+        name="ppo",
+        init=lambda key: init(key, spec, cfg),
+        act=act_with_info,
+        greedy_policy=lambda state: greedy_policy(state.params, spec, cfg),
+        learn=lambda state, rollout, key: learn(state, rollout, key, spec, cfg),
+        experience=OnPolicy(cfg.num_envs, cfg.num_steps),
+        total_steps=cfg.total_steps,
+        env_action=lambda action: env_action(action, spec),
+    )
 
 
 def make_train(env: Environment, cfg: PPOConfig, env_params: Any = None):
     """PPO for :func:`agentax.train.compiled.train`: a ``CompiledAlgorithm``."""
-    from agentax.train.compiled import CompiledAlgorithm
-
     cfg.validate()
     params = env.default_params() if env_params is None else env_params
-    spec = spec_of(env, params)
+    spec = EnvSpec.of(env, params)
 
     def init_state(key: jax.Array) -> TrainState:
         key, agent_key, reset_key = jax.random.split(key, 3)
@@ -380,8 +375,15 @@ def make_train(env: Environment, cfg: PPOConfig, env_params: Any = None):
         ts, env_state = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
             jax.random.split(step_key, cfg.num_envs), state.env_state, env_action(action, spec), params
         )
-        transition = Rollout(
-            state.obs, action, action_log_prob, value, ts.reward, ts.terminated, ts.done, ts.final_obs
+        transition = Transition(
+            obs=state.obs,
+            action=action,
+            reward=ts.reward,
+            next_obs=ts.final_obs,
+            terminated=ts.terminated,
+            truncated=ts.truncated,
+            num_steps=jnp.ones_like(ts.terminated, jnp.int32),
+            info={"log_prob": action_log_prob, "value": value},
         )
         episodes = state.episodes.record(ts.reward, ts.done)
         return state.replace(env_state=env_state, obs=ts.obs, key=key, episodes=episodes), transition
@@ -407,18 +409,3 @@ def config_to_dict(cfg: PPOConfig) -> dict[str, Any]:
 
 def config_from_dict(values: dict[str, Any]) -> PPOConfig:
     return agents.config_from_dict(PPOConfig, values)
-
-
-def load_policy(run_dir: Path, config: dict[str, Any]) -> Policy:
-    """The greedy policy of a PPO run (its best seed), for ``agentax.runs.load_policy``."""
-    from agentax.envs import make_jax
-    from agentax.train.compiled import RunnerConfig, restore_policy
-
-    cfg = config_from_dict(config["config"])
-    if config.get("runner_kind", "compiled") == "host":
-        from agentax.train.host import restore_host_policy
-
-        return restore_host_policy(run_dir, config, cfg)
-    env = make_jax(config["env"])
-    runner = RunnerConfig(**config["runner"])
-    return restore_policy(run_dir, make_train(env, cfg), runner)

@@ -21,7 +21,6 @@ steps after an episode's end are masked out.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import jax
@@ -31,10 +30,12 @@ from flax import struct
 
 from agentax import agents
 from agentax.agents import Preset
+from agentax.agents.protocol import Agent, CompiledAlgorithm, EnvSpec, Episodes
 from agentax.envs.core import Discrete, Environment
 from agentax.errors import UsageError
 from agentax.nets import ACTIVATIONS, MLP, PolicyNet, log_prob
 from agentax.policies import Policy
+from agentax.replay import Transition
 from agentax.returns import EpisodeStats, discounted_returns, normalize
 
 
@@ -153,6 +154,57 @@ def greedy_policy(params: Any, num_actions: int, cfg: ReinforceConfig) -> Policy
     return lambda obs, key: jnp.argmax(net.apply(params["policy"], obs), axis=-1).astype(jnp.int32)
 
 
+def num_actions_of(spec: EnvSpec, cfg: ReinforceConfig) -> int:
+    """The number of actions; a ``UsageError`` for actions this REINFORCE cannot take."""
+    if not isinstance(spec.action_space, Discrete):
+        raise UsageError(f"REINFORCE here needs discrete actions, not {spec.action_space}")
+    if cfg.sigmoid_head and spec.action_space.n != 2:
+        raise UsageError(f"the sigmoid head needs exactly 2 actions, not {spec.action_space.n}")
+    return spec.action_space.n
+
+
+def returns_to_go(reward: jax.Array, ended: jax.Array, discount_factor: float) -> jax.Array:
+    """Discounted returns ``[T, N]`` of episodes that end where ``ended`` (no bootstrapping)."""
+    discounts = discount_factor * (1.0 - ended.astype(jnp.float32))
+    return discounted_returns(reward, discounts, jnp.zeros(reward.shape[1:]))
+
+
+def make_agent(spec: EnvSpec, cfg: ReinforceConfig) -> Agent:
+    """REINFORCE's pure functions for the host and parallel runners (see ``agentax.agents.protocol``).
+
+    It learns from whole episodes: ``Episodes(episodes_per_update, max_steps)``, the steps after an
+    episode's end masked out by ``info["valid"]``.
+    """
+    cfg.validate()
+    num_actions = num_actions_of(spec, cfg)
+    net = policy_network(cfg, num_actions)
+
+    def act(state: ReinforceAgent, obs: jax.Array, key: jax.Array, progress: jax.Array):
+        return jax.random.categorical(key, net.apply(state.params["policy"], obs)), {}
+
+    def learn_episodes(state: ReinforceAgent, trajectory: Transition, key: jax.Array):
+        valid = trajectory.info["valid"]
+        ended = (trajectory.terminated | trajectory.truncated).at[-1].set(True)
+        reward = trajectory.reward * valid
+        batch = {
+            "obs": trajectory.obs.astype(jnp.float32),
+            "action": trajectory.action,
+            "valid": valid,
+            "returns": returns_to_go(reward, ended, cfg.discount_factor),
+        }
+        return learn(state, batch, num_actions, cfg)
+
+    return Agent(
+        name="reinforce",
+        init=lambda key: init(key, spec.obs_shape, num_actions, cfg),
+        act=act,
+        greedy_policy=lambda state: greedy_policy(state.params, num_actions, cfg),
+        learn=learn_episodes,
+        experience=Episodes(cfg.episodes_per_update, cfg.max_steps),
+        total_steps=cfg.total_steps,
+    )
+
+
 @struct.dataclass
 class TrainState:
     agent: ReinforceAgent
@@ -162,16 +214,10 @@ class TrainState:
 
 def make_train(env: Environment, cfg: ReinforceConfig, env_params: Any = None):
     """REINFORCE for :func:`agentax.train.compiled.train`: a ``CompiledAlgorithm``."""
-    from agentax.train.compiled import CompiledAlgorithm
-
     cfg.validate()
     params = env.default_params() if env_params is None else env_params
-    action_space = env.action_space(params)
-    if not isinstance(action_space, Discrete):
-        raise UsageError(f"REINFORCE here needs discrete actions; {env.id} has {action_space}")
-    if cfg.sigmoid_head and action_space.n != 2:
-        raise UsageError(f"the sigmoid head needs exactly 2 actions; {env.id} has {action_space.n}")
-    num_actions, obs_shape = action_space.n, tuple(env.observation_space(params).shape)
+    spec = EnvSpec.of(env, params)
+    num_actions, obs_shape = num_actions_of(spec, cfg), spec.obs_shape
     num_episodes = cfg.episodes_per_update
     net = policy_network(cfg, num_actions)
 
@@ -202,8 +248,7 @@ def make_train(env: Environment, cfg: ReinforceConfig, env_params: Any = None):
         alive = jnp.ones(num_episodes, bool)
         carry = (obs, env_state, alive, state.episodes, play_key)
         (_, _, _, episodes, _), batch = jax.lax.scan(step, carry, jnp.arange(cfg.max_steps))
-        discounts = cfg.discount_factor * (1.0 - batch["ended"].astype(jnp.float32))
-        batch["returns"] = discounted_returns(batch["reward"], discounts, jnp.zeros(num_episodes))
+        batch["returns"] = returns_to_go(batch["reward"], batch["ended"], cfg.discount_factor)
         agent, metrics = learn(state.agent, batch, num_actions, cfg)
         return TrainState(agent, next_key, episodes), metrics
 
@@ -222,13 +267,3 @@ def config_to_dict(cfg: ReinforceConfig) -> dict[str, Any]:
 
 def config_from_dict(values: dict[str, Any]) -> ReinforceConfig:
     return agents.config_from_dict(ReinforceConfig, values)
-
-
-def load_policy(run_dir: Path, config: dict[str, Any]) -> Policy:
-    """The greedy policy of a REINFORCE run (its best seed), for ``agentax.runs.load_policy``."""
-    from agentax.envs import make_jax
-    from agentax.train.compiled import RunnerConfig, restore_policy
-
-    env = make_jax(config["env"])
-    cfg = config_from_dict(config["config"])
-    return restore_policy(run_dir, make_train(env, cfg), RunnerConfig(**config["runner"]))

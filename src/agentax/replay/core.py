@@ -17,6 +17,8 @@ class Transition:
     ``terminated``. ``next_obs`` is the observation the step really reached (``TimeStep.final_obs``),
     not the first observation of the next episode. For an n-step transition ``reward`` is the
     discounted sum of up to n rewards and ``num_steps`` how many (fewer when the episode ended).
+    ``info`` carries what the collect policy returned beside the action (TF-Agents' policy info,
+    e.g. PPO's log-probabilities and values); None where there is nothing (replay stores none).
     """
 
     obs: jax.Array  # [*obs_shape]
@@ -26,6 +28,7 @@ class Transition:
     terminated: jax.Array  # bool []
     truncated: jax.Array  # bool []
     num_steps: jax.Array  # int32 []: steps between obs and next_obs (1 for one-step transitions)
+    info: Any = None  # dict of arrays, or None
 
 
 @struct.dataclass

@@ -9,6 +9,9 @@ buffer-sized array, which a functional JAX update outside ``jit`` would.
 
 from __future__ import annotations
 
+import queue
+import threading
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -137,3 +140,90 @@ def update_priorities(
     set_leaves(state.tree, np.asarray(indices), priority**state.priority_exponent)
     state.max_priority = max(state.max_priority, float(priority.max()))
     return state
+
+
+class ReplayBuffer:
+    """A host replay buffer (uniform or prioritized) that actor and learner threads can share.
+
+    TF-Agents' vocabulary: ``add_batch`` (an observer of the Driver adds through it), ``sample``,
+    ``update_priorities``, and ``as_dataset(sample_batch_size)``, an iterator of sampled batches that
+    a background thread draws ahead. Every access holds one lock, so a sample never sees half a write.
+    """
+
+    def __init__(
+        self,
+        capacity: int,
+        example_transition: Any,
+        *,
+        prioritized: bool = False,
+        priority_exponent: float = 0.6,
+        seed: int = 0,
+    ):
+        self.prioritized = prioritized
+        if prioritized:
+            self.state: Any = init_prioritized(capacity, example_transition, priority_exponent)
+        else:
+            self.state = init(capacity, example_transition)
+        self.rng = np.random.default_rng(seed)
+        self.lock = threading.Lock()
+
+    @property
+    def size(self) -> int:
+        return self.state.buffer.size if self.prioritized else self.state.size
+
+    def add_batch(self, batch: Any) -> None:
+        """Add transitions ``[batch, ...]``."""
+        with self.lock:
+            (add_prioritized if self.prioritized else add)(self.state, batch)
+
+    def sample(self, batch_size: int, beta: float = 1.0) -> ReplaySample:
+        """``batch_size`` transitions: uniformly, or ∝ priority with importance weights (exponent β)."""
+        with self.lock:
+            if self.prioritized:
+                return sample_prioritized(self.state, self.rng, batch_size, beta)
+            return sample(self.state, self.rng, batch_size)
+
+    def update_priorities(self, indices: np.ndarray, td_error: np.ndarray) -> None:
+        if self.prioritized:
+            with self.lock:
+                update_priorities(self.state, indices, td_error)
+
+    def as_dataset(
+        self, sample_batch_size: int, num_batches: int = 1, prefetch: int = 2
+    ) -> Iterator[ReplaySample]:
+        """Endless uniform batches, each leaf ``[num_batches, sample_batch_size, ...]``, drawn ``prefetch``
+        ahead by a daemon thread (uniform replay only: prioritized batches depend on the last update)."""
+        if self.prioritized:
+            raise ValueError("as_dataset draws ahead, so it serves uniform replay only; sample() instead")
+        return _Prefetch(lambda: self._stacked(sample_batch_size, num_batches), prefetch)
+
+    def _stacked(self, batch_size: int, num_batches: int) -> ReplaySample:
+        batch = self.sample(batch_size * num_batches)
+        return jax.tree.map(lambda x: x.reshape(num_batches, batch_size, *x.shape[1:]), batch)
+
+
+class _Prefetch:
+    """An iterator over ``draw()`` results that a daemon thread keeps ``depth`` ahead."""
+
+    def __init__(self, draw: Callable[[], Any], depth: int):
+        self.draw = draw
+        self.queue: queue.Queue = queue.Queue(maxsize=max(depth, 1))
+        self.error: BaseException | None = None
+        threading.Thread(target=self._fill, daemon=True, name="replay-prefetch").start()
+
+    def _fill(self) -> None:
+        try:
+            while True:
+                self.queue.put(self.draw())
+        except BaseException as error:  # handed to the consumer, never lost in a thread
+            self.error = error
+            self.queue.put(None)
+
+    def __iter__(self) -> _Prefetch:
+        return self
+
+    def __next__(self) -> Any:
+        item = self.queue.get()
+        if item is None:
+            raise RuntimeError("replay prefetch failed") from self.error
+        return item

@@ -1,229 +1,386 @@
-"""The host loop: PPO on Gymnasium-only envs (MountainCar, Acrobot, Pendulum, ...).
+"""The host runner: any agent of :mod:`agentax.agents.protocol` on any env id, stepped on the host.
 
-Gymnasium steps the envs on the host (a ``SAME_STEP``-autoreset vector env through
-:class:`agentax.envs.gym.GymnasiumEnv`, so ``obs`` / ``final_obs`` split as in the JAX envs); the
-agent is the same pure PPO as on the compiled runner — ``ppo.act`` jitted once per step for the
-whole batch of envs, ``ppo.learn`` jitted once per iteration. One seed per process.
+TF-Agents' training loop, one step after the other: an :class:`Actor` drives its vector env with
+the agent's collect policy (``agent.act``, jitted once for the whole batch of envs) through a
+:class:`~agentax.train.driver.Driver`; observers count steps, keep finished returns and feed the
+experience the agent asked for — a rollout of T steps (on-policy), whole episodes (REINFORCE), or a
+replay buffer (off-policy, with ``as_dataset`` drawing batches ahead); then ``agent.learn`` (jitted)
+trains on it. :mod:`agentax.train.parallel` runs the same actors and learning steps in threads.
 
-Checkpoints hold the agent (parameters, optimizer state, counters) and the key; a resumed run
-restarts its envs (seeded by the iteration number), since a Gymnasium env's state cannot be saved.
+Keys: the agent is initialised from ``key(seed)``'s first split, the learner's key chain from its
+second, actor ``i`` acts with ``fold_in(third, i)`` and seeds its envs ``seed + 1000 i``; so the
+host runner is the parallel runner's policy-lag-0 run with one actor, number for number.
+
+Checkpoints hold the agent state and the learner's key; a resumed run restarts its envs (a
+Gymnasium env's state cannot be saved) and refills its replay buffer.
 """
 
 from __future__ import annotations
 
 import math
-import sys
 import time
-from dataclasses import dataclass
-from functools import partial
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import gymnasium
 import jax
 import numpy as np
 
-from agentax.agents import ppo
-from agentax.errors import UsageError
+from agentax.agents.protocol import Agent, Episodes, OffPolicy, OnPolicy
+from agentax.envs.gym import NAMESPACE, GymnasiumEnv
+from agentax.evaluate import host_episode_returns
 from agentax.policies import Policy
-from agentax.runs import Run, latest_checkpoint, load_tree, run_config
+from agentax.replay import Transition, example_transition
+from agentax.replay.host import ReplayBuffer
+from agentax.runs import Run, load_checkpoint
+from agentax.train.driver import (
+    Driver,
+    EnvironmentSteps,
+    FinishedReturns,
+    NumberOfEpisodes,
+    ReplayObserver,
+    TrajectoryObserver,
+    first_time_step,
+)
+from agentax.train.logger import RunLogger
 
 
 @dataclass(frozen=True)
 class HostRunnerConfig:
-    """How the host loop schedules one training; saved in config.json under "runner"."""
+    """How the host runner schedules one training; saved in config.json under "runner"."""
 
     seed: int = 0
     """seed of the agent and of the envs"""
-    log_every_updates: int = 5
-    """log a row (and checkpoint) every this many iterations"""
+    log_every_steps: int = 2_048
+    """write a metrics row every this many env steps"""
     eval_episodes: int = 10
     """episodes of the final evaluation (and of the stop-at-return checks)"""
     stop_at_return: float | None = None
-    """stop once an evaluation (run at each log) reaches this mean return (None: train to the end)"""
+    """stop once an evaluation (run at each row) reaches this mean return (None: train to the end)"""
+    checkpoint_every_seconds: float = 30.0
+    """write a checkpoint at most this often (and at the end)"""
 
 
 @dataclass
 class HostResult:
-    agent: ppo.PPOAgent
+    """What a host or parallel training did: the agent state, counts, rows and the final evaluation."""
+
+    state: Any
     updates: int
     env_steps: int
     eval: dict[str, Any]
-    rows: list[dict[str, float]]
+    rows: list[dict[str, float]] = field(default_factory=list)
 
 
-def _make_env(env_id: str, num_envs: int):
-    from agentax.envs.gym import GymnasiumEnv
-
-    return GymnasiumEnv(env_id, num_envs)
-
-
-def _agent_target(spec: ppo.Spec, cfg: ppo.PPOConfig):
-    return jax.eval_shape(lambda key: (ppo.init(key, spec, cfg), key), jax.random.key(0))
+def host_env_id(env_id: str) -> str:
+    """The Gymnasium id to step ``env_id`` on the host: Gymnasium's own where it has one (CartPole,
+    step-for-step equal to agentax's), else agentax's JAX env registered as ``agentax/ID``."""
+    if env_id in gymnasium.registry or ":" in env_id:
+        return env_id
+    return f"{NAMESPACE}/{env_id}"
 
 
-def train_ppo(
+def make_host_env(env_id: str, num_envs: int) -> GymnasiumEnv:
+    return GymnasiumEnv(host_env_id(env_id), num_envs)
+
+
+def agent_keys(seed: int) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """``(init_key, learner_key, actors_key)`` of a run; actor ``i`` uses ``fold_in(actors_key, i)``."""
+    init_key, learner_key, actors_key = jax.random.split(jax.random.key(seed), 3)
+    return init_key, learner_key, actors_key
+
+
+class Actor:
+    """One actor: its own vector env, the collect policy on the parameters it is given, a Driver.
+
+    ``progress()`` is what the collect policy's schedules (DQN's ε) read: the env steps (or episodes)
+    of the whole run, which a parallel runner sums over its actors.
+    """
+
+    def __init__(
+        self, agent: Agent, env_id: str, num_envs: int, seed: int, key: jax.Array, done_steps: int = 0
+    ):
+        self.agent = agent
+        self.env = make_host_env(env_id, num_envs)
+        self.seed = seed
+        self.key = key
+        self.act = jax.jit(agent.act)
+        self.state: Any = None
+        self.steps, self.episodes, self.returns = (
+            EnvironmentSteps(done_steps),
+            NumberOfEpisodes(),
+            FinishedReturns(),
+        )
+        experience = agent.experience
+        self.by_episode = isinstance(experience, OffPolicy) and experience.by_episode
+        self.progress = lambda: self.episodes.count if self.by_episode else self.steps.count
+        self.time_step = first_time_step(self.env, seed)
+        self.valid: np.ndarray | None = None  # Episodes: the envs still in their first episode
+
+    def policy(self, obs: np.ndarray, key: jax.Array) -> tuple[np.ndarray, jax.Array, Any]:
+        key, act_key = jax.random.split(key)
+        action, info = jax.device_get(self.act(self.state, obs, act_key, self.progress()))
+        return action, key, info or None
+
+    def _run(self, observers: list, **limits: int) -> None:
+        counters = [self.steps, self.episodes, self.returns]
+        driver = Driver(
+            self.env, self.policy, [*counters, *observers], action_to_env=self.agent.env_action, **limits
+        )
+        self.time_step, self.key = driver.run(self.time_step, self.key)
+
+    def rollout(self, state: Any, num_steps: int) -> Transition:
+        """``num_steps`` steps of every env with ``state``'s collect policy: a trajectory ``[T, E]``."""
+        self.state, trajectory = state, TrajectoryObserver()
+        self._run([trajectory], max_steps=num_steps * self.env.num_envs)
+        return trajectory.trajectory()
+
+    def episodes_from_reset(self, state: Any, max_steps: int) -> Transition:
+        """One episode per env from a fresh reset (at most ``max_steps`` steps): a trajectory
+        ``[max_steps, E]`` whose ``info["valid"]`` marks the steps inside each first episode."""
+        self.state, trajectory = state, TrajectoryObserver()
+        self.seed += self.env.num_envs
+        self.time_step = first_time_step(self.env, self.seed)
+        alive = np.ones(self.env.num_envs, bool)
+        steps_before = self.steps.count
+        for _ in range(max_steps):
+            if alive.any():
+                self._run([trajectory], max_steps=self.env.num_envs)
+                step = trajectory.transitions[-1].replace(info={"valid": alive.copy()})
+                trajectory.transitions[-1] = step
+                alive &= ~(step.terminated | step.truncated)
+            else:  # everyone finished: pad (a fixed shape, one compiled learning step)
+                pad = jax.tree.map(np.zeros_like, trajectory.transitions[-1])
+                trajectory.transitions.append(pad)
+        self.steps.count = steps_before + int(sum(t.info["valid"].sum() for t in trajectory.transitions))
+        return trajectory.trajectory()
+
+    def collect(self, state: Any, replay: ReplayObserver, amount: int) -> None:
+        """``amount`` steps per env (or ``amount`` episodes, in the episode schedule) into the replay."""
+        self.state = state
+        if self.by_episode:
+            self._run([replay], max_episodes=amount)
+        else:
+            self._run([replay], max_steps=amount * self.env.num_envs)
+
+    def close(self) -> None:
+        self.env.close()
+
+
+def replay_for(agent: Agent, env_id: str, seed: int) -> ReplayBuffer:
+    """An empty host replay buffer shaped for ``agent``'s transitions in ``env_id``."""
+    experience = agent.experience
+    env = make_host_env(env_id, 1)
+    obs = np.zeros(env.observation_space().shape, np.float32)
+    env.close()
+    action = jax.eval_shape(
+        agent.act, jax.eval_shape(agent.init, jax.random.key(0)), obs[None], jax.random.key(0), 0
+    )
+    one = jax.device_get(example_transition(obs, np.zeros((), action[0].dtype)))
+    return ReplayBuffer(
+        experience.capacity,
+        one,
+        prioritized=experience.prioritized,
+        priority_exponent=experience.priority_exponent,
+        seed=seed,
+    )
+
+
+class OffPolicyLearner:
+    """Learning phases on a replay buffer: ``gradient_steps`` learning steps, one compiled call for
+    uniform replay (a ``lax.scan`` over batches drawn ahead by ``as_dataset``), step by step for
+    prioritized replay (each batch depends on the priorities the last one set)."""
+
+    def __init__(self, agent: Agent, replay: ReplayBuffer):
+        self.experience: OffPolicy = agent.experience
+        self.replay = replay
+        self.learn = jax.jit(agent.learn)
+
+        def learn_many(state, samples, key):
+            def one(state, sample_and_key):
+                state, metrics = agent.learn(state, *sample_and_key)
+                return state, {"loss": metrics["loss"], "q_mean": metrics.get("q_mean", metrics["loss"])}
+
+            keys = jax.random.split(key, self.experience.gradient_steps)
+            state, metrics = jax.lax.scan(one, state, (samples, keys))
+            return state, jax.tree.map(lambda m: m.mean(), metrics)
+
+        self.learn_many = jax.jit(learn_many)
+        self.dataset = None
+
+    def phase(self, state: Any, key: jax.Array, env_steps: int) -> tuple[Any, dict[str, Any]]:
+        experience = self.experience
+        if not experience.prioritized:
+            if self.dataset is None:
+                self.dataset = self.replay.as_dataset(experience.batch_size, experience.gradient_steps)
+            return self.learn_many(state, next(self.dataset), key)
+        beta = experience.importance_exponent(env_steps)
+        losses, q_means = [], []
+        for step_key in jax.random.split(key, experience.gradient_steps):
+            sample = self.replay.sample(experience.batch_size, beta)
+            state, metrics = self.learn(state, sample, step_key)
+            metrics = jax.device_get(metrics)
+            self.replay.update_priorities(sample.indices, metrics["td_error"])
+            losses.append(metrics["loss"])
+            q_means.append(metrics.get("q_mean", metrics["loss"]))
+        return state, {"loss": np.mean(losses), "q_mean": np.mean(q_means)}
+
+
+def learning_started(experience: OffPolicy, actor_steps: int, actor_episodes: int) -> bool:
+    if experience.by_episode:
+        return actor_episodes > experience.learning_starts
+    return actor_steps >= experience.learning_starts
+
+
+def collection_over(agent: Agent, env_steps: int, episodes: int) -> bool:
+    experience = agent.experience
+    max_episodes = getattr(experience, "max_episodes", 0)
+    return env_steps >= agent.total_steps or bool(max_episodes and episodes >= max_episodes)
+
+
+class Evaluator:
+    """The greedy policy's mean return on a side env (for stop-at-return and the final evaluation)."""
+
+    def __init__(self, agent: Agent, env_id: str, episodes: int):
+        self.agent, self.episodes = agent, episodes
+        self.env = make_host_env(env_id, min(episodes, 8))
+        self.count = 0
+
+    def __call__(self, state: Any, seed: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        if seed is None:
+            seed, self.count = 10_000 + self.count, self.count + 1
+        return host_episode_returns(self.env, self.agent.greedy_policy(state), self.episodes, seed=seed)
+
+    def close(self) -> None:
+        self.env.close()
+
+
+def checkpoint_target(agent: Agent) -> Any:
+    """The shapes of a host checkpoint: ``(agent state, learner key)``."""
+    return jax.eval_shape(lambda key: (agent.init(key), key), jax.random.key(0))
+
+
+def restore(agent: Agent, run: Run) -> tuple[Any, jax.Array, dict[str, Any]]:
+    """``(agent state, learner key, meta)`` of the run's newest loadable checkpoint; trims metrics.csv."""
+    (state, learner_key), meta, _ = load_checkpoint(run.path, checkpoint_target(agent))
+    run.truncate_metrics(meta["env_steps"])
+    return state, learner_key, meta
+
+
+def train(
+    agent: Agent,
     env_id: str,
-    cfg: ppo.PPOConfig,
     runner: HostRunnerConfig,
     run: Run | None = None,
     *,
     resume: bool = False,
     progress: bool = False,
 ) -> HostResult:
-    """Train PPO on the Gymnasium env ``env_id``; log, checkpoint and evaluate into ``run`` if given."""
-    from agentax.evaluate import EvalStats, host_episode_returns
-
-    cfg.validate()
-    env = _make_env(env_id, cfg.num_envs)
-    spec = ppo.Spec(tuple(env.observation_space().shape), env.action_space())
-    act = jax.jit(partial(ppo.act, spec=spec, cfg=cfg))
-    learn = jax.jit(partial(ppo.learn, spec=spec, cfg=cfg))
-    updates, env_steps = 0, 0
+    """Train ``agent`` on ``env_id`` (any Gymnasium id or agentax env), one step after the other."""
+    init_key, learner_key, actors_key = agent_keys(runner.seed)
+    meta: dict[str, Any] = {"env_steps": 0, "updates": 0, "episodes": 0, "elapsed": 0.0}
     if resume:
-        (agent, key), meta = load_tree(latest_checkpoint(run.path), _agent_target(spec, cfg))
-        updates, env_steps = int(meta["updates"]), int(meta["env_steps"])
-        run.truncate_metrics(env_steps)
+        state, learner_key, meta = restore(agent, run)
     else:
-        key = jax.random.key(runner.seed)
-        key, init_key = jax.random.split(key)
-        agent = ppo.init(init_key, spec, cfg)
-    obs = env.reset(seed=runner.seed + 1000 * updates)
-    episode_return = np.zeros(cfg.num_envs)
-    finished: list[float] = []
-    rows: list[dict[str, float]] = []
-    start = time.perf_counter()
-    steps_at_log, time_at_log = env_steps, start
-    try:
-        while updates < cfg.num_updates:
-            columns = {
-                name: [] for name in ("obs", "action", "log_prob", "value", "reward", "terminated", "done")
-            }
-            final_obs = []
-            for _ in range(cfg.num_steps):
-                key, act_key = jax.random.split(key)
-                action, action_log_prob, value = jax.device_get(act(agent.params, obs, act_key))
-                ts = env.step(np.asarray(ppo.env_action(action, spec)))
-                for name, value_t in (
-                    ("obs", obs),
-                    ("action", action),
-                    ("log_prob", action_log_prob),
-                    ("value", value),
-                    ("reward", ts.reward),
-                    ("terminated", ts.terminated),
-                    ("done", ts.done),
-                ):
-                    columns[name].append(np.asarray(value_t))
-                final_obs.append(np.asarray(ts.final_obs))
-                episode_return += ts.reward
-                for i in np.flatnonzero(ts.done):
-                    finished.append(float(episode_return[i]))
-                    episode_return[i] = 0.0
-                obs = ts.obs
-            rollout = ppo.Rollout(
-                **{k: np.stack(v) for k, v in columns.items()}, final_obs=np.stack(final_obs)
-            )
-            key, learn_key = jax.random.split(key)
-            agent, metrics = learn(agent, rollout, learn_key)
-            updates += 1
-            env_steps += cfg.steps_per_update
-            if updates % runner.log_every_updates and updates < cfg.num_updates:
-                continue
-            mean_return = float(np.mean(finished)) if finished else math.nan
-            finished.clear()
-            eval_mean = math.nan
-            if runner.stop_at_return is not None:
-                returns, _ = host_episode_returns(
-                    env_for_eval(env_id),
-                    ppo.greedy_policy(agent.params, spec, cfg),
-                    runner.eval_episodes,
-                    seed=10_000 + updates,
-                )
-                eval_mean = float(np.mean(returns))
-            now = time.perf_counter()
-            row = {
-                "env_steps": env_steps,
-                "updates": updates,
-                "mean_return": mean_return,
-                "return_seed0": mean_return,
-                "eval_return": eval_mean,
-                "steps_per_second": (env_steps - steps_at_log) / max(now - time_at_log, 1e-9),
-                "wall_seconds": now - start,
-                **{name: float(value) for name, value in jax.device_get(metrics).items()},
-            }
-            steps_at_log, time_at_log = env_steps, now
-            rows.append(row)
-            if progress:
-                print(
-                    f"{env_steps:>9,} env steps  {row['steps_per_second']:>7,.0f} steps/s  "
-                    f"return {mean_return:.1f}",
-                    file=sys.stderr,
-                )
-            if run is not None:
-                run.log(row)
-                run.save_checkpoint(updates, (agent, key), {"updates": updates, "env_steps": env_steps})
-            if runner.stop_at_return is not None and eval_mean >= runner.stop_at_return:
-                break
-    finally:
-        env.close()
-    returns, lengths = host_episode_returns(
-        env_for_eval(env_id),
-        ppo.greedy_policy(agent.params, spec, cfg),
-        runner.eval_episodes,
-        seed=runner.seed + 123_457,
+        state = agent.init(init_key)
+    updates, done_steps = int(meta["updates"]), int(meta["env_steps"])
+    actor = Actor(
+        agent,
+        env_id,
+        agent.experience.num_envs,
+        runner.seed + 7919 * updates,
+        jax.random.fold_in(actors_key, updates),
+        done_steps,
     )
-    if run is not None:
-        evaluation = run.write_eval(np.asarray(returns)[None], np.asarray(lengths)[None], env_steps=env_steps)
-        run.plot()
-        run.close()
-    else:
-        evaluation = vars(EvalStats.from_returns(returns, lengths))
-    return HostResult(agent, updates, env_steps, evaluation, rows)
+    actor.episodes.count = int(meta["episodes"])
+    evaluator = Evaluator(agent, env_id, runner.eval_episodes)
+    experience = agent.experience
+    learn = jax.jit(agent.learn)
+    if isinstance(experience, OffPolicy):
+        replay = replay_for(agent, env_id, runner.seed)
+        observer = ReplayObserver(replay, experience.n_step, experience.discount_factor)
+        learner = OffPolicyLearner(agent, replay)
+    logger = RunLogger(
+        run,
+        agent.total_steps,
+        done_steps=done_steps,
+        progress=progress,
+        description=f"{agent.name} {env_id}",
+        checkpoint_every_seconds=runner.checkpoint_every_seconds,
+        elapsed_before=float(meta["elapsed"]),
+    )
+    metrics: dict[str, Any] = {}
+    next_log = done_steps + runner.log_every_steps
+    steps_at_log, time_at_log = done_steps, time.perf_counter()
+    with logger:
+        try:
+            while not collection_over(agent, actor.steps.count, actor.episodes.count):
+                learner_key, learn_key = jax.random.split(learner_key)
+                if isinstance(experience, OnPolicy):
+                    state, metrics = learn(state, actor.rollout(state, experience.num_steps), learn_key)
+                    updates += 1
+                elif isinstance(experience, Episodes):
+                    state, metrics = learn(
+                        state, actor.episodes_from_reset(state, experience.max_steps), learn_key
+                    )
+                    updates += 1
+                else:
+                    actor.collect(state, observer, experience.train_frequency)
+                    if learning_started(experience, actor.steps.count, actor.episodes.count) and replay.size:
+                        state, metrics = learner.phase(state, learn_key, actor.steps.count)
+                        updates += experience.gradient_steps
+                env_steps = actor.steps.count
+                finished = collection_over(agent, env_steps, actor.episodes.count)
+                if env_steps < next_log and not finished:
+                    continue
+                next_log += runner.log_every_steps
+                now = time.perf_counter()
+                solved = False
+                row = row_of(
+                    env_steps,
+                    updates,
+                    actor.returns.drain(),
+                    (env_steps - steps_at_log) / max(now - time_at_log, 1e-9),
+                )
+                if runner.stop_at_return is not None:
+                    row["eval_return"] = float(np.mean(evaluator(state)[0]))
+                    solved = row["eval_return"] >= runner.stop_at_return
+                logger.log(row, jax.device_get(metrics))
+                steps_at_log, time_at_log = env_steps, time.perf_counter()
+                meta = {
+                    "env_steps": env_steps,
+                    "updates": updates,
+                    "episodes": actor.episodes.count,
+                    "elapsed": logger.wall_seconds(),
+                }
+                logger.checkpoint(updates, (state, learner_key), meta, force=finished or solved)
+                if solved:
+                    break
+        finally:
+            actor.close()
+    returns, lengths = evaluator(state, seed=runner.seed + 123_457)
+    evaluator.close()
+    evaluation = logger.finish(returns[None], lengths[None], env_steps=actor.steps.count, updates=updates)
+    return HostResult(state, updates, actor.steps.count, evaluation, logger.rows)
 
 
-def env_for_eval(env_id: str):
-    """A fresh one-env copy for evaluation (the training envs keep their episodes)."""
-    return _make_env(env_id, 1)
+def row_of(
+    env_steps: int, updates: int, finished_returns: list[float], steps_per_second: float
+) -> dict[str, float]:
+    """A runner's bookkeeping for one metrics row (the agent's metrics join it in the logger)."""
+    mean_return = float(np.mean(finished_returns)) if finished_returns else math.nan
+    return {
+        "env_steps": env_steps,
+        "updates": updates,
+        "mean_return": mean_return,
+        "return_seed0": mean_return,
+        "eval_return": math.nan,
+        "steps_per_second": steps_per_second,
+    }
 
 
-def restore_host_policy(run_dir: Path, config: dict[str, Any], cfg: ppo.PPOConfig) -> Policy:
-    """The greedy policy of a host-loop PPO run's newest checkpoint."""
-    env = _make_env(config["env"], 1)
-    spec = ppo.Spec(tuple(env.observation_space().shape), env.action_space())
-    env.close()
-    (agent, _), _ = load_tree(latest_checkpoint(run_dir), _agent_target(spec, cfg))
-    return ppo.greedy_policy(agent.params, spec, cfg)
-
-
-def train_cli(algo: str, module: Any, run_args: Any, cfg: ppo.PPOConfig, preset: Any, out: Path) -> int:
-    """``agentax train ppo --env <Gymnasium id>``: create the run folder and train on the host."""
-    from agentax.cli.train import parse_stop, report
-
-    if run_args.seeds != 1:
-        raise UsageError(f"{run_args.env} steps on the host: train one seed per process (--seeds 1)")
-    env = _make_env(run_args.env, 1)
-    solved = env.vector_env.spec.reward_threshold if env.vector_env.spec is not None else None
-    env.close()
-    stop = parse_stop(run_args.stop_at_return, preset, _Threshold(solved))
-    runner = HostRunnerConfig(seed=run_args.seed, eval_episodes=preset.eval_episodes, stop_at_return=stop)
-    config = run_config(algo, run_args.env, run_args.preset, "host", runner, module.config_to_dict(cfg))
-    run = Run.create(out, config)
-    print(f"training {algo} on {run_args.env} (host loop) into {out}", file=sys.stderr)
-    start = time.perf_counter()
-    result = train_ppo(run_args.env, cfg, runner, run, progress=run_args.progress)
-    report(result.eval, out, time.perf_counter() - start)
-    return 0
-
-
-def resume_cli(module: Any, run: Run, cfg: ppo.PPOConfig, progress: bool) -> int:
-    from agentax.cli.train import report
-
-    runner = HostRunnerConfig(**run.config["runner"])
-    start = time.perf_counter()
-    result = train_ppo(run.config["env"], cfg, runner, run, resume=True, progress=progress)
-    report(result.eval, run.path, time.perf_counter() - start)
-    return 0
-
-
-@dataclass(frozen=True)
-class _Threshold:
-    reward_threshold: float | None
+def restore_policy(run_dir: Path, agent: Agent) -> Policy:
+    """The greedy policy of a host or parallel run's newest loadable checkpoint."""
+    (state, _), _, _ = load_checkpoint(run_dir, checkpoint_target(agent))
+    return agent.greedy_policy(state)

@@ -1,0 +1,167 @@
+"""The agent protocol: what every algorithm offers, whatever runner drives it.
+
+An algorithm module (``agentax.agents.reinforce``, ``ppo``, ``dqn``) is a namespace of pure
+functions over pytrees. Its contract, written once here:
+
+- ``PRESETS: dict[str, Preset]`` (with ``"default"``), ``DEFAULT_PRESETS: dict[env_id, preset name]``;
+  a frozen config dataclass with ``total_steps``, ``validate()``, ``config_to_dict`` /
+  ``config_from_dict``;
+- ``make_agent(spec: EnvSpec, cfg) -> Agent``: the four pure functions below, closed over the env's
+  spec and the config, and the experience they learn from;
+- ``make_train(env, cfg) -> CompiledAlgorithm``: the same functions inside one jittable update, for
+  the compiled runner (JAX envs, vmapped over seeds).
+
+An :class:`Agent` is TF-Agents' agent in JAX terms:
+
+=====================  ===========================================================================
+``init(key)``          a fresh agent state: parameters, optimizer state, counters
+``act(state, obs,      the collect policy, batched over envs: ``obs [E, *obs_shape]`` → ``(action
+key, progress)``       [E], info)``; ``info`` holds per-env arrays learning needs (PPO's
+                       log-probabilities and values); ``progress`` counts env steps (or episodes)
+                       for exploration schedules
+``greedy_policy(st)``  the evaluation policy ``(obs, key) -> action`` on one observation
+``learn(state, exp,    one learning step on ``experience``: a trajectory (a
+key)``                 :class:`~agentax.replay.Transition` ``[T, E]``, its ``info`` from ``act``)
+                       for on-policy agents, a :class:`~agentax.replay.ReplaySample` for off-policy
+=====================  ===========================================================================
+
+``experience`` says which: :class:`OnPolicy` (rollouts of ``num_steps`` steps from ``num_envs``
+envs, collected with the current parameters), :class:`Episodes` (whole episodes from fresh resets,
+REINFORCE) or :class:`OffPolicy` (a replay buffer, its sample size and the learning schedule).
+Runners (``agentax.train``) own the loop; an agent never imports a runner, the CLI or the run
+folder. This module is a leaf: both sides import it, it imports neither.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from agentax.envs.core import Box, Discrete
+from agentax.policies import Policy
+
+AgentState = Any
+Experience = Any
+
+
+@dataclass(frozen=True)
+class EnvSpec:
+    """What an agent needs to know of an env: one observation's shape and dtype, the action space."""
+
+    obs_shape: tuple[int, ...]
+    action_space: Discrete | Box
+    obs_dtype: Any = jnp.float32
+
+    @classmethod
+    def of(cls, env: Any, env_params: Any = None) -> EnvSpec:
+        """The spec of a JAX env (with its default params) or a host env (``GymnasiumEnv``)."""
+        if hasattr(env, "default_params"):
+            params = env.default_params() if env_params is None else env_params
+            obs_space, action_space = env.observation_space(params), env.action_space(params)
+        else:
+            obs_space, action_space = env.observation_space(), env.action_space()
+        return cls(tuple(obs_space.shape), action_space, jnp.dtype(obs_space.dtype))
+
+
+@dataclass(frozen=True)
+class OnPolicy:
+    """Rollouts of ``num_steps`` steps from each of ``num_envs`` envs, with the current parameters."""
+
+    num_envs: int
+    num_steps: int
+
+
+@dataclass(frozen=True)
+class Episodes:
+    """``num_envs`` whole episodes from fresh resets, at most ``max_steps`` steps each; the
+    trajectory ``[max_steps, num_envs]`` marks the steps inside an episode in ``info["valid"]``."""
+
+    num_envs: int
+    max_steps: int
+
+
+@dataclass(frozen=True)
+class OffPolicy:
+    """A replay buffer and the learning schedule.
+
+    Collect ``train_frequency`` steps per env (or ``train_frequency`` episodes with ``by_episode``)
+    between learning phases of ``gradient_steps`` learning steps on batches of ``batch_size``,
+    once ``learning_starts`` env steps (episodes) are in. Transitions are ``n_step``-step returns.
+    """
+
+    num_envs: int
+    capacity: int
+    batch_size: int
+    learning_starts: int
+    train_frequency: int
+    gradient_steps: int
+    n_step: int = 1
+    discount_factor: float = 0.99
+    prioritized: bool = False
+    priority_exponent: float = 0.6
+    importance_exponent: Callable[[int], float] = field(default=lambda env_steps: 1.0, compare=False)
+    """β of prioritized replay's importance weights after ``env_steps``"""
+    by_episode: bool = False
+    max_episodes: int = 0
+    """stop collecting after this many episodes (0: no limit)"""
+
+    @property
+    def learning_steps_per_env_step(self) -> float:
+        """The ratio a runner keeps between learning and collection (steps schedule)."""
+        return self.gradient_steps / (self.train_frequency * self.num_envs)
+
+
+@dataclass(frozen=True)
+class Agent:
+    """One algorithm's pure functions for one env spec and config (see the module docstring)."""
+
+    name: str
+    init: Callable[[jax.Array], AgentState]
+    act: Callable[[AgentState, jax.Array, jax.Array, jax.Array], tuple[jax.Array, dict[str, jax.Array]]]
+    greedy_policy: Callable[[AgentState], Policy]
+    learn: Callable[[AgentState, Experience, jax.Array], tuple[AgentState, dict[str, jax.Array]]]
+    experience: OnPolicy | Episodes | OffPolicy
+    total_steps: int
+    env_action: Callable[[jax.Array], jax.Array] = field(default=lambda action: action, compare=False)
+    """what the env receives for a sampled action (PPO clips continuous actions to the bounds)"""
+
+
+# ---------------------------------------------------------------- the compiled runner's contract
+
+TrainState = Any
+SEED_AXIS = "seeds"  # the name of the compiled runner's vmap axis over seeds
+
+
+@dataclass(frozen=True)
+class CompiledAlgorithm:
+    """What an algorithm hands the compiled runner (``agentax.train.compiled``).
+
+    ``init(key) -> TrainState``: everything one seed's training carries (agent, env states, replay,
+    key, counters), with an ``episodes`` field (:class:`agentax.returns.EpisodeStats`);
+    ``update(state) -> (state, metrics)``: one collect-then-learn iteration, jittable, no Python
+    flags inside; ``num_updates`` iterations make the training, each ``steps_per_update`` env steps;
+    ``greedy_policy(state)``: the evaluation policy of one seed's state.
+    """
+
+    init: Callable[[jax.Array], TrainState]
+    update: Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]
+    num_updates: int
+    steps_per_update: int
+    greedy_policy: Callable[[TrainState], Policy]
+
+
+def any_seed(flag: jax.Array) -> jax.Array:
+    """Whether ``flag`` holds for any seed of the compiled runner's batch, as one unbatched bool.
+
+    Under the runner's vmap a ``lax.cond`` on a per-seed flag becomes a select that runs both
+    branches for every seed; on ``any_seed(flag)`` it stays a branch (the branch then keeps its
+    result only where ``flag`` holds). Outside the runner (no seed axis) this is ``flag`` itself.
+    """
+    try:
+        return jax.lax.psum(flag.astype(jnp.int32), SEED_AXIS) > 0
+    except NameError:  # not traced under the runner's vmap
+        return flag

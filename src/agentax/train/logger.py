@@ -1,0 +1,185 @@
+"""The run logger every runner writes through: rows, progress bar, checkpoints, the final evaluation.
+
+A runner hands it a row of its own bookkeeping (``env_steps``, returns, speeds) and the agent's
+learning metrics; the logger checks that the metrics are finite, appends the row to metrics.csv
+and TensorBoard (``agentax.runs.Run``), moves the progress bar, and writes checkpoints (only of
+finite parameters, so the newest checkpoint is always one to continue from). Used as a context
+manager it turns Ctrl-C into :class:`~agentax.errors.TrainingInterrupted`, which carries the run
+folder so the CLI can say how to continue. Without a run folder (``run=None``) it only keeps the
+rows and checks, as for training from Python.
+
+A non-finite loss or parameter stops the run with :class:`~agentax.errors.TrainingDiverged`::
+
+    non-finite policy_loss at env step 1,024: lower the learning rate or clip the gradients ...
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from typing import Any
+
+import jax
+import numpy as np
+
+from agentax.errors import TrainingDiverged, TrainingInterrupted
+from agentax.evaluate import EvalStats
+from agentax.runs import Run
+
+DIVERGED_HINT = "lower the learning rate or clip the gradients (--max-grad-norm)"
+
+
+def check_finite(metrics: dict[str, Any], env_steps: float, last_checkpoint: str | None = None) -> None:
+    """Raise ``TrainingDiverged`` naming the first metric that is NaN or infinite."""
+    for name, value in metrics.items():
+        if not np.all(np.isfinite(np.asarray(value, np.float64))):
+            raise TrainingDiverged(_diverged(f"non-finite {name}", env_steps, last_checkpoint))
+
+
+def check_finite_tree(tree: Any, env_steps: float, last_checkpoint: str | None = None) -> None:
+    """Raise ``TrainingDiverged`` if any floating-point leaf of ``tree`` (parameters) is not finite."""
+    for leaf in jax.tree.leaves(tree):
+        if jax.dtypes.issubdtype(getattr(leaf, "dtype", None), np.floating) and not np.all(
+            np.isfinite(np.asarray(leaf))
+        ):
+            raise TrainingDiverged(_diverged("non-finite parameters", env_steps, last_checkpoint))
+
+
+def _diverged(what: str, env_steps: float, last_checkpoint: str | None) -> str:
+    kept = f"; the run keeps its last finite checkpoint {last_checkpoint}" if last_checkpoint else ""
+    return f"{what} at env step {env_steps:,.0f}: {DIVERGED_HINT}{kept}"
+
+
+class Progress:
+    """A rich progress bar over env steps, with the latest return and runner figures (a no-op if off)."""
+
+    def __init__(self, enabled: bool, total_steps: float, done_steps: float, description: str = "training"):
+        self.bar = None
+        if not enabled:
+            return
+        from rich.console import Console
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        self.bar = Progress(
+            TextColumn(f"[bold]{description}"),
+            BarColumn(),
+            TextColumn("{task.completed:,.0f}/{task.total:,.0f} env steps"),
+            TextColumn("{task.fields[speed]} steps/s"),
+            TextColumn("return {task.fields[ret]}"),
+            TextColumn("{task.fields[extra]}"),
+            TimeElapsedColumn(),
+            console=Console(file=sys.stderr),
+        )
+        self.task = self.bar.add_task(
+            "train", total=total_steps, completed=done_steps, speed="-", ret="-", extra=""
+        )
+        self.bar.start()
+
+    def update(self, env_steps: float, speed: float, mean_return: float, extra: str = "") -> None:
+        if self.bar is not None:
+            ret = "-" if math.isnan(mean_return) else f"{mean_return:.1f}"
+            self.bar.update(self.task, completed=env_steps, speed=f"{speed:,.0f}", ret=ret, extra=extra)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.stop()
+
+
+PARALLEL_COLUMNS = (
+    "actor_steps_per_second",
+    "learner_updates_per_second",
+    "actor_wait_fraction",
+    "learner_wait_fraction",
+    "policy_lag",
+)
+"""The parallel runner's figures, shown on the progress bar too."""
+
+
+class RunLogger:
+    """Writes one training's rows, checkpoints and final evaluation into ``run`` (if given).
+
+    ``checkpoint_every_seconds`` spaces checkpoints out in time (a runner forces one at the end);
+    ``elapsed_before`` is the wall time of the earlier part of a resumed run.
+    """
+
+    def __init__(
+        self,
+        run: Run | None,
+        total_steps: float,
+        *,
+        done_steps: float = 0,
+        progress: bool = False,
+        description: str = "training",
+        checkpoint_every_seconds: float = 30.0,
+        elapsed_before: float = 0.0,
+    ):
+        self.run = run
+        self.rows: list[dict[str, float]] = []
+        self.checkpoint_every_seconds = checkpoint_every_seconds
+        self.elapsed_before = elapsed_before
+        self.start = time.perf_counter()
+        self.last_checkpoint_time = self.start
+        self.last_checkpoint: str | None = None
+        self.bar = Progress(progress, total_steps, done_steps, description)
+
+    def __enter__(self) -> RunLogger:
+        return self
+
+    def __exit__(self, kind, error, traceback) -> None:
+        self.bar.close()
+        if kind is not None and issubclass(kind, KeyboardInterrupt) and kind is not TrainingInterrupted:
+            if self.run is not None:
+                self.run.close()
+                raise TrainingInterrupted(str(self.run.path)) from None
+
+    def wall_seconds(self) -> float:
+        """Seconds of training so far, the earlier part of a resumed run included."""
+        return self.elapsed_before + time.perf_counter() - self.start
+
+    def log(self, row: dict[str, float], metrics: dict[str, Any]) -> dict[str, float]:
+        """Check ``metrics`` are finite, then write ``row`` + metrics (+ ``wall_seconds``); returns it."""
+        env_steps = float(row["env_steps"])
+        check_finite(metrics, env_steps, self.last_checkpoint)
+        row = {
+            **row,
+            "wall_seconds": self.wall_seconds(),
+            **{k: float(np.mean(v)) for k, v in metrics.items()},
+        }
+        self.rows.append(row)
+        if self.run is not None:
+            self.run.log(row)
+        extra = "  ".join(
+            f"{name.removesuffix('_per_second').replace('_', ' ')} {row[name]:,.2f}"
+            for name in PARALLEL_COLUMNS
+            if name in row and name.endswith(("fraction", "lag"))
+        )
+        self.bar.update(
+            env_steps, row.get("steps_per_second", math.nan), row.get("mean_return", math.nan), extra
+        )
+        return row
+
+    def checkpoint(self, step: int, tree: Any, meta: dict[str, Any], *, force: bool = False) -> bool:
+        """Save ``tree`` if ``checkpoint_every_seconds`` passed since the last (or ``force``); only
+        finite parameters are saved (else ``TrainingDiverged``). Returns whether it saved."""
+        now = time.perf_counter()
+        if self.run is None or not (
+            force or now - self.last_checkpoint_time >= self.checkpoint_every_seconds
+        ):
+            return False
+        check_finite_tree(tree, meta.get("env_steps", 0), self.last_checkpoint)
+        path = self.run.save_checkpoint(step, tree, meta)
+        self.last_checkpoint, self.last_checkpoint_time = path.name, now
+        return True
+
+    def finish(self, returns: np.ndarray, lengths: np.ndarray, **extra: Any) -> dict[str, Any]:
+        """The final evaluation (returns ``[num_seeds, episodes]``): eval.json and curve.png if there
+        is a run folder; the statistics either way."""
+        returns, lengths = np.atleast_2d(returns), np.atleast_2d(lengths)
+        if self.run is None:
+            stats = vars(EvalStats.from_returns(returns.ravel(), lengths.ravel()))
+            return {**stats, "per_seed_mean": returns.mean(axis=1).tolist(), **extra}
+        evaluation = self.run.write_eval(returns, lengths, **extra)
+        self.run.plot()
+        self.run.close()
+        return evaluation
