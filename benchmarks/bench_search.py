@@ -31,10 +31,11 @@ import gymnasium as gym
 import jax
 import numpy as np
 
-from agentax.envs.vacuum import Vacuum, evaluate_settings
-from agentax.evaluate import episode_returns
+from agentax.envs.core import episode_returns
+from agentax.envs.vacuum import Vacuum
 from agentax.search import cem, genetic
 from agentax.search.population import FlatPolicy, make_env, make_fitness, select_best
+from agentax.search.settings import evaluate_settings
 
 SEEDS = (0, 1, 2, 3, 4)
 MAX_GENERATIONS = 60

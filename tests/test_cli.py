@@ -1,4 +1,5 @@
-"""The commands envs, evaluate, play and demo: output, files written, and one-line errors with exit code 2."""
+"""The commands envs, evaluate, play and demo: output, files written, one-line errors with exit code 2;
+the --policy argument (a name or a run folder) resolved and checked against the env."""
 
 import json
 import subprocess
@@ -10,6 +11,9 @@ import pytest
 
 from agentax import evaluate, make
 from agentax.cli import main
+from agentax.cli.policies import named_policy, resolve_policy
+from agentax.errors import UsageError
+from agentax.evaluate import check_policy_fits
 from agentax.policies import basic_policy
 
 AGENTAX = str(Path(sys.executable).with_name("agentax"))
@@ -175,3 +179,24 @@ def test_an_interrupted_training_says_how_to_resume_and_exit_code_130(run_dir, l
     monkeypatch.setattr(envs, "main", _raising(KeyboardInterrupt()))  # a plain Ctrl-C
     assert main(["envs"]) == 130
     assert capsys.readouterr().err == "agentax envs: interrupted\n"
+
+
+@pytest.mark.parametrize("env_id", ["MountainCar-v0", "FrozenLake-v1", "Pendulum-v1"])
+def test_basic_policy_fits_cartpole_only(env_id):
+    env = make(env_id)
+    with pytest.raises(UsageError, match="CartPole") as error:
+        named_policy("basic", env, env_id)
+    assert env_id in str(error.value) and "random" in str(error.value)  # names the problem and the choices
+    check_policy_fits(env, named_policy("random", env, env_id), env_id)  # random fits any env
+    assert named_policy("basic", make("CartPole-v1")) is basic_policy
+    with pytest.raises(UsageError, match="unknown policy 'greedy'; choose from basic, random"):
+        named_policy("greedy", env)
+
+
+def test_resolve_policy_names_the_problem():
+    env_id, env, policy = resolve_policy("random", "Acrobot-v1", num_envs=3)
+    assert env_id == "Acrobot-v1" and env.num_envs == 3
+    with pytest.raises(UsageError, match="no env id given"):
+        resolve_policy("basic", None)
+    with pytest.raises(UsageError, match="no trained run at 'runs/missing'"):
+        resolve_policy("runs/missing", "CartPole-v1")

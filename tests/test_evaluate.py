@@ -7,16 +7,9 @@ import numpy as np
 import pytest
 
 from agentax.envs import GymnasiumEnv, make
+from agentax.envs.core import episode_returns
 from agentax.errors import UsageError
-from agentax.evaluate import (
-    HostPolicy,
-    check_policy_fits,
-    episode_returns,
-    evaluate,
-    host_episode_returns,
-    named_policy,
-    resolve_policy,
-)
+from agentax.evaluate import HostPolicy, check_policy_fits, evaluate, host_episode_returns
 from agentax.policies import basic_policy, random_policy
 
 
@@ -116,16 +109,6 @@ def test_evaluate_rejects_bad_input():
         evaluate(make("CartPole-v1"), HostPolicy(lambda obs, rng: np.zeros(len(obs), int)), num_episodes=5)
 
 
-@pytest.mark.parametrize("env_id", ["MountainCar-v0", "FrozenLake-v1", "Pendulum-v1"])
-def test_basic_policy_fits_cartpole_only(env_id):
-    env = make(env_id)
-    with pytest.raises(UsageError, match="CartPole") as error:
-        named_policy("basic", env, env_id)
-    assert env_id in str(error.value) and "random" in str(error.value)  # names the problem and the choices
-    check_policy_fits(env, named_policy("random", env, env_id), env_id)  # random fits any env
-    assert named_policy("basic", make("CartPole-v1")) is basic_policy
-
-
 def test_policies_that_do_not_fit_are_caught_before_running():
     env = make("CartPole-v1")
     with pytest.raises(UsageError, match="cannot read CartPole-v1's observations"):
@@ -136,14 +119,3 @@ def test_policies_that_do_not_fit_are_caught_before_running():
         check_policy_fits(env, lambda obs, key: obs[0])  # a float is no discrete action
     with pytest.raises(UsageError, match="takes Box"):
         check_policy_fits(make("Pendulum-v1"), lambda obs, key: jnp.zeros((2,)))
-    with pytest.raises(UsageError, match="unknown policy 'greedy'; choose from basic, random"):
-        named_policy("greedy", env)
-
-
-def test_resolve_policy_names_the_problem():
-    env_id, env, policy = resolve_policy("random", "Acrobot-v1", num_envs=3)
-    assert env_id == "Acrobot-v1" and env.num_envs == 3
-    with pytest.raises(UsageError, match="no env id given"):
-        resolve_policy("basic", None)
-    with pytest.raises(UsageError, match="no trained run at 'runs/missing'"):
-        resolve_policy("runs/missing", "CartPole-v1")

@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 
 from agentax.envs import make
-from agentax.envs.vacuum import Vacuum, vacuum_policy
+from agentax.envs.vacuum import Vacuum
 from agentax.errors import UsageError
 from agentax.policies import basic_policy, random_policy
 from agentax.render import record_episode, rollout, save_episode, write_video
+from agentax.search.settings import vacuum_policy
 
 
 def _cart_column(frame):

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from agentax.envs.core import episode_returns
 from agentax.envs.vacuum import Vacuum
 from agentax.errors import UsageError
 from agentax.evaluate import evaluate
@@ -18,6 +19,7 @@ from agentax.search import (
     NetConfig,
     RandomSearchConfig,
     cem,
+    evaluate_settings,
     genetic,
     grid_search,
     make_env,
@@ -26,6 +28,7 @@ from agentax.search import (
     plot_heatmap,
     random_search,
     run_generations,
+    vacuum_policy,
 )
 from agentax.search.population import evaluate_population, select_final
 
@@ -108,6 +111,26 @@ def test_confidence_interval_by_hand():
     # half width = 2.7764 * 1.5811 / sqrt(5) = 1.9632.
     low, high = mean_confidence_interval([1, 2, 3, 4, 5])
     assert low == pytest.approx(3 - 1.9632, abs=1e-3) and high == pytest.approx(3 + 1.9632, abs=1e-3)
+
+
+def test_vacuum_policy_probabilities():
+    keys = jax.random.split(jax.random.key(0), 20_000)
+    actions = np.asarray(jax.vmap(vacuum_policy(0.3, 0.7), in_axes=(None, 0))(jnp.zeros(5), keys))
+    # Binomial(20000, 0.3): std of the fraction = sqrt(0.3 * 0.7 / 20000) = 0.0032; 5 sigma = 0.016.
+    assert abs(actions[:, 0].mean() - 0.3) < 0.016
+    assert np.abs(actions[:, 1]).max() <= 0.7 and np.abs(actions[:, 1]).max() > 0.69
+
+
+@pytest.mark.timeout(180)
+def test_many_vacuum_settings_in_one_call_equal_one_by_one():
+    p, r = np.array([0.2, 0.8, 0.95, 0.6], np.float32), np.array([0.5, 3.0, 1.5, 2.0], np.float32)
+    key = jax.random.key(11)
+    together = np.asarray(evaluate_settings(p, r, key, num_episodes=2))  # [4, 2]
+    run_one = jax.jit(lambda p, r, key: episode_returns(Vacuum(), vacuum_policy(p, r), key, 2)[0])
+    for i, setting_key in enumerate(jax.random.split(key, 4)):
+        np.testing.assert_allclose(together[i], run_one(p[i], r[i], setting_key))
+    # The setting that drives and turns widely beats the one that mostly turns in place.
+    assert together[1].mean() > together[0].mean()
 
 
 # A 10-minute episode (300 steps) keeps the grid-search tests quick.

@@ -11,7 +11,7 @@ import pytest
 
 from agentax.cli import main
 from agentax.envs import make_jax
-from agentax.evaluate import episode_returns
+from agentax.envs.core import episode_returns
 from agentax.search import cem, grid
 
 

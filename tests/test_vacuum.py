@@ -1,4 +1,4 @@
-"""The robot vacuum: mechanics worked out by hand, dust conservation, the (p, r) policy, vmapped settings."""
+"""The robot vacuum: mechanics worked out by hand, dust conservation, auto-reset, drawings, packed cells."""
 
 import math
 
@@ -8,16 +8,9 @@ import numpy as np
 import pytest
 
 from agentax.envs import JAX_ENVS, make_jax
-from agentax.envs.vacuum import (
-    Vacuum,
-    VacuumState,
-    evaluate_settings,
-    pack_cells,
-    render_path,
-    unpack_cells,
-    vacuum_policy,
-)
-from agentax.evaluate import episode_returns
+from agentax.envs.core import episode_returns
+from agentax.envs.vacuum import Vacuum, VacuumState, pack_cells, render_path, unpack_cells
+from agentax.search.settings import vacuum_policy
 
 ENV = Vacuum()
 PARAMS = ENV.default_params()
@@ -93,26 +86,6 @@ def test_p_one_never_turns_and_p_zero_never_moves():
     states, rewards = ENV.trajectory(vacuum_policy(0.0, math.pi), jax.random.key(6))
     assert np.ptp(np.asarray(states.x)) == 0.0 and np.ptp(np.asarray(states.y)) == 0.0
     assert float(np.asarray(rewards).sum()) == 1.0  # only the cell it started on
-
-
-def test_policy_probabilities():
-    keys = jax.random.split(jax.random.key(0), 20_000)
-    actions = np.asarray(jax.vmap(vacuum_policy(0.3, 0.7), in_axes=(None, 0))(jnp.zeros(5), keys))
-    # Binomial(20000, 0.3): std of the fraction = sqrt(0.3 * 0.7 / 20000) = 0.0032; 5 sigma = 0.016.
-    assert abs(actions[:, 0].mean() - 0.3) < 0.016
-    assert np.abs(actions[:, 1]).max() <= 0.7 and np.abs(actions[:, 1]).max() > 0.69
-
-
-@pytest.mark.timeout(180)
-def test_many_settings_in_one_call_equal_one_by_one():
-    p, r = np.array([0.2, 0.8, 0.95, 0.6], np.float32), np.array([0.5, 3.0, 1.5, 2.0], np.float32)
-    key = jax.random.key(11)
-    together = np.asarray(evaluate_settings(p, r, key, num_episodes=2))  # [4, 2]
-    run_one = jax.jit(lambda p, r, key: episode_returns(ENV, vacuum_policy(p, r), key, 2)[0])
-    for i, setting_key in enumerate(jax.random.split(key, 4)):
-        np.testing.assert_allclose(together[i], run_one(p[i], r[i], setting_key))
-    # The setting that drives and turns widely beats the one that mostly turns in place.
-    assert together[1].mean() > together[0].mean()
 
 
 def test_render_frame_and_path():

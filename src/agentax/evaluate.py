@@ -1,8 +1,8 @@
 """Evaluating a policy: episode returns of any env -- JAX envs batched under ``jit``, Gymnasium's on the host.
 
-``episode_returns`` is pure and jittable, so it runs inside training loops and inside ``vmap``
-over policy parameters (thousands of vacuum-robot settings in one call). ``host_episode_returns``
-steps a Gymnasium vector env. ``evaluate`` picks the right one and summarises the returns.
+JAX envs play with :func:`agentax.envs.core.episode_returns` (pure and jittable, beside the env
+protocol); ``host_episode_returns`` steps a Gymnasium vector env. ``evaluate`` picks the right one
+and summarises the returns.
 
 Policies are JAX functions ``policy(obs, key) -> action`` on one observation, or, for host envs
 only, a :class:`HostPolicy` in NumPy acting on the whole batch.
@@ -14,19 +14,15 @@ import json
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from functools import partial
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agentax.envs import Box, Discrete, Environment, GymnasiumEnv, make
-from agentax.envs.core import EnvParams
+from agentax.envs import Discrete, Environment, GymnasiumEnv, make
+from agentax.envs.core import EnvParams, episode_returns
 from agentax.errors import UsageError
-from agentax.policies import Policy, basic_policy, random_policy
-
-POLICY_NAMES = ("basic", "random")
-POLICY_CHOICES = "basic, random, or a trained run's folder"
+from agentax.policies import Policy
 
 
 @dataclass(frozen=True)
@@ -65,37 +61,6 @@ class HostPolicy:
     """
 
     act: Callable[[np.ndarray, np.random.Generator], np.ndarray]
-
-
-def episode_returns(
-    env: Environment, policy: Policy, key: jax.Array, num_episodes: int, env_params: EnvParams | None = None
-) -> tuple[jax.Array, jax.Array]:
-    """Play ``num_episodes`` episodes side by side until each ends once.
-
-    Returns ``(returns, lengths)``, each ``[num_episodes]``. ``policy(obs, key) -> action`` acts on
-    one observation. Jittable (``env``, ``policy`` and ``num_episodes`` static).
-    """
-    params = env.default_params() if env_params is None else env_params
-    reset_key, key = jax.random.split(key)
-    obs, state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(reset_key, num_episodes), params)
-    zeros = jnp.zeros(num_episodes, jnp.float32)
-    alive = jnp.ones(num_episodes, bool)
-
-    def body(carry):
-        obs, state, returns, lengths, alive, key = carry
-        key, act_key, step_key = jax.random.split(key, 3)
-        actions = jax.vmap(policy)(obs, jax.random.split(act_key, num_episodes))
-        ts, state = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
-            jax.random.split(step_key, num_episodes), state, actions, params
-        )
-        returns = returns + ts.reward * alive
-        lengths = lengths + alive
-        alive = alive & ~ts.done
-        return ts.obs, state, returns, lengths, alive, key
-
-    carry = (obs, state, zeros, zeros.astype(jnp.int32), alive, key)
-    _, _, returns, lengths, _, _ = jax.lax.while_loop(lambda c: c[4].any(), body, carry)
-    return returns, lengths
 
 
 @partial(jax.jit, static_argnums=(0, 1, 3))
@@ -181,53 +146,6 @@ def check_policy_fits(env: Environment | GymnasiumEnv, policy: Policy | HostPoli
             f"the policy returns actions of shape {action.shape} and dtype {action.dtype}, "
             f"but {env_id} takes {action_space}"
         )
-
-
-def named_policy(name: str, env: Environment | GymnasiumEnv, env_id: str = "") -> Policy:
-    """The policy called ``name`` (``basic`` or ``random``) for ``env``; ``UsageError`` if it does not fit."""
-    env_id = env_id or getattr(env, "id", type(env).__name__)
-    obs_space, action_space = env.observation_space(), env.action_space()
-    if name == "basic":
-        is_cartpole = isinstance(obs_space, Box) and obs_space.shape == (4,) and action_space == Discrete(2)
-        if not is_cartpole:
-            raise UsageError(
-                f"policy 'basic' is the lecture's CartPole policy (reads the pole angle, pushes left or "
-                f"right); {env_id} has observations {obs_space} and actions {action_space}: choose "
-                "random or a trained run's folder"
-            )
-        return basic_policy
-    if name == "random":
-        return random_policy(action_space)
-    raise UsageError(f"unknown policy {name!r}; choose from {POLICY_CHOICES}")
-
-
-def resolve_policy(
-    policy: str, env_id: str | None, num_envs: int = 1
-) -> tuple[str, Environment | GymnasiumEnv, Policy]:
-    """``(env_id, env, policy_fn)`` for a policy name or a trained run's folder, checked to fit the env.
-
-    A run's folder also gives the env id when ``env_id`` is ``None``. Gymnasium envs get ``num_envs``
-    sub-envs.
-    """
-    if Path(policy).is_dir():
-        from agentax.runs import load_policy  # here: runs sits above evaluate
-
-        run_env_id, policy_fn = load_policy(policy)
-        env_id = env_id or run_env_id
-        env = make(env_id, num_envs)
-    elif "/" in policy or "\\" in policy:
-        raise UsageError(
-            f"no trained run at {policy!r}: the folder does not exist; choose from {POLICY_CHOICES}"
-        )
-    elif env_id is None:
-        raise UsageError(
-            "no env id given; name one (agentax envs lists them) or give a trained run's folder as policy"
-        )
-    else:
-        env = make(env_id, num_envs)
-        policy_fn = named_policy(policy, env, env_id)
-    check_policy_fits(env, policy_fn, env_id)
-    return env_id, env, policy_fn
 
 
 def evaluate(

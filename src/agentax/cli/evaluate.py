@@ -11,8 +11,9 @@ import tyro
 from rich.console import Console
 from rich.table import Table
 
+from agentax.cli.policies import resolve_policy
 from agentax.errors import UsageError
-from agentax.evaluate import EvalStats, evaluate, resolve_policy
+from agentax.evaluate import EvalStats, evaluate
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import tyro
 
 from agentax.cli.evaluate import policy_label
-from agentax.evaluate import resolve_policy
+from agentax.cli.policies import resolve_policy
 from agentax.render import check_video_path, save_episode
 
 

@@ -29,9 +29,9 @@ import numpy as np
 import tyro
 from flax import serialization
 
-from agentax.envs.vacuum import Vacuum, render_path, vacuum_policy
+from agentax.envs.core import episode_returns
+from agentax.envs.vacuum import Vacuum, render_path
 from agentax.errors import UsageError
-from agentax.evaluate import episode_returns
 from agentax.runs import write_atomic, write_json
 from agentax.search import cem, genetic
 from agentax.search.grid import GridSearchConfig, grid_search
@@ -44,7 +44,7 @@ from agentax.search.population import (
     select_final,
 )
 from agentax.search.random_search import RandomSearchConfig, random_search
-from agentax.search.settings import plot_heatmap
+from agentax.search.settings import plot_heatmap, vacuum_policy
 
 TARGETS = ("vacuum", "cartpole")
 VACUUM_METHODS = {"grid": "agentax.search.grid", "random": "agentax.search.random_search"}

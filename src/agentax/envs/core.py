@@ -11,6 +11,11 @@ and randomness is an explicit key. Batches of environments come from ``jax.vmap`
 
 ``step`` auto-resets: when an episode ends, ``TimeStep.obs`` is already the first observation of
 the next episode and ``TimeStep.final_obs`` the observation the step really reached.
+
+Two pure, jittable ways to play a policy ``policy(obs, key) -> action``: :func:`rollout` keeps every
+state of one episode (for drawing paths and frames); :func:`episode_returns` plays a batch of episodes
+side by side and keeps only their returns and lengths (for evaluation inside training loops and inside
+``vmap`` over policy parameters).
 """
 
 from __future__ import annotations
@@ -219,3 +224,38 @@ def rollout(
     _, (states, rewards, done) = jax.lax.scan(body, (obs, state), jax.random.split(key, num_steps))
     states = jax.tree.map(lambda first, rest: jnp.concatenate([first[None], rest]), state, states)
     return states, rewards, done
+
+
+def episode_returns(
+    env: Environment,
+    policy: Callable[[Array, Array], Array],
+    key: Array,
+    num_episodes: int,
+    env_params: EnvParams | None = None,
+) -> tuple[Array, Array]:
+    """Play ``num_episodes`` episodes side by side (with auto-reset) until each has ended once.
+
+    Returns ``(returns, lengths)``, each ``[num_episodes]``. ``policy(obs, key) -> action`` acts on
+    one observation. Jittable (``env``, ``policy`` and ``num_episodes`` static).
+    """
+    params = env.default_params() if env_params is None else env_params
+    reset_key, key = jax.random.split(key)
+    obs, state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(reset_key, num_episodes), params)
+    zeros = jnp.zeros(num_episodes, jnp.float32)
+    alive = jnp.ones(num_episodes, bool)
+
+    def body(carry):
+        obs, state, returns, lengths, alive, key = carry
+        key, act_key, step_key = jax.random.split(key, 3)
+        actions = jax.vmap(policy)(obs, jax.random.split(act_key, num_episodes))
+        ts, state = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
+            jax.random.split(step_key, num_episodes), state, actions, params
+        )
+        returns = returns + ts.reward * alive
+        lengths = lengths + alive
+        alive = alive & ~ts.done
+        return ts.obs, state, returns, lengths, alive, key
+
+    carry = (obs, state, zeros, zeros.astype(jnp.int32), alive, key)
+    _, _, returns, lengths, _, _ = jax.lax.while_loop(lambda c: c[4].any(), body, carry)
+    return returns, lengths

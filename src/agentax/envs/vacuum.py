@@ -22,25 +22,22 @@ The model (every number is a field of :class:`VacuumParams`):
 
 The state keeps the floor's dirty cells as bits (:func:`pack_cells`, :func:`unpack_cells`).
 
-The lecture's stochastic policy is :func:`vacuum_policy`: with probability p move forward, with
-probability 1 − p rotate by a random angle in [−r, r]. :func:`evaluate_settings` evaluates thousands of
-(p, r) settings, several episodes each, in one vmapped, jitted call. ``Vacuum.render_frame`` draws the
-room (dust, clean floor, robot and heading); :func:`render_path` draws a whole episode's path (from
-``Vacuum.trajectory``) over the floor it left behind.
+``Vacuum.render_frame`` draws the room (dust, clean floor, robot and heading); :func:`render_path`
+draws a whole episode's path (from ``Vacuum.trajectory``) over the floor it left behind. The lecture's
+(p, r) policy and the search over it live in :mod:`agentax.search.settings` (``vacuum_policy``,
+``evaluate_settings``).
 """
 
 from __future__ import annotations
 
 import math
-from functools import partial
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from agentax.envs.cartpole import threefry2x32, uniform4
-from agentax.envs.core import Box, Environment, TimeStep, rollout
+from agentax.envs.core import Box, Environment, TimeStep, rollout, uniform4
 from agentax.policies import Policy
 
 
@@ -80,8 +77,9 @@ def pack_cells(cells: jax.Array) -> jax.Array:
 
     Cell ``(row, column)`` is bit ``i % 32`` of word ``i // 32``, ``i = row · grid_size + column``. The
     floor travels packed because the env protocol's auto-reset selects between the stepped and a fresh
-    room for every env on every step: 13 words instead of 400 bools made ``evaluate_settings`` 1.2-1.7×
-    faster on the 2-core machine (measured side by side).
+    room for every env on every step: 13 words instead of 400 bools made evaluating (p, r) settings
+    (``agentax.search.settings.evaluate_settings``) 1.2-1.7× faster on the 2-core machine (measured side
+    by side).
     """
     cells = jnp.asarray(cells, bool)
     flat = cells.reshape(*cells.shape[:-2], -1)
@@ -209,73 +207,6 @@ class Vacuum(Environment):
         return states, rewards
 
 
-def _trajectory(env: Vacuum, policy: Policy, num_steps: int, key: jax.Array, params: VacuumParams):
-    reset_key, key = jax.random.split(key)
-    obs, state = env.reset_env(reset_key, params)
-
-    def body(carry, step_key):
-        obs, state = carry
-        act_key, env_key = jax.random.split(step_key)
-        ts, state = env.step_env(env_key, state, policy(obs, act_key), params)
-        return (ts.obs, state), (state, ts.reward)
-
-    _, (states, rewards) = jax.lax.scan(body, (obs, state), jax.random.split(key, num_steps))
-    states = jax.tree.map(lambda first, rest: jnp.concatenate([first[None], rest]), state, states)
-    return states, rewards
-
-
-def _uniform2(key: jax.Array) -> jax.Array:
-    """Two float32 uniforms in [0, 1) ``[2]``: the two words of one Threefry-2x32 hash of ``key``.
-
-    Half the hashes of ``jax.random.uniform(key, (2,))`` and unrolled, so XLA fuses it (faster on CPU).
-    """
-    if str(jax.random.key_impl(key)) != "threefry2x32":
-        return jax.random.uniform(key, (2,), jnp.float32)
-    data = jax.random.key_data(key)
-    bits = jnp.stack(threefry2x32(data[0], data[1], jnp.uint32(0), jnp.uint32(1)))
-    return jax.lax.bitcast_convert_type((bits >> 9) | jnp.uint32(0x3F800000), jnp.float32) - 1.0
-
-
-def vacuum_policy(p: float | jax.Array, r: float | jax.Array) -> Policy:
-    """The lecture's policy: with probability ``p`` move forward, else turn by a uniform angle in [−r, r]."""
-
-    def policy(obs: jax.Array, key: jax.Array) -> jax.Array:
-        u = _uniform2(key)
-        forward = u[0] < p
-        angle = (2.0 * u[1] - 1.0) * r
-        return jnp.stack([forward.astype(jnp.float32), jnp.asarray(angle, jnp.float32)])
-
-    return policy
-
-
-@partial(jax.jit, static_argnums=(3,))
-def _evaluate_settings(p: jax.Array, r: jax.Array, key: jax.Array, num_episodes: int, params: VacuumParams):
-    from agentax.evaluate import (
-        episode_returns,
-    )  # here: agentax.evaluate imports agentax.envs, which imports us
-
-    env = Vacuum()
-
-    def one_setting(p, r, key):
-        returns, _ = episode_returns(env, vacuum_policy(p, r), key, num_episodes, params)
-        return returns
-
-    return jax.vmap(one_setting)(p, r, jax.random.split(key, p.shape[0]))
-
-
-def evaluate_settings(
-    p: jax.Array, r: jax.Array, key: jax.Array, num_episodes: int = 4, params: VacuumParams | None = None
-) -> jax.Array:
-    """Dust collected ``[N, num_episodes]`` by the (p, r) policies ``p: [N]``, ``r: [N]``, in one call.
-
-    Setting ``i`` plays its episodes with ``jax.random.split(key, N)[i]``, so one setting evaluated
-    alone with that key gives the same returns.
-    """
-    params = Vacuum().default_params() if params is None else params
-    p, r = jnp.asarray(p, jnp.float32).reshape(-1), jnp.asarray(r, jnp.float32).reshape(-1)
-    return _evaluate_settings(p, r, key, num_episodes, params)
-
-
 # Colours of the drawings (RGB).
 FLOOR = np.array([250, 248, 240], np.uint8)
 DUST = np.array([150, 115, 75], np.uint8)
@@ -333,7 +264,3 @@ def render_path(
             column, row = int(x0 + t * (x1 - x0)), int(y0 + t * (y1 - y0))
             image[min(max(row, 0), size - 1), min(max(column, 0), size - 1)] = PATH
     return image
-
-
-def vacuum() -> Vacuum:
-    return Vacuum()

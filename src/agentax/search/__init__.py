@@ -1,5 +1,6 @@
-"""Policy search: grid and random search over the vacuum robot's (p, r); a genetic algorithm and the
-cross-entropy method over the parameters of a neural policy, each population evaluated in one vmapped call.
+"""Policy search: grid and random search over the vacuum robot's (p, r) policy (``vacuum_policy``, all
+settings evaluated at once by ``evaluate_settings``); a genetic algorithm and the cross-entropy method over
+the parameters of a neural policy, each population evaluated in one vmapped call.
 """
 
 from agentax.search import cem, genetic
@@ -16,7 +17,7 @@ from agentax.search.population import (
     run_generations,
 )
 from agentax.search.random_search import RandomSearchConfig, random_search
-from agentax.search.settings import SettingsResult, plot_heatmap
+from agentax.search.settings import SettingsResult, evaluate_settings, plot_heatmap, vacuum_policy
 
 __all__ = [
     "CEMConfig",
@@ -28,6 +29,7 @@ __all__ = [
     "SettingsResult",
     "cem",
     "evaluate_population",
+    "evaluate_settings",
     "genetic",
     "grid_search",
     "make_env",
@@ -36,4 +38,5 @@ __all__ = [
     "plot_heatmap",
     "random_search",
     "run_generations",
+    "vacuum_policy",
 ]

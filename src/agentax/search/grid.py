@@ -8,9 +8,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agentax.envs.vacuum import VacuumParams, vacuum_policy
+from agentax.envs.vacuum import VacuumParams
 from agentax.policies import Policy
-from agentax.search.settings import SettingsResult, check_search_config, load_best_setting, search_settings
+from agentax.search.settings import (
+    SettingsResult,
+    check_search_config,
+    load_best_setting,
+    search_settings,
+    vacuum_policy,
+)
 
 
 @dataclass(frozen=True)

@@ -24,9 +24,8 @@ from flax import serialization
 from jax.flatten_util import ravel_pytree
 
 from agentax.envs import JAX_ENVS, make_jax
-from agentax.envs.core import Box, Discrete, Environment, EnvParams
+from agentax.envs.core import Box, Discrete, Environment, EnvParams, episode_returns
 from agentax.errors import UsageError
-from agentax.evaluate import episode_returns
 from agentax.nets import ACTIVATIONS, PolicyNet, greedy_action, sample_action
 from agentax.policies import Policy
 

@@ -48,9 +48,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agentax.envs.core import Environment
+from agentax.envs.core import Environment, episode_returns
 from agentax.errors import UsageError
-from agentax.evaluate import episode_returns
 from agentax.policies import Policy
 from agentax.runs import Run, latest_checkpoint, load_tree, preload_plotting
 from agentax.train import programs
