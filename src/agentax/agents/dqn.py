@@ -55,7 +55,7 @@ from agentax.agents.protocol import Agent, CompiledAlgorithm, EnvSpec, OffPolicy
 from agentax.envs.core import Discrete, Environment
 from agentax.errors import UsageError
 from agentax.nets import QNetwork
-from agentax.policies import Policy, epsilon_greedy
+from agentax.policies import Policy, epsilon_greedy, linear_schedule
 from agentax.replay import ReplaySample, Transition, example_transition, nstep, prioritized, uniform
 from agentax.returns import EpisodeStats
 
@@ -416,14 +416,13 @@ def learn(state: DQNState, sample: ReplaySample, cfg: DQNConfig) -> tuple[DQNSta
 
 def epsilon_at(cfg: DQNConfig, progress: jax.Array) -> jax.Array:
     """ε after ``progress`` steps or episodes (``cfg.schedule_unit``): linear, then constant."""
-    fraction = jnp.clip(jnp.asarray(progress, jnp.float32) / max(cfg.exploration_duration, 1), 0.0, 1.0)
-    return cfg.epsilon_start + (cfg.epsilon_end - cfg.epsilon_start) * fraction
+    duration = max(cfg.exploration_duration, 1)
+    return linear_schedule(cfg.epsilon_start, cfg.epsilon_end, duration)(progress)
 
 
 def importance_exponent_at(cfg: DQNConfig, env_steps: jax.Array) -> jax.Array:
     """β, annealed linearly from ``importance_exponent_start`` to 1 over ``total_steps``."""
-    fraction = jnp.clip(jnp.asarray(env_steps, jnp.float32) / cfg.total_steps, 0.0, 1.0)
-    return cfg.importance_exponent_start + (1.0 - cfg.importance_exponent_start) * fraction
+    return linear_schedule(cfg.importance_exponent_start, 1.0, cfg.total_steps)(env_steps)
 
 
 def one_step_transition(obs: jax.Array, action: jax.Array, time_step: Any) -> Transition:
