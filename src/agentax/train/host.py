@@ -86,9 +86,36 @@ def make_host_env(env_id: str, num_envs: int) -> GymnasiumEnv:
 
 
 def agent_keys(seed: int) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """``(init_key, learner_key, actors_key)`` of a run; actor ``i`` uses ``fold_in(actors_key, i)``."""
+    """``(init_key, learner_key, actors_key)`` of a run (see :func:`fold_actor_key`)."""
     init_key, learner_key, actors_key = jax.random.split(jax.random.key(seed), 3)
     return init_key, learner_key, actors_key
+
+
+def fold_actor_key(actors_key: jax.Array, index: int, updates: int) -> jax.Array:
+    """Actor ``index``'s key, in a run (re)started after ``updates`` learning steps."""
+    return jax.random.fold_in(jax.random.fold_in(actors_key, updates), index)
+
+
+def actor_seed(seed: int, index: int, updates: int) -> int:
+    """The seed of actor ``index``'s envs, in a run (re)started after ``updates`` learning steps."""
+    return seed + 1000 * index + 7919 * updates
+
+
+def record_returns(returns: FinishedReturns, trajectory: Transition, episodes: bool) -> int:
+    """Feed a trajectory ``[T, E]`` to a returns tracker; returns the env steps it holds. With
+    ``episodes`` only each env's first episode counts (``info["valid"]``), ended by the step limit."""
+    valid = trajectory.info["valid"] if episodes else np.ones(trajectory.reward.shape, bool)
+    last = len(trajectory.reward) - 1
+    for t in range(last + 1):
+        step = jax.tree.map(lambda x, t=t: x[t], trajectory)
+        if episodes:
+            step = step.replace(
+                reward=step.reward * valid[t],
+                terminated=step.terminated & valid[t],
+                truncated=(step.truncated | (t == last)) & valid[t],
+            )
+        returns(step)
+    return int(valid.sum())
 
 
 class Actor:
@@ -233,8 +260,18 @@ def learning_started(experience: OffPolicy, actor_steps: int, actor_episodes: in
     return actor_steps >= experience.learning_starts
 
 
-def collection_over(agent: Agent, env_steps: int, episodes: int) -> bool:
+def num_updates(agent: Agent) -> int:
+    """Learning iterations of an on-policy agent's whole run (as the compiled runner counts them)."""
     experience = agent.experience
+    steps = experience.max_steps if isinstance(experience, Episodes) else experience.num_steps
+    return max(1, agent.total_steps // (experience.num_envs * steps))
+
+
+def collection_over(agent: Agent, env_steps: int, episodes: int, updates: int = 0) -> bool:
+    """Whether a run has collected all it should: its env steps (off-policy) or iterations (on-policy)."""
+    experience = agent.experience
+    if not isinstance(experience, OffPolicy):
+        return updates >= num_updates(agent)
     max_episodes = getattr(experience, "max_episodes", 0)
     return env_steps >= agent.total_steps or bool(max_episodes and episodes >= max_episodes)
 
@@ -289,8 +326,8 @@ def train(
         agent,
         env_id,
         agent.experience.num_envs,
-        runner.seed + 7919 * updates,
-        jax.random.fold_in(actors_key, updates),
+        actor_seed(runner.seed, 0, updates),
+        fold_actor_key(actors_key, 0, updates),
         done_steps,
     )
     actor.episodes.count = int(meta["episodes"])
@@ -311,19 +348,20 @@ def train(
         elapsed_before=float(meta["elapsed"]),
     )
     metrics: dict[str, Any] = {}
+    learned_returns = actor.returns if isinstance(experience, OffPolicy) else FinishedReturns()
     next_log = done_steps + runner.log_every_steps
     steps_at_log, time_at_log = done_steps, time.perf_counter()
     with logger:
         try:
-            while not collection_over(agent, actor.steps.count, actor.episodes.count):
+            while not collection_over(agent, actor.steps.count, actor.episodes.count, updates):
                 learner_key, learn_key = jax.random.split(learner_key)
-                if isinstance(experience, OnPolicy):
-                    state, metrics = learn(state, actor.rollout(state, experience.num_steps), learn_key)
-                    updates += 1
-                elif isinstance(experience, Episodes):
-                    state, metrics = learn(
-                        state, actor.episodes_from_reset(state, experience.max_steps), learn_key
-                    )
+                if isinstance(experience, (OnPolicy, Episodes)):
+                    if isinstance(experience, Episodes):
+                        trajectory = actor.episodes_from_reset(state, experience.max_steps)
+                    else:
+                        trajectory = actor.rollout(state, experience.num_steps)
+                    state, metrics = learn(state, trajectory, learn_key)
+                    record_returns(learned_returns, trajectory, isinstance(experience, Episodes))
                     updates += 1
                 else:
                     actor.collect(state, observer, experience.train_frequency)
@@ -331,7 +369,7 @@ def train(
                         state, metrics = learner.phase(state, learn_key, actor.steps.count)
                         updates += experience.gradient_steps
                 env_steps = actor.steps.count
-                finished = collection_over(agent, env_steps, actor.episodes.count)
+                finished = collection_over(agent, env_steps, actor.episodes.count, updates)
                 if env_steps < next_log and not finished:
                     continue
                 next_log += runner.log_every_steps
@@ -340,7 +378,7 @@ def train(
                 row = row_of(
                     env_steps,
                     updates,
-                    actor.returns.drain(),
+                    learned_returns.drain(),
                     (env_steps - steps_at_log) / max(now - time_at_log, 1e-9),
                 )
                 if runner.stop_at_return is not None:

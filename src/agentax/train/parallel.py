@@ -1,0 +1,491 @@
+"""Collection and training in parallel: actor threads, one learner, a rate limiter, a parameter channel.
+
+The lecture's "two parts running in parallel", built as Cleanba and Acme build it: each actor
+thread steps its own vector env with the collect policy (the host runner's :class:`Actor`); the
+learner (the calling thread, so Ctrl-C lands there) runs ``agent.learn``; between them
+
+- on-policy (PPO, REINFORCE): a queue of size one per actor. Rollout ``k`` is collected with
+  parameter version ``k - policy_lag`` exactly (a :class:`ParameterChannel` keeps the few newest
+  versions), so with lag 1 the actors collect rollout ``k + 1`` while the learner learns from
+  rollout ``k``, and the same seed gives the same numbers; ``policy_lag=0`` is the sequential
+  algorithm, number for number the host runner's (with one actor).
+- off-policy (DQN): the shared, locked :class:`~agentax.replay.host.ReplayBuffer` and a
+  :class:`RateLimiter` (Reverb's sample-to-insert ratio) that blocks whichever side runs ahead, so a
+  parallel run makes the same learning steps per env step as a sequential one. The actors act with
+  the newest published parameters (published every ``publish_every`` learning phases).
+
+JAX releases the GIL while a compiled call runs, so a learner's update and the actors' Python
+env steps overlap on different cores. An exception in any thread stops every thread and is raised
+from :func:`train`, never a hang. Rows add ``actor_steps_per_second``,
+``learner_updates_per_second``, ``actor_wait_fraction``, ``learner_wait_fraction`` and
+``policy_lag`` (parameter versions between acting and learning).
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import numpy as np
+
+from agentax.agents.protocol import Agent, Episodes, OffPolicy
+from agentax.errors import UsageError
+from agentax.runs import Run
+from agentax.train.driver import FinishedReturns, ReplayObserver
+from agentax.train.host import (
+    Actor,
+    Evaluator,
+    HostResult,
+    OffPolicyLearner,
+    actor_seed,
+    agent_keys,
+    collection_over,
+    fold_actor_key,
+    num_updates,
+    record_returns,
+    replay_for,
+    restore,
+    row_of,
+)
+from agentax.train.logger import RunLogger
+
+POLL_SECONDS = 0.05  # how often a blocked thread looks whether the run has stopped
+
+
+@dataclass(frozen=True)
+class ParallelRunnerConfig:
+    """How the parallel runner schedules one training; saved in config.json under "runner"."""
+
+    seed: int = 0
+    """seed of the agent and of the envs"""
+    actors: int = 2
+    """actor threads; the agent's envs are split evenly between them"""
+    policy_lag: int = 1
+    """on-policy: parameter versions between collecting a rollout and learning from it (0: sequential)"""
+    publish_every: int = 1
+    """off-policy: learning phases between parameter publishes"""
+    log_every_steps: int = 2_048
+    """write a metrics row every this many env steps"""
+    eval_episodes: int = 10
+    """episodes of the final evaluation (and of the stop-at-return checks)"""
+    stop_at_return: float | None = None
+    """stop once an evaluation (run at each row) reaches this mean return (None: train to the end)"""
+    checkpoint_every_seconds: float = 30.0
+    """write a checkpoint at most this often (and at the end)"""
+
+    def check(self, agent: Agent) -> None:
+        """A ``UsageError`` for settings this agent cannot run with."""
+        if self.actors < 1 or self.policy_lag < 0 or self.publish_every < 1:
+            raise UsageError("--actors and --publish-every must be at least 1, --policy-lag at least 0")
+        num_envs = agent.experience.num_envs
+        if num_envs % self.actors:
+            raise UsageError(
+                f"{num_envs} envs do not split evenly over {self.actors} actors (set --num-envs)"
+            )
+        if isinstance(agent.experience, OffPolicy) and agent.experience.by_episode:
+            raise UsageError("the episode schedule (--schedule-unit episodes) runs on the host runner only")
+
+
+class Stopped(Exception):
+    """Raised inside a thread's wait once the run is stopping."""
+
+
+class Coordinator:
+    """The run's stop flag and the first error of any thread."""
+
+    def __init__(self):
+        self.stop = threading.Event()
+        self.error: BaseException | None = None
+
+    def fail(self, error: BaseException) -> None:
+        if self.error is None:
+            self.error = error
+        self.stop.set()
+
+    def check(self) -> None:
+        """Raise the first thread's error in the caller (the learner), or ``Stopped``."""
+        if self.error is not None:
+            raise self.error
+        if self.stop.is_set():
+            raise Stopped
+
+    def wait_until(self, condition: threading.Condition, ready: Callable[[], bool]) -> float:
+        """Wait on ``condition`` (held) until ``ready()``; returns the seconds waited."""
+        start = time.perf_counter()
+        while not ready():
+            self.check()
+            condition.wait(POLL_SECONDS)
+        return time.perf_counter() - start
+
+
+class ParameterChannel:
+    """Published agent states by version; keeps the ``keep`` newest so an actor can ask for one exactly."""
+
+    def __init__(self, coordinator: Coordinator, version: int, state: Any, keep: int):
+        self.coordinator, self.keep = coordinator, keep
+        self.versions = {version: state}
+        self.condition = threading.Condition()
+
+    def publish(self, version: int, state: Any) -> None:
+        with self.condition:
+            self.versions[version] = state
+            for old in [v for v in self.versions if v <= version - self.keep]:
+                del self.versions[old]
+            self.condition.notify_all()
+
+    def get(self, version: int) -> tuple[Any, float]:
+        """The state of ``version`` (waiting for it) and the seconds waited."""
+        with self.condition:
+            waited = self.coordinator.wait_until(self.condition, lambda: version in self.versions)
+            return self.versions[version], waited
+
+    def latest(self) -> tuple[int, Any]:
+        with self.condition:
+            version = max(self.versions)
+            return version, self.versions[version]
+
+
+class RateLimiter:
+    """Keeps ``learned ≈ ratio × (inserted − min_inserts)`` (Reverb's SampleToInsertRatio).
+
+    The learner may start a phase of ``phase`` learning steps while ``learned ≤ ratio × (inserted −
+    min_inserts)`` (a sequential loop learns right after each collected chunk); actors may insert while
+    they are less than ``slack`` env steps ahead of what the learner has caught up with.
+    """
+
+    def __init__(self, coordinator: Coordinator, ratio: float, min_inserts: int, slack: int):
+        self.coordinator, self.ratio, self.min_inserts, self.slack = coordinator, ratio, min_inserts, slack
+        self.inserted = self.learned = 0
+        self.closed = False  # no more inserts: the learner catches up and ends
+        self.condition = threading.Condition()
+
+    def learn_ready(self) -> bool:
+        started = self.inserted >= max(self.min_inserts, 1)
+        return started and self.learned <= self.ratio * (self.inserted - self.min_inserts)
+
+    def insert_ready(self) -> bool:
+        caught_up = self.min_inserts + self.learned / self.ratio
+        return self.inserted < self.min_inserts or self.inserted < caught_up + self.slack
+
+    def await_insert(self) -> float:
+        with self.condition:
+            return self.coordinator.wait_until(self.condition, self.insert_ready)
+
+    def inserted_steps(self, count: int) -> None:
+        with self.condition:
+            self.inserted += count
+            self.condition.notify_all()
+
+    def await_learn(self) -> tuple[bool, float]:
+        """Wait for a learning phase; ``(False, waited)`` once inserts are closed and it is caught up."""
+        with self.condition:
+            waited = self.coordinator.wait_until(self.condition, lambda: self.learn_ready() or self.closed)
+            return self.learn_ready(), waited
+
+    def learned_steps(self, count: int) -> None:
+        with self.condition:
+            self.learned += count
+            self.condition.notify_all()
+
+    def close(self) -> None:
+        with self.condition:
+            self.closed = True
+            self.condition.notify_all()
+
+
+class ActorThread(threading.Thread):
+    """Runs ``work(actor)`` in a daemon thread; an error stops the whole run through the coordinator."""
+
+    def __init__(self, actor: Actor, work: Callable[[Actor], None], coordinator: Coordinator, index: int):
+        super().__init__(daemon=True, name=f"actor-{index}")
+        self.actor, self.work, self.coordinator = actor, work, coordinator
+        self.wait_seconds = 0.0
+        self.lag_sum, self.lag_count = 0.0, 0
+
+    def run(self) -> None:
+        try:
+            self.work(self)
+        except Stopped:
+            pass
+        except BaseException as error:  # handed to the learner, never lost in a thread
+            self.coordinator.fail(error)
+
+
+def put(items: queue.Queue, item: Any, coordinator: Coordinator) -> float:
+    """Put into a bounded queue, giving up once the run stops; returns the seconds waited."""
+    start = time.perf_counter()
+    while True:
+        coordinator.check()
+        try:
+            items.put(item, timeout=POLL_SECONDS)
+            return time.perf_counter() - start
+        except queue.Full:
+            continue
+
+
+def take(items: queue.Queue, coordinator: Coordinator) -> tuple[Any, float]:
+    start = time.perf_counter()
+    while True:
+        coordinator.check()
+        try:
+            return items.get(timeout=POLL_SECONDS), time.perf_counter() - start
+        except queue.Empty:
+            continue
+
+
+class Meter:
+    """Speeds and wait fractions between two rows."""
+
+    def __init__(self, threads: list[ActorThread]):
+        self.threads = threads
+        self.time = time.perf_counter()
+        self.collected = self.learned = 0
+        self.actor_wait = self.learner_wait = 0.0
+
+    def row(self, collected: int, learned: int, learner_wait: float) -> dict[str, float]:
+        now = time.perf_counter()
+        seconds = max(now - self.time, 1e-9)
+        actor_wait = sum(t.wait_seconds for t in self.threads)
+        lags = [t.lag_sum / t.lag_count for t in self.threads if t.lag_count]
+        figures = {
+            "actor_steps_per_second": (collected - self.collected) / seconds,
+            "learner_updates_per_second": (learned - self.learned) / seconds,
+            "actor_wait_fraction": (actor_wait - self.actor_wait) / (seconds * len(self.threads)),
+            "learner_wait_fraction": (learner_wait - self.learner_wait) / seconds,
+            "policy_lag": float(np.mean(lags)) if lags else 0.0,
+        }
+        self.time, self.collected, self.learned = now, collected, learned
+        self.actor_wait, self.learner_wait = actor_wait, learner_wait
+        return figures
+
+
+def train(
+    agent: Agent,
+    env_id: str,
+    runner: ParallelRunnerConfig,
+    run: Run | None = None,
+    *,
+    resume: bool = False,
+    progress: bool = False,
+) -> HostResult:
+    """Train ``agent`` on ``env_id`` with ``runner.actors`` actor threads and a learner."""
+    runner.check(agent)
+    init_key, learner_key, actors_key = agent_keys(runner.seed)
+    meta: dict[str, Any] = {"env_steps": 0, "updates": 0, "episodes": 0, "elapsed": 0.0}
+    state = agent.init(init_key)
+    if resume:
+        state, learner_key, meta = restore(agent, run)
+    updates, done_steps = int(meta["updates"]), int(meta["env_steps"])
+    experience = agent.experience
+    envs_per_actor = experience.num_envs // runner.actors
+    actors = [
+        Actor(
+            agent,
+            env_id,
+            envs_per_actor,
+            actor_seed(runner.seed, i, updates),
+            fold_actor_key(actors_key, i, updates),
+            done_steps // runner.actors,
+        )
+        for i in range(runner.actors)
+    ]
+    evaluator = Evaluator(agent, env_id, runner.eval_episodes)
+    logger = RunLogger(
+        run,
+        agent.total_steps,
+        done_steps=done_steps,
+        progress=progress,
+        description=f"{agent.name} {env_id} ({runner.actors} actors)",
+        checkpoint_every_seconds=runner.checkpoint_every_seconds,
+        elapsed_before=float(meta["elapsed"]),
+    )
+    coordinator = Coordinator()
+    loop = _off_policy if isinstance(experience, OffPolicy) else _on_policy
+    threads: list[ActorThread] = []
+    rows = _Rows(runner, logger, evaluator, done_steps)
+    try:
+        with logger:
+            state, updates, env_steps = loop(
+                agent,
+                env_id,
+                runner,
+                actors,
+                threads,
+                coordinator,
+                rows,
+                state,
+                learner_key,
+                updates,
+                done_steps,
+            )
+    finally:
+        coordinator.stop.set()
+        for thread in threads:
+            thread.join(timeout=10)
+        for actor in actors:
+            actor.close()
+    returns, lengths = evaluator(state, seed=runner.seed + 123_457)
+    evaluator.close()
+    evaluation = logger.finish(returns[None], lengths[None], env_steps=env_steps, updates=updates)
+    return HostResult(state, updates, env_steps, evaluation, logger.rows)
+
+
+class _Rows:
+    """The learner's side of logging: a row every ``log_every_steps`` env steps, checkpoints, stopping."""
+
+    def __init__(self, runner, logger: RunLogger, evaluator: Evaluator, done_steps: int):
+        self.runner, self.logger, self.evaluator = runner, logger, evaluator
+        self.meter: Meter | None = None  # set once the actor threads exist
+        self.next_log = done_steps + runner.log_every_steps
+        self.steps_at_log, self.time_at_log = done_steps, time.perf_counter()
+
+    def maybe_log(
+        self, state, learner_key, env_steps, collected, updates, learner_wait, returns, metrics, final
+    ):
+        """Log (and checkpoint) when due; returns True once the run has reached ``stop_at_return``.
+        ``returns()`` drains the returns of the episodes finished since the last row."""
+        if env_steps < self.next_log and not final:
+            return False
+        self.next_log += self.runner.log_every_steps
+        now = time.perf_counter()
+        row = row_of(
+            env_steps, updates, returns(), (env_steps - self.steps_at_log) / max(now - self.time_at_log, 1e-9)
+        )
+        row.update(self.meter.row(collected, updates, learner_wait))
+        solved = False
+        if self.runner.stop_at_return is not None:
+            row["eval_return"] = float(np.mean(self.evaluator(state)[0]))
+            solved = row["eval_return"] >= self.runner.stop_at_return
+        self.logger.log(row, jax.device_get(metrics))
+        self.steps_at_log, self.time_at_log = env_steps, time.perf_counter()
+        meta = {
+            "env_steps": env_steps,
+            "updates": updates,
+            "episodes": 0,
+            "elapsed": self.logger.wall_seconds(),
+        }
+        self.logger.checkpoint(updates, (state, learner_key), meta, force=final or solved)
+        return solved
+
+
+def _on_policy(
+    agent, env_id, runner, actors, threads, coordinator, rows, state, learner_key, updates, done_steps
+):
+    """Rollout ``k`` from every actor, collected with parameter version ``k - policy_lag``; learn."""
+    experience = agent.experience
+    last_update = num_updates(agent)
+    channel = ParameterChannel(coordinator, updates, state, keep=runner.policy_lag + 2)
+    queues = [queue.Queue(maxsize=1) for _ in actors]
+
+    def collect(thread: ActorThread, index: int) -> None:
+        for k in range(updates, last_update):
+            version = max(k - runner.policy_lag, updates)
+            params, waited = channel.get(version)
+            if isinstance(experience, Episodes):
+                trajectory = thread.actor.episodes_from_reset(params, experience.max_steps)
+            else:
+                trajectory = thread.actor.rollout(params, experience.num_steps)
+            thread.wait_seconds += waited + put(queues[index], (version, trajectory), coordinator)
+
+    for i, actor in enumerate(actors):
+        threads.append(ActorThread(actor, lambda thread, i=i: collect(thread, i), coordinator, i))
+    rows.meter = Meter(threads)
+    learn = jax.jit(agent.learn)
+    returns = FinishedReturns()
+    learner_wait, env_steps, metrics = 0.0, done_steps, {}
+    for thread in threads:
+        thread.start()
+    for k in range(updates, last_update):
+        parts = []
+        for q, thread in zip(queues, threads, strict=True):
+            (version, trajectory), waited = take(q, coordinator)
+            learner_wait += waited
+            thread.lag_sum, thread.lag_count = thread.lag_sum + k - version, thread.lag_count + 1
+            parts.append(trajectory)
+        trajectory = jax.tree.map(lambda *xs: np.concatenate(xs, axis=1), *parts)
+        learner_key, learn_key = jax.random.split(learner_key)
+        state, metrics = learn(state, trajectory, learn_key)
+        updates = k + 1
+        channel.publish(updates, state)
+        env_steps += record_returns(returns, trajectory, isinstance(experience, Episodes))
+        final = updates == last_update
+        collected = sum(a.steps.count for a in actors)
+        if rows.maybe_log(
+            state, learner_key, env_steps, collected, updates, learner_wait, returns.drain, metrics, final
+        ):
+            break
+    return state, updates, env_steps
+
+
+def _off_policy(
+    agent, env_id, runner, actors, threads, coordinator, rows, state, learner_key, updates, done_steps
+):
+    """Actors fill the shared replay as the rate limiter allows; the learner learns as it allows."""
+    experience: OffPolicy = agent.experience
+    replay = replay_for(agent, env_id, runner.seed)
+    chunk = experience.train_frequency * (experience.num_envs // runner.actors)
+    limiter = RateLimiter(
+        coordinator,
+        experience.learning_steps_per_env_step,
+        experience.learning_starts,
+        slack=chunk * len(actors),
+    )
+    limiter.inserted = done_steps
+    limiter.learned = updates
+    channel = ParameterChannel(coordinator, 0, state, keep=2)
+    total = agent.total_steps
+
+    def collect(thread: ActorThread, index: int) -> None:
+        observer = ReplayObserver(replay, experience.n_step, experience.discount_factor)
+        thread.actor.progress = lambda: limiter.inserted  # ε follows the whole run's env steps
+        while True:
+            thread.wait_seconds += limiter.await_insert()
+            with limiter.condition:
+                if limiter.inserted >= total:
+                    return
+            version, params = channel.latest()
+            before = thread.actor.steps.count
+            thread.actor.collect(params, observer, experience.train_frequency)
+            thread.lag_sum += channel.latest()[0] - version
+            thread.lag_count += 1
+            limiter.inserted_steps(thread.actor.steps.count - before)
+
+    for i, actor in enumerate(actors):
+        threads.append(ActorThread(actor, lambda thread, i=i: collect(thread, i), coordinator, i))
+    rows.meter = Meter(threads)
+    learner = OffPolicyLearner(agent, replay)
+
+    def drain() -> list[float]:
+        return [r for actor in actors for r in actor.returns.drain()]
+
+    learner_wait, metrics, phases = 0.0, {}, 0
+    for thread in threads:
+        thread.start()
+    while True:
+        with limiter.condition:
+            if limiter.inserted >= total and not limiter.closed:
+                limiter.closed = True
+        ready, waited = limiter.await_learn()
+        learner_wait += waited
+        if ready and replay.size:
+            learner_key, learn_key = jax.random.split(learner_key)
+            state, metrics = learner.phase(state, learn_key, limiter.inserted)
+            updates += experience.gradient_steps
+            limiter.learned_steps(experience.gradient_steps)
+            phases += 1
+            if phases % runner.publish_every == 0:
+                channel.publish(phases, state)
+        env_steps = limiter.inserted
+        final = not ready and collection_over(agent, env_steps, 0)
+        if rows.maybe_log(
+            state, learner_key, env_steps, env_steps, updates, learner_wait, drain, metrics, final
+        ):
+            break
+        if final:
+            break
+    return state, updates, limiter.inserted
