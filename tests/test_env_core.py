@@ -139,15 +139,20 @@ def test_a_scanned_rollout_counts_episodes():
     def body(carry, key):
         state, length = carry
         ts, state = ENV.step(key, state, jnp.int32(1))
-        return (state, jnp.where(ts.done, 0, length + 1)), (ts.done, length + 1, ts.truncated)
+        return (state, jnp.where(ts.done, 0, length + 1)), (ts.done, length + 1, ts.truncated, ts.obs[0])
 
-    _, state = ENV.reset(jax.random.key(7))
-    _, (done, lengths, truncated) = jax.lax.scan(
+    first_obs, state = ENV.reset(jax.random.key(7))
+    _, (done, lengths, truncated, obs) = jax.lax.scan(
         body, (state, jnp.int32(0)), jax.random.split(jax.random.key(8), 60)
     )
-    finished = np.asarray(lengths)[np.asarray(done)]
-    assert 20 <= finished.size <= 60 and set(finished.tolist()) <= {1, 2, 3} and not truncated.any()
-    assert finished.sum() == np.argwhere(np.asarray(done))[-1, 0] + 1
+    done = np.asarray(done)
+    finished = np.asarray(lengths)[done]
+    # Episode k starts from the reset observation: the first from reset, each later one from the
+    # auto-reset of the step that ended episode k - 1; it then lasts exactly that many steps.
+    starts = np.concatenate([np.asarray(first_obs), np.asarray(obs)[done]])
+    np.testing.assert_array_equal(finished, starts[: finished.size])
+    assert set(finished.tolist()) == {1, 2, 3} and not truncated.any()  # every start occurs
+    assert finished.sum() == np.argwhere(done)[-1, 0] + 1
 
 
 def test_environment_must_implement_the_protocol_and_has_no_default_renderer():

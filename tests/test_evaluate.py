@@ -9,7 +9,7 @@ import pytest
 from agentax.envs import GymnasiumEnv, make
 from agentax.envs.core import episode_returns
 from agentax.errors import UsageError
-from agentax.evaluate import HostPolicy, check_policy_fits, evaluate, host_episode_returns
+from agentax.evaluate import EvalStats, HostPolicy, check_policy_fits, evaluate, host_episode_returns
 from agentax.policies import basic_policy, random_policy
 
 
@@ -98,8 +98,12 @@ def test_evaluate_dispatches_on_the_env():
     assert stats.max_return == float(np.max(returns)) and stats.mean_length == pytest.approx(
         float(np.mean(lengths))
     )
-    host = evaluate("FrozenLake-v1", random_policy(make("FrozenLake-v1").action_space()), num_episodes=20)
-    assert host.episodes == 20 and 0.0 <= host.min_return <= host.max_return <= 1.0
+    # An id: a Gymnasium env with min(20, 16) sub-envs, played on the host from seed 0.
+    random_actions = random_policy(make("FrozenLake-v1").action_space())
+    host = evaluate("FrozenLake-v1", random_actions, num_episodes=20)
+    sixteen = GymnasiumEnv("FrozenLake-v1", num_envs=16)
+    returns, lengths = host_episode_returns(sixteen, random_actions, 20, seed=0)
+    assert host == EvalStats.from_returns(returns, lengths) and host.episodes == 20
 
 
 def test_evaluate_rejects_bad_input():

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from agentax.envs import make
-from agentax.envs.vacuum import Vacuum
+from agentax.envs.vacuum import Vacuum, unpack_cells
 from agentax.errors import UsageError
 from agentax.policies import basic_policy, random_policy
 from agentax.render import record_episode, rollout, save_episode, write_video
@@ -74,7 +74,9 @@ def test_vacuum_animation_shows_the_floor_being_cleaned(tmp_path):
     dust = lambda frame: np.all(np.abs(frame.astype(int) - (150, 115, 75)) < 8, axis=-1).sum()  # noqa: E731
     amounts = [dust(frame) for frame in episode.frames]
     assert amounts[0] > amounts[-1] and amounts == sorted(amounts, reverse=True)  # dust only goes away
-    assert episode.total_return > 0
+    # The return is the dust picked up: 400 cells less those still dirty at the end of the same episode.
+    states, _ = Vacuum().trajectory(vacuum_policy(0.8, 1.0), jax.random.key(1))
+    assert episode.total_return == 400 - unpack_cells(np.asarray(states.dirty[-1]), 20).sum()  # measured 111
 
 
 def test_gymnasium_env_is_drawn_by_gymnasium(tmp_path):

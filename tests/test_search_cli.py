@@ -29,12 +29,17 @@ def test_cartpole_cem_run_folder(tmp_path):
     rows = list(csv.DictReader((out / "metrics.csv").open()))
     assert [int(row["generation"]) for row in rows] == [1, 2, 3]
     assert {"env_steps", "best_fitness", "mean_fitness", "return_seed0", "return_seed1"} <= set(rows[0])
-    steps = [int(row["env_steps"]) for row in rows]
-    assert steps == sorted(steps) and steps[0] > 0
+    # CartPole pays 1 a step, so a generation takes population × episodes × mean fitness steps (per seed,
+    # averaged over seeds; the running total is kept as an integer).
+    steps = np.diff([0] + [int(row["env_steps"]) for row in rows])
+    np.testing.assert_allclose(steps, [16 * 2 * float(row["mean_fitness"]) for row in rows], atol=1)
     result = json.loads((out / "eval.json").read_text())
     assert {"mean_return", "std_return", "min_return", "max_return", "episodes"} <= set(result)
     assert result["episodes"] == 10 and len(result["per_seed"]) == 2
-    assert result["min_return"] <= result["mean_return"] <= result["max_return"] <= 200
+    per_seed = [seed["mean_return"] for seed in result["per_seed"]]
+    assert result["mean_return_over_seeds"] == pytest.approx(np.mean(per_seed))
+    # Three generations beat the basic policy's ~42 (measured: seed 0 132.7, seed 1 60.3; random: ~22).
+    assert result["mean_return"] > 50
     # The saved policy, loaded back, is the one evaluated: the same returns on the same fresh episodes
     # (eval.json's episodes come from jax.random.fold_in(jax.random.key(seed), 1)).
     policy = cem.load_policy(out, config)

@@ -1,5 +1,3 @@
-import jax
-
 from agentax.envs import make_jax
 from agentax.evaluate import evaluate
 from agentax.policies import basic_policy
@@ -13,4 +11,4 @@ def test_basic_policy_matches_the_lecture():
     assert 20 <= stats.min_return <= 30
     assert 55 <= stats.max_return <= 80
     assert stats.episodes == 500
-    assert jax.numpy.isfinite(stats.mean_length)
+    assert stats.mean_length == stats.mean_return  # CartPole pays 1 a step: each return is its length
