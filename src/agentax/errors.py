@@ -17,7 +17,7 @@ class TrainingDiverged(RuntimeError):
 
 
 class TrainingInterrupted(KeyboardInterrupt):
-    """Ctrl-C during a training (exit code 130); ``run_dir`` says what ``agentax train --resume`` continues."""
+    """Ctrl-C during a training (exit code 130); ``run_dir`` is what ``agentax train --resume`` continues."""
 
     def __init__(self, run_dir: str | None = None):
         super().__init__(run_dir)

@@ -15,7 +15,7 @@ and ``agentax train --resume DIR`` work on any of them::
                        std_return, min_return, max_return, episodes, pooled over seeds at the top
                        level and per seed under "per_seed"
 
-``load_policy(run_dir)`` rebuilds the trained policy of any run from its algorithm's module.
+``load_policy(run_dir)`` rebuilds the trained policy of any run (any algorithm, any runner).
 """
 
 from __future__ import annotations
@@ -40,10 +40,7 @@ from agentax.errors import UsageError
 from agentax.evaluate import EvalStats
 from agentax.policies import Policy
 
-ALGO_MODULES: dict[str, str] = {
-    "reinforce": "agentax.agents.reinforce",
-    "ppo": "agentax.agents.ppo",
-    "dqn": "agentax.agents.dqn",
+SEARCH_MODULES: dict[str, str] = {
     "ga": "agentax.search.genetic",
     "cem": "agentax.search.cem",
     "grid": "agentax.search.grid",
@@ -421,12 +418,18 @@ def plot_curves(run_dirs: Sequence[str | Path], out: str | Path, labels: Sequenc
 
 
 def load_policy(run_dir: str | Path) -> tuple[str, Policy]:
-    """``(env_id, policy)`` of a trained run: ``ALGO_MODULES[algo].load_policy(run_dir, config)``."""
+    """``(env_id, policy)`` of a trained run: a learning algorithm's (``agentax.train.load_policy``)
+    or a policy search's (its module's ``load_policy``)."""
+    from agentax.agents import ALGORITHMS
+
     config = read_config(run_dir)
     algo = config["algo"]
-    if algo not in ALGO_MODULES:
-        raise UsageError(
-            f"{run_dir}: unknown algorithm {algo!r} in config.json; known: {', '.join(ALGO_MODULES)}"
-        )
-    module = importlib.import_module(ALGO_MODULES[algo])
+    if algo in ALGORITHMS:
+        from agentax.train import load_policy as load_trained
+
+        return config["env"], load_trained(Path(run_dir), config)
+    if algo not in SEARCH_MODULES:
+        known = ", ".join([*ALGORITHMS, *SEARCH_MODULES])
+        raise UsageError(f"{run_dir}: unknown algorithm {algo!r} in config.json; known: {known}")
+    module = importlib.import_module(SEARCH_MODULES[algo])
     return config["env"], module.load_policy(Path(run_dir), config)

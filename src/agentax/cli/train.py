@@ -1,39 +1,29 @@
-"""``agentax train ALGO --env ID [--preset NAME] [--seed S] [--seeds N] [--total-steps N] [--out DIR]``.
+"""``agentax train ALGO --env ID [--runner compiled|host|parallel] [--preset NAME] [--seeds N] ...``.
 
-Also ``agentax train --resume DIR`` (continue an interrupted run from its newest checkpoint).
+Also ``agentax train --resume DIR`` (continue an interrupted run from its newest good checkpoint).
 The algorithm's config dataclass becomes flags (``--learning-rate``, ``--num-envs``, ...), its
-defaults taken from the preset. JAX envs train on the compiled runner (all seeds in one vmapped
-program); other Gymnasium ids train PPO on the host loop.
+defaults taken from the preset. ``--runner auto`` trains agentax's JAX envs on the compiled runner
+(all seeds in one vmapped program) and other ids on the host runner; ``host`` and ``parallel``
+(``--actors N --envs-per-actor M --policy-lag L``) take any env id, agentax's own stepped on the host.
 
-An algorithm module listed in ``ALGOS`` provides ``PRESETS: dict[str, agentax.agents.Preset]``
-(a ``"default"`` among them), ``make_train(env, cfg) -> CompiledAlgorithm``,
-``config_to_dict``/``config_from_dict``, ``load_policy(run_dir, config)``, and a config with a
-``total_steps`` field and a ``validate()`` method that raises UsageError on bad values (not
+The algorithms are those of ``agentax.agents.ALGORITHMS``; each follows
+``agentax.agents.protocol``. A config's ``validate()`` raises UsageError on bad values (not
 ``__post_init__``: tyro would turn that error into a multi-line box).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from types import ModuleType
 from typing import Annotated, Any
 
 import tyro
 
+from agentax.agents import ALGORITHMS, algorithm
 from agentax.errors import UsageError
-
-ALGOS: dict[str, str] = {
-    "reinforce": "agentax.agents.reinforce",
-    "ppo": "agentax.agents.ppo",
-    "dqn": "agentax.agents.dqn",
-}
-# algorithms with a host loop for Gymnasium-only envs: module with train_cli and resume_cli
-HOST_RUNNERS = {"ppo": "agentax.train.host", "dqn": "agentax.train.driver"}
 
 
 @dataclass(frozen=True)
@@ -55,12 +45,18 @@ class RunArgs:
     """run folder (default runs/<algo>-<env>-<time>)"""
     progress: bool = True
     """show a progress bar"""
+    runner: str = "auto"
+    """compiled (JAX envs, seeds vmapped), host (any env, one step after the other), parallel (actor
+    threads beside a learner); auto: compiled for agentax's JAX envs, else host"""
+    actors: int = 2
+    """parallel runner: actor threads (the envs are split evenly between them)"""
+    envs_per_actor: int | None = None
+    """parallel runner: envs per actor (sets the algorithm's number of envs to actors × this)"""
+    policy_lag: int = 1
+    """parallel runner, on-policy: parameter versions between collecting and learning (0: sequential)"""
 
 
-def _module(algo: str) -> ModuleType:
-    if algo not in ALGOS:
-        raise UsageError(f"unknown algorithm {algo!r}; choose from {', '.join(ALGOS)}")
-    return importlib.import_module(ALGOS[algo])
+_module = algorithm
 
 
 def _option(argv: list[str], name: str, default: str) -> str:
@@ -126,7 +122,8 @@ def main(argv: list[str]) -> int:
         print("usage: agentax train ALGO [--env ID] [--preset NAME] [--seed S] [--seeds N] [--total-steps N]")
         print("                         [--stop-at-return R|none] [--out DIR] [algorithm flags...]")
         print("       agentax train --resume DIR")
-        print(f"algorithms: {', '.join(ALGOS)} (agentax train ALGO --help for its flags and presets)")
+        print("                         [--runner compiled|host|parallel] [--actors N] [--policy-lag L]")
+        print(f"algorithms: {', '.join(ALGORITHMS)} (agentax train ALGO --help for its flags and presets)")
         return 0
     if argv[0] == "--resume" or argv[0].startswith("--resume="):
         run_dir = argv[1] if argv[0] == "--resume" and len(argv) > 1 else argv[0].partition("=")[2]
@@ -144,6 +141,22 @@ def _is_jax_env(env_id: str) -> bool:
     return env_id in JAX_ENVS
 
 
+def runner_kind(run_args: RunArgs) -> str:
+    """The runner a training uses: ``--runner``, or compiled for a JAX env and host for others."""
+    if run_args.runner == "auto":
+        return "compiled" if _is_jax_env(run_args.env) else "host"
+    from agentax.train import RUNNERS
+
+    if run_args.runner not in RUNNERS:
+        raise UsageError(f"unknown runner {run_args.runner!r}; choose from {', '.join(RUNNERS)}")
+    if run_args.runner == "compiled" and not _is_jax_env(run_args.env):
+        raise UsageError(
+            f"the compiled runner needs one of agentax's JAX envs ({', '.join(_jax_env_ids())}); "
+            f"train {run_args.env} with --runner host or --runner parallel"
+        )
+    return run_args.runner
+
+
 def start(algo: str, run_args: RunArgs, cfg: Any, preset: Any) -> int:
     """Create the run folder and train."""
     from agentax import _xla
@@ -152,7 +165,8 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Any) -> int:
     module = _module(algo)
     _xla.enable_compilation_cache()
     out = Path(run_args.out) if run_args.out else default_run_dir(algo, run_args.env)
-    if _is_jax_env(run_args.env):
+    kind = runner_kind(run_args)
+    if kind == "compiled":
         from agentax.envs import make_jax
         from agentax.train.compiled import RunnerConfig
 
@@ -169,13 +183,50 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Any) -> int:
         run = Run.create(out, run_config(algo, run_args.env, run_args.preset, "compiled", runner, settings))
         print(f"training {algo} on {run_args.env} ({run_args.seeds} seed(s)) into {out}", file=sys.stderr)
         return _train_compiled(module, env, cfg, runner, run, resume=False, progress=run_args.progress)
-    if algo not in HOST_RUNNERS:
+    return _start_host(algo, module, run_args, cfg, preset, kind, out)
+
+
+def _start_host(algo, module, run_args: RunArgs, cfg, preset, kind: str, out: Path) -> int:
+    """The host or parallel runner: one seed per process, any env id."""
+    from agentax.agents.protocol import EnvSpec
+    from agentax.runs import Run, run_config
+    from agentax.train.host import HostRunnerConfig, make_host_env
+    from agentax.train.parallel import ParallelRunnerConfig
+
+    if run_args.seeds != 1:
         raise UsageError(
-            f"{algo} trains only on agentax's JAX envs; {run_args.env!r} is not one. "
-            f"Use {' or '.join(HOST_RUNNERS)} for Gymnasium envs, or a JAX env: {', '.join(_jax_env_ids())}"
+            f"the {kind} runner trains one seed per process (--seeds 1); --seeds N is compiled-only"
         )
-    host = importlib.import_module(HOST_RUNNERS[algo])
-    return host.train_cli(algo, module, run_args, cfg, preset, out)
+    if kind == "parallel" and run_args.envs_per_actor is not None:
+        envs = "num_envs" if hasattr(cfg, "num_envs") else "episodes_per_update"
+        cfg = dataclasses.replace(cfg, **{envs: run_args.actors * run_args.envs_per_actor}).validate()
+    probe = make_host_env(run_args.env, 1)
+    spec, env_spec = EnvSpec.of(probe), probe.vector_env.spec
+    probe.close()
+    agent = module.make_agent(spec, cfg)  # refuses what the agent cannot train before anything is written
+    stop = parse_stop(run_args.stop_at_return, preset, env_spec)
+    common = {"seed": run_args.seed, "eval_episodes": preset.eval_episodes, "stop_at_return": stop}
+    if kind == "parallel":
+        runner = ParallelRunnerConfig(**common, actors=run_args.actors, policy_lag=run_args.policy_lag)
+        runner.check(agent)
+        where = f"{runner.actors} actors, policy lag {runner.policy_lag}"
+    else:
+        runner, where = HostRunnerConfig(**common), "host"
+    run = Run.create(
+        out, run_config(algo, run_args.env, run_args.preset, kind, runner, module.config_to_dict(cfg))
+    )
+    print(f"training {algo} on {run_args.env} ({where}) into {out}", file=sys.stderr)
+    return _train_host(agent, kind, runner, run, resume=False, progress=run_args.progress)
+
+
+def _train_host(agent, kind: str, runner, run, *, resume: bool, progress: bool) -> int:
+    from agentax.train import host, parallel
+
+    start_time = time.perf_counter()
+    train = parallel.train if kind == "parallel" else host.train
+    result = train(agent, run.config["env"], runner, run, resume=resume, progress=progress)
+    report(result.eval, run.path, time.perf_counter() - start_time)
+    return 0
 
 
 def _jax_env_ids() -> list[str]:
@@ -225,7 +276,7 @@ def report(evaluation: dict, path: Path, seconds: float, result: Any = None) -> 
 
 
 def resume(run_dir: Path, progress: bool = True) -> int:
-    """Continue the run in ``run_dir`` from its newest checkpoint."""
+    """Continue the run in ``run_dir`` from its newest good checkpoint."""
     from agentax import _xla
     from agentax.runs import Run, latest_checkpoint, read_config
 
@@ -235,16 +286,25 @@ def resume(run_dir: Path, progress: bool = True) -> int:
     module = _module(algo)
     cfg = module.config_from_dict(config["config"])
     _xla.enable_compilation_cache()
-    if config.get("runner_kind") == "host":
-        host = importlib.import_module(HOST_RUNNERS[algo])
-        return host.resume_cli(module, Run.open(run_dir), cfg, progress)
-    from agentax.envs import make_jax
-    from agentax.train.compiled import RunnerConfig
-
-    env = make_jax(config["env"])
+    kind = config.get("runner_kind", "compiled")
+    print(f"resuming {algo} on {config['env']} ({kind} runner) from {run_dir}", file=sys.stderr)
     try:
+        if kind in ("host", "parallel"):
+            from agentax.agents.protocol import EnvSpec
+            from agentax.train.host import HostRunnerConfig, make_host_env
+            from agentax.train.parallel import ParallelRunnerConfig
+
+            runner = (ParallelRunnerConfig if kind == "parallel" else HostRunnerConfig)(**config["runner"])
+            probe = make_host_env(config["env"], 1)
+            spec = EnvSpec.of(probe)
+            probe.close()
+            agent = module.make_agent(spec, cfg)
+            return _train_host(agent, kind, runner, Run.open(run_dir), resume=True, progress=progress)
+        from agentax.envs import make_jax
+        from agentax.train.compiled import RunnerConfig
+
         runner = RunnerConfig(**config["runner"])
     except (KeyError, TypeError) as error:
         raise UsageError(f"{run_dir}/config.json has no valid 'runner' settings ({error})") from None
-    print(f"resuming {algo} on {config['env']} from {run_dir}", file=sys.stderr)
+    env = make_jax(config["env"])
     return _train_compiled(module, env, cfg, runner, Run.open(run_dir), resume=True, progress=progress)

@@ -1,5 +1,36 @@
 """Runners: where and when an algorithm's pure functions run.
 
-``compiled`` trains JAX envs inside one jitted, vmapped-over-seeds program; ``host`` steps
-Gymnasium envs on the host and calls the same jitted ``act`` and ``learn``.
+``compiled`` trains JAX envs inside one jitted, vmapped-over-seeds program; ``host`` steps any env
+on the host with a Driver, one step after the other; ``parallel`` runs the host runner's actors in
+threads beside a learner. :func:`load_policy` rebuilds the greedy policy of a run of any of them.
 """
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from agentax.policies import Policy
+
+RUNNERS = ("compiled", "host", "parallel")
+
+
+def load_policy(run_dir: str | Path, config: dict[str, Any]) -> Policy:
+    """The greedy policy of a learning algorithm's run (its best seed), from its newest good checkpoint."""
+    from agentax.agents import algorithm
+    from agentax.agents.protocol import EnvSpec
+
+    module = algorithm(config["algo"])
+    cfg = module.config_from_dict(config["config"])
+    if config.get("runner_kind", "compiled") == "compiled":
+        from agentax.envs import make_jax
+        from agentax.train.compiled import RunnerConfig, restore_policy
+
+        env = make_jax(config["env"])
+        return restore_policy(run_dir, module.make_train(env, cfg), RunnerConfig(**config["runner"]))
+    from agentax.train.host import make_host_env, restore_policy
+
+    env = make_host_env(config["env"], 1)
+    spec = EnvSpec.of(env)
+    env.close()
+    return restore_policy(Path(run_dir), module.make_agent(spec, cfg))

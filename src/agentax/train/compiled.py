@@ -1,6 +1,6 @@
 """The compiled runner: the whole training of a JAX env under ``jit`` + ``lax.scan``, vmapped over seeds.
 
-**Protocol.** An algorithm hands the runner a :class:`CompiledAlgorithm` of pure functions:
+**Protocol.** An algorithm hands the runner a :class:`~agentax.agents.protocol.CompiledAlgorithm`:
 
 - ``init(key) -> TrainState``: a pytree holding everything training needs — agent parameters and
   optimizer state, env states and observations, a replay buffer if any, the key, counters — and an
@@ -17,7 +17,7 @@
 **The runner** compiles one program, ``jax.jit(jax.vmap(chunk))``, where ``chunk`` scans
 ``update`` ``updates_per_chunk`` times (a shared, unbatched count discards the updates past the
 end in a last, shorter chunk, so no second program is compiled) and then, when asked,
-evaluates the greedy policy with :func:`agentax.evaluate.episode_returns` on fresh evaluation
+evaluates the greedy policy with :func:`agentax.envs.core.episode_returns` on fresh evaluation
 keys — inside the same program. Seed ``k`` of a batch starting at ``seed`` uses
 ``jax.random.key(seed + k)``, so seed ``k`` run alone gives the same numbers as inside a batch.
 The program and the one that initialises the TrainState pass it as the flat list of its arrays;
@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -48,13 +47,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from agentax.agents.protocol import SEED_AXIS, CompiledAlgorithm, TrainState, any_seed  # noqa: F401
 from agentax.envs.core import Environment, episode_returns
-from agentax.errors import UsageError
+from agentax.errors import TrainingInterrupted, UsageError
 from agentax.policies import Policy
-from agentax.runs import Run, latest_checkpoint, load_tree, preload_plotting
+from agentax.runs import Run, load_checkpoint, preload_plotting
 from agentax.train import programs
+from agentax.train.logger import Progress, check_finite, check_finite_tree
 
-TrainState = Any
 EVAL_KEY_OFFSET = 1_000_003  # evaluation keys are fold_in(seed key, offset + evaluation number)
 INIT_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
 CHUNK_COMPILER_OPTIONS = {"xla_backend_optimization_level": 1}
@@ -62,17 +62,6 @@ CHUNK_COMPILER_OPTIONS = {"xla_backend_optimization_level": 1}
 at level 0 PPO's compiles ~3x faster. The chunk runs over and over: at level 1 PPO's compiled in
 5.0 s instead of 6.3 s (8 seeds: 5.8 s instead of 7.8 s) and ran as fast (30 ms against 37 ms per
 chunk); at level 0 it ran 4x slower. Results can differ from level 3's in the last bits."""
-
-
-@dataclass(frozen=True)
-class CompiledAlgorithm:
-    """What an algorithm hands the compiled runner (see the module docstring)."""
-
-    init: Callable[[jax.Array], TrainState]
-    update: Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]
-    num_updates: int
-    steps_per_update: int
-    greedy_policy: Callable[[TrainState], Policy]
 
 
 @dataclass(frozen=True)
@@ -115,22 +104,6 @@ class TrainResult:
     solved_seconds: float | None = None
     compile_seconds: float = 0.0
     train_seconds: float = 0.0
-
-
-SEED_AXIS = "seeds"  # the name of the runner's vmap axis over seeds
-
-
-def any_seed(flag: jax.Array) -> jax.Array:
-    """Whether ``flag`` holds for any seed of the runner's batch, as one unbatched bool.
-
-    Under the runner's vmap a ``lax.cond`` on a per-seed flag becomes a select that runs both
-    branches for every seed; on ``any_seed(flag)`` it stays a branch (the branch then keeps its
-    result only where ``flag`` holds). Outside the runner (no seed axis) this is ``flag`` itself.
-    """
-    try:
-        return jax.lax.psum(flag.astype(jnp.int32), SEED_AXIS) > 0
-    except NameError:  # not traced under the runner's vmap
-        return flag
 
 
 def seeds_of(runner: RunnerConfig) -> np.ndarray:
@@ -235,38 +208,6 @@ def _programs(
     return shapes, init, programs.jit(flat_chunk, example, {**shaping, "name": "chunk"}, donate_argnums=0)
 
 
-class _Progress:
-    """A rich progress bar over env steps (a no-op when disabled)."""
-
-    def __init__(self, enabled: bool, total_steps: float, done_steps: float):
-        self.bar = None
-        if not enabled:
-            return
-        from rich.console import Console
-        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
-        self.bar = Progress(
-            TextColumn("[bold]training"),
-            BarColumn(),
-            TextColumn("{task.completed:,.0f}/{task.total:,.0f} env steps"),
-            TextColumn("{task.fields[speed]} steps/s"),
-            TextColumn("return {task.fields[ret]}"),
-            TimeElapsedColumn(),
-            console=Console(file=sys.stderr),
-        )
-        self.task = self.bar.add_task("train", total=total_steps, completed=done_steps, speed="-", ret="-")
-        self.bar.start()
-
-    def update(self, env_steps: float, speed: float, mean_return: float) -> None:
-        if self.bar is not None:
-            ret = "-" if math.isnan(mean_return) else f"{mean_return:.1f}"
-            self.bar.update(self.task, completed=env_steps, speed=f"{speed:,.0f}", ret=ret)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.stop()
-
-
 def train(
     algorithm: CompiledAlgorithm,
     env: Environment,
@@ -295,7 +236,7 @@ def train(
     if resume:
         if run is None:
             raise ValueError("resume needs the run to resume")
-        state, meta = load_tree(latest_checkpoint(run.path), shapes)
+        state, meta, _ = load_checkpoint(run.path, shapes)
         run.truncate_metrics(meta["env_steps"])
     else:
         state = jax.tree.unflatten(state_tree, init_program(seeds))
@@ -316,7 +257,8 @@ def train(
     elapsed_before = float(meta["elapsed"])
     stats = jax.device_get(state.episodes)
     env_steps = float(np.mean(stats.env_steps))
-    bar = _Progress(progress, algorithm.num_updates * algorithm.steps_per_update, env_steps)
+    bar = Progress(progress, algorithm.num_updates * algorithm.steps_per_update, env_steps)
+    last_checkpoint = None
     rows: list[dict[str, float]] = []
     solved_env_steps, solved_seconds = meta.get("solved_env_steps"), meta.get("solved_seconds")
     chunks_this_call = 0
@@ -368,12 +310,19 @@ def train(
                 "solved_env_steps": solved_env_steps,
                 "solved_seconds": solved_seconds,
             }
+            check_finite({k: v for k, v in metrics.items()}, env_steps, last_checkpoint)
             if run is not None:
                 run.log(row)
                 finished = last or solved_env_steps is not None
                 if finished or chunk_number % runner.checkpoint_every_chunks == 0:
-                    run.save_checkpoint(updates, state, meta)
+                    check_finite_tree(state, env_steps, last_checkpoint)
+                    last_checkpoint = run.save_checkpoint(updates, state, meta).name
             bar.update(env_steps, row["steps_per_second"], mean_return)
+    except KeyboardInterrupt:
+        if run is None:
+            raise
+        run.close()
+        raise TrainingInterrupted(str(run.path)) from None
     finally:
         bar.close()
     train_seconds = time.perf_counter() - loop_start
@@ -418,7 +367,7 @@ def restore_policy(
 ) -> Policy:
     """The greedy policy of one seed of a run's newest checkpoint (the best seed by eval.json if None)."""
     target = jax.eval_shape(init_from_seeds(algorithm), seeds_of(runner))
-    state, _ = load_tree(latest_checkpoint(run_dir), target)
+    state, _, _ = load_checkpoint(run_dir, target)
     if seed_index is None:
         seed_index = 0
         eval_path = Path(run_dir) / "eval.json"
