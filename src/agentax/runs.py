@@ -284,12 +284,11 @@ class Run:
         if self._writer is None:
             from tensorboardX import SummaryWriter
 
-            self._writer = SummaryWriter(str(self.path / "tensorboard"))
+            self._writer = SummaryWriter(str(self.path / "tensorboard"), flush_secs=10)
         step = int(row.get("env_steps", 0))
         for name, value in row.items():
             if name != "env_steps" and value is not None and math.isfinite(float(value)):
                 self._writer.add_scalar(name, float(value), step)
-        self._writer.flush()
 
     def truncate_metrics(self, max_env_steps: float) -> None:
         """Drop the rows logged after ``max_env_steps`` (a resumed run logs them again)."""

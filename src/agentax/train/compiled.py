@@ -80,13 +80,15 @@ class RunnerConfig:
     """episodes per seed in each evaluation, during training and at the end"""
     stop_at_return: float | None = None
     """stop once an evaluation's mean return over seeds reaches this (None: train to the end)"""
-    checkpoint_every_chunks: int = 1
-    """write a checkpoint every this many chunks (and at the end)"""
+    checkpoint_every_chunks: int = 0
+    """also write a checkpoint every this many chunks (0: by time only)"""
+    checkpoint_every_seconds: float = 30.0
+    """write a checkpoint at most this often, and whenever the loop ends (finished, solved, stopped)"""
 
     def __post_init__(self):
         if self.num_seeds < 1:
             raise UsageError(f"--seeds must be at least 1, got {self.num_seeds}")
-        for name in ("updates_per_chunk", "eval_every_chunks", "eval_episodes", "checkpoint_every_chunks"):
+        for name in ("updates_per_chunk", "eval_every_chunks", "eval_episodes"):
             if getattr(self, name) < 1:
                 raise UsageError(f"{name} must be at least 1, got {getattr(self, name)}")
 
@@ -258,7 +260,7 @@ def train(
     stats = jax.device_get(state.episodes)
     env_steps = float(np.mean(stats.env_steps))
     bar = Progress(progress, algorithm.num_updates * algorithm.steps_per_update, env_steps)
-    last_checkpoint = None
+    last_checkpoint, checkpoint_time = None, time.perf_counter()
     rows: list[dict[str, float]] = []
     solved_env_steps, solved_seconds = meta.get("solved_env_steps"), meta.get("solved_seconds")
     chunks_this_call = 0
@@ -310,13 +312,16 @@ def train(
                 "solved_env_steps": solved_env_steps,
                 "solved_seconds": solved_seconds,
             }
-            check_finite({k: v for k, v in metrics.items()}, env_steps, last_checkpoint)
+            check_finite(metrics, env_steps, last_checkpoint)
             if run is not None:
                 run.log(row)
-                finished = last or solved_env_steps is not None
-                if finished or chunk_number % runner.checkpoint_every_chunks == 0:
+                ending = last or solved_env_steps is not None or chunks_this_call == max_chunks
+                every = runner.checkpoint_every_chunks
+                due = time.perf_counter() - checkpoint_time >= runner.checkpoint_every_seconds
+                if ending or due or (every and chunk_number % every == 0):
                     check_finite_tree(state, env_steps, last_checkpoint)
                     last_checkpoint = run.save_checkpoint(updates, state, meta).name
+                    checkpoint_time = time.perf_counter()
             bar.update(env_steps, row["steps_per_second"], mean_return)
     except KeyboardInterrupt:
         if run is None:
