@@ -6,7 +6,7 @@ Rows, all measured in this run:
   1 and with 8 seeds vmapped into one program: compile time, wall-clock from the start of training
   to the first evaluation (20 greedy episodes per seed) whose mean reaches 475, learner updates
   (gradient steps, summed over seeds) per second of training, and the final per-seed evaluation;
-- the host driver (``agentax.train.driver``) on Gymnasium's own CartPole-v1, same preset: the
+- the host runner (``agentax.train.host.train``) on Gymnasium's own CartPole-v1, same preset: the
   greedy policy is evaluated on 10 Gymnasium episodes every 2,048 env steps;
 - the whole ``agentax train dqn --env CartPole-v1`` process (start-up, compile, training until
   solved, final evaluation, run folder), with an empty and with a warm compilation cache;
@@ -17,6 +17,7 @@ Rows, all measured in this run:
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
@@ -52,6 +53,14 @@ print(json.dumps({"train_seconds": train_seconds, "total_seconds": time.perf_cou
 """
 
 
+def _pinned():
+    """``agentax._xla.pinned_to_one_cpu()`` where it exists (the XLA CPU hang cure), else nothing."""
+    from agentax import _xla
+
+    pin = getattr(_xla, "pinned_to_one_cpu", None)
+    return pin() if pin is not None else contextlib.nullcontext()
+
+
 def compiled_row(num_seeds: int) -> list:
     from agentax.agents import dqn
     from agentax.envs import make_jax
@@ -66,7 +75,8 @@ def compiled_row(num_seeds: int) -> list:
         eval_episodes=preset.eval_episodes,
         stop_at_return=SOLVED,
     )
-    result = train(dqn.make_train(env, preset.config), env, runner)
+    with _pinned():
+        result = train(dqn.make_train(env, preset.config), env, runner)
     learning_steps = float(np.sum(np.asarray(result.state.agent.step)))
     per_seed = np.asarray(result.eval["per_seed_mean"])
     solved_wall = result.solved_seconds if result.solved_seconds is not None else float("nan")
@@ -84,32 +94,27 @@ def compiled_row(num_seeds: int) -> list:
 
 def host_row() -> list:
     from agentax.agents import dqn
-    from agentax.train.driver import run_dqn_host
+    from agentax.agents.protocol import EnvSpec
+    from agentax.train.host import HostRunnerConfig, make_host_env, train
 
     cfg = dqn.PRESETS["default"].config
+    env = make_host_env("CartPole-v1", 1)
+    agent = dqn.make_agent(EnvSpec.of(env), cfg)
+    env.close()
+    runner = HostRunnerConfig(seed=0, log_every_steps=2_048, eval_episodes=10, stop_at_return=SOLVED)
     start = time.perf_counter()
-    logs: list = []
-    result = run_dqn_host(
-        "CartPole-v1",
-        cfg,
-        None,
-        seed=0,
-        log_every_steps=2_048,
-        eval_episodes=10,
-        stop_at_return=SOLVED,
-        on_row=logs.append,
-    )
+    result = train(agent, "CartPole-v1", runner, run=None)
     seconds = time.perf_counter() - start
-    last = logs[-1]
+    last = result.rows[-1]
     solved = last["eval_return"] >= SOLVED
     return [
-        "host driver (Gymnasium CartPole)",
+        "host runner (Gymnasium CartPole)",
         1,
-        f"{int(result['mean_return'] >= SOLVED)}/1",
+        f"{int(result.eval['mean_return'] >= SOLVED)}/1",
         last["env_steps"] if solved else float("nan"),
         float("nan"),
         round(seconds, 2) if solved else float("nan"),
-        last["learning_steps"] / last["wall_seconds"],
+        last["updates"] / last["wall_seconds"],
         last["env_steps"] / last["wall_seconds"],
     ]
 
@@ -204,7 +209,8 @@ def run() -> dict:
         "seed's mean reaches 475; "
         "'solved' counts seeds whose final evaluation (20 fresh episodes) is ≥ 475. Learner updates are "
         "gradient steps on a batch of 64, summed over seeds. The host row steps Gymnasium's CartPole "
-        "(4 envs, SAME_STEP autoreset) through the Driver and calls the same jitted `dqn.learn`; its "
+        "(4 envs, SAME_STEP autoreset) through the host runner (`agentax.train.host.train`: an Actor's "
+        "Driver fills the replay, the same `dqn.learn` learns, 128 steps per compiled call); its "
         "wall-clock includes compilation and the periodic evaluations. The process rows run "
         "`python -m agentax.cli train dqn --env CartPole-v1` in a subprocess: first with an empty "
         "cache (it traces and compiles), then with the cache the first run filled (stored programs and "

@@ -9,7 +9,7 @@ Rows, all measured in this run:
 - the compiled runner's throughput (``cartpole-fast`` preset, 51,200 steps per seed, no early
   stop): env steps per second of training (all seeds), compile apart;
 - the reference that installs everywhere: the same PPO on Gymnasium's own CartPole-v1 through the
-  host loop (``agentax.train.host``: Gymnasium steps the envs, the same jitted ``act``/``learn``),
+  host runner (``agentax.train.host.train``: Gymnasium steps the envs, the same jitted ``act``/``learn``),
   evaluated every 2,560 steps on 10 Gymnasium episodes;
 - Stable-Baselines3 PPO with RL-Zoo's CartPole-v1 settings (8 envs, n_steps 32, batch 256, GAE 0.8,
   γ 0.98, 20 epochs, no entropy bonus, lr and clip linear from 1e-3 and 0.2, 1e5 steps; the whole
@@ -20,6 +20,7 @@ The last column is SB3's whole-process wall-clock divided by each row's.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
@@ -73,6 +74,14 @@ def sb3_python() -> Path | None:
         return None
 
 
+def _pinned():
+    """``agentax._xla.pinned_to_one_cpu()`` where it exists (the XLA CPU hang cure), else nothing."""
+    from agentax import _xla
+
+    pin = getattr(_xla, "pinned_to_one_cpu", None)
+    return pin() if pin is not None else contextlib.nullcontext()
+
+
 def _all_cpus() -> None:
     """Undo agentax's one-CPU pin (inherited by child processes) for a reference run."""
     try:
@@ -102,18 +111,25 @@ def throughput(seeds: int) -> tuple[float, float]:
 
     env, preset = make_jax("CartPole-v1"), ppo.PRESETS["cartpole-fast"]
     runner = RunnerConfig(num_seeds=seeds, updates_per_chunk=preset.updates_per_chunk, eval_every_chunks=1000)
-    result = train(ppo.make_train(env, preset.config), env, runner)
+    with _pinned():
+        result = train(ppo.make_train(env, preset.config), env, runner)
     return result.env_steps * seeds / result.train_seconds, result.compile_seconds
 
 
 def host_reference() -> dict:
     """The same PPO preset on Gymnasium's CartPole-v1 through the host loop, stopping when solved."""
     from agentax.agents import ppo
-    from agentax.train.host import HostRunnerConfig, train_ppo
+    from agentax.agents.protocol import EnvSpec
+    from agentax.train.host import HostRunnerConfig, make_host_env, train
 
     cfg = ppo.PRESETS["cartpole-fast"].config
+    env = make_host_env("CartPole-v1", 1)
+    agent = ppo.make_agent(EnvSpec.of(env), cfg)
+    env.close()
+    every = 10 * cfg.num_envs * cfg.num_steps  # 2,560 env steps
+    runner = HostRunnerConfig(log_every_steps=every, eval_episodes=10, stop_at_return=SOLVED)
     start = time.perf_counter()
-    result = train_ppo("CartPole-v1", cfg, HostRunnerConfig(log_every_updates=10, stop_at_return=SOLVED))
+    result = train(agent, "CartPole-v1", runner, run=None)
     wall = time.perf_counter() - start
     solved = [r for r in result.rows if r["eval_return"] >= SOLVED]
     steps = result.env_steps

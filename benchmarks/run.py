@@ -18,7 +18,8 @@ section's wall time, prints the table, writes ``benchmarks/results/<NAME>.json``
 
 ``python benchmarks/run.py`` runs every section; ``python benchmarks/run.py envs dqn`` runs the named
 ones; ``--list`` prints the names. A section that raises prints its traceback and the others still
-run; the exit code is 1 if any failed, 2 for an unknown name.
+run; the exit code is 1 if any failed, 2 for an unknown name. ``AGENTAX_BENCH_QUICK=1`` asks the
+sections that offer it (``parallel``) for smaller runs, which their notes then say.
 """
 
 from __future__ import annotations

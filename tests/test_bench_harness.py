@@ -79,3 +79,33 @@ def test_a_result_that_breaks_the_contract_fails_its_section(harness, tmp_path):
 )
 def test_cells_read_at_a_glance(harness, value, text):
     assert harness.format_cell(value) == text
+
+
+BENCH_DIR = Path(__file__).parents[1] / "benchmarks"
+
+
+def _agentax_imports(path: Path) -> list[tuple[str, str]]:
+    """``(module, name)`` of every ``from agentax... import name`` in a bench file (inside functions too)."""
+    import ast
+
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "agentax":
+            found += [(node.module, alias.name) for alias in node.names]
+    return found
+
+
+@pytest.mark.parametrize("path", sorted(BENCH_DIR.glob("bench_*.py")), ids=lambda path: path.stem)
+def test_every_bench_imports_names_agentax_has(path):
+    """The sections import agentax inside run(); a renamed or removed API fails here, not in make bench."""
+    import importlib
+
+    missing = []
+    for module_name, name in _agentax_imports(path):
+        module = importlib.import_module(module_name)
+        if not hasattr(module, name):
+            try:
+                importlib.import_module(f"{module_name}.{name}")
+            except ImportError:
+                missing.append(f"{module_name}.{name}")
+    assert not missing, f"{path.name} imports {', '.join(missing)}, which agentax no longer has"
