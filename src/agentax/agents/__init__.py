@@ -27,8 +27,9 @@ class Preset:
     """one line for ``agentax train ALGO --help`` and the README"""
     updates_per_chunk: int = 10
     """updates per compiled call (one log row, one checkpoint)"""
-    eval_every_chunks: int = 1
-    """evaluate the greedy policy every this many chunks"""
+    eval_every_chunks: int = 0
+    """evaluate the greedy policy every this many chunks (0: the compiled runner's choice: every chunk
+    when the run stops once solved, else about ten times a run)"""
     eval_episodes: int = 20
     """evaluation episodes per seed"""
     stop_at_solved: bool = False

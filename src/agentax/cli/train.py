@@ -176,7 +176,7 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Any) -> int:
             seed=run_args.seed,
             num_seeds=run_args.seeds,
             updates_per_chunk=preset.updates_per_chunk,
-            eval_every_chunks=eval_every_chunks(preset, cfg, stop),
+            eval_every_chunks=preset.eval_every_chunks,
             eval_episodes=preset.eval_episodes,
             stop_at_return=stop,
         )
@@ -185,18 +185,6 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Any) -> int:
         print(f"training {algo} on {run_args.env} ({run_args.seeds} seed(s)) into {out}", file=sys.stderr)
         return _train_compiled(module, env, cfg, runner, run, resume=False, progress=run_args.progress)
     return _start_host(algo, module, run_args, cfg, preset, kind, out)
-
-
-EVALUATIONS_WITHOUT_STOP = 10
-
-
-def eval_every_chunks(preset: Any, cfg: Any, stop: float | None) -> int:
-    """How often the compiled runner evaluates: every chunk (the preset's) when it may stop once
-    solved; otherwise about ``EVALUATIONS_WITHOUT_STOP`` times a run, so evaluation costs little."""
-    if stop is not None:
-        return preset.eval_every_chunks
-    chunks = -(-cfg.num_updates // preset.updates_per_chunk)
-    return max(preset.eval_every_chunks, -(-chunks // EVALUATIONS_WITHOUT_STOP))
 
 
 def _start_host(algo, module, run_args: RunArgs, cfg, preset, kind: str, out: Path) -> int:

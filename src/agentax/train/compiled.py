@@ -74,8 +74,9 @@ class RunnerConfig:
     """independent agents trained together in one vmapped program"""
     updates_per_chunk: int = 10
     """updates per compiled call; the runner logs once per chunk"""
-    eval_every_chunks: int = 1
-    """evaluate the greedy policy every this many chunks (and after the last)"""
+    eval_every_chunks: int = 0
+    """evaluate the greedy policy every this many chunks (and after the last); 0: every chunk when
+    the run may stop once solved (``stop_at_return``), else about ``AUTO_EVALUATIONS`` times a run"""
     eval_episodes: int = 20
     """episodes per seed in each evaluation, during training and at the end"""
     stop_at_return: float | None = None
@@ -88,7 +89,9 @@ class RunnerConfig:
     def __post_init__(self):
         if self.num_seeds < 1:
             raise UsageError(f"--seeds must be at least 1, got {self.num_seeds}")
-        for name in ("updates_per_chunk", "eval_every_chunks", "eval_episodes"):
+        if self.eval_every_chunks < 0:
+            raise UsageError(f"eval_every_chunks must not be negative, got {self.eval_every_chunks}")
+        for name in ("updates_per_chunk", "eval_episodes"):
             if getattr(self, name) < 1:
                 raise UsageError(f"{name} must be at least 1, got {getattr(self, name)}")
 
@@ -106,6 +109,19 @@ class TrainResult:
     solved_seconds: float | None = None
     compile_seconds: float = 0.0
     train_seconds: float = 0.0
+
+
+AUTO_EVALUATIONS = 10
+
+
+def eval_every_chunks(runner: RunnerConfig, num_updates: int) -> int:
+    """The runner's evaluation period in chunks (see ``RunnerConfig.eval_every_chunks``)."""
+    if runner.eval_every_chunks:
+        return runner.eval_every_chunks
+    if runner.stop_at_return is not None:
+        return 1
+    chunks = -(-num_updates // runner.updates_per_chunk)
+    return max(1, -(-chunks // AUTO_EVALUATIONS))
 
 
 def seeds_of(runner: RunnerConfig) -> np.ndarray:
@@ -264,6 +280,7 @@ def train(
     rows: list[dict[str, float]] = []
     solved_env_steps, solved_seconds = meta.get("solved_env_steps"), meta.get("solved_seconds")
     chunks_this_call = 0
+    eval_every = eval_every_chunks(runner, algorithm.num_updates)
     loop_start = time.perf_counter()
     try:
         while updates < algorithm.num_updates and solved_env_steps is None:
@@ -272,7 +289,7 @@ def train(
             num_active = min(runner.updates_per_chunk, algorithm.num_updates - updates)
             chunk_number = updates // runner.updates_per_chunk + 1
             last = updates + num_active >= algorithm.num_updates
-            do_eval = last or chunk_number % runner.eval_every_chunks == 0
+            do_eval = last or chunk_number % eval_every == 0
             chunk_start = time.perf_counter()
             state, metrics, eval_returns, _ = call(state, num_active, do_eval, evaluations)
             new_stats, metrics, eval_returns = jax.device_get((state.episodes, metrics, eval_returns))
