@@ -18,7 +18,8 @@ JAX releases the GIL while a compiled call runs, so a learner's update and the a
 env steps overlap on different cores. An exception in any thread stops every thread and is raised
 from :func:`train`, never a hang. Rows add ``actor_steps_per_second``,
 ``learner_updates_per_second``, ``actor_wait_fraction``, ``learner_wait_fraction`` and
-``policy_lag`` (parameter versions between acting and learning).
+``policy_lag`` (parameter versions between acting and learning, averaged over the rollouts since
+the last row).
 """
 
 from __future__ import annotations
@@ -239,28 +240,32 @@ def take(items: queue.Queue, coordinator: Coordinator) -> tuple[Any, float]:
 
 
 class Meter:
-    """Speeds and wait fractions between two rows."""
+    """Speeds, wait fractions and the mean policy lag between two rows."""
 
     def __init__(self, threads: list[ActorThread]):
         self.threads = threads
         self.time = time.perf_counter()
         self.collected = self.learned = 0
         self.actor_wait = self.learner_wait = 0.0
+        self.lag_sum, self.lag_count, self.lag = 0.0, 0, 0.0
 
     def row(self, collected: int, learned: int, learner_wait: float) -> dict[str, float]:
         now = time.perf_counter()
         seconds = max(now - self.time, 1e-9)
         actor_wait = sum(t.wait_seconds for t in self.threads)
-        lags = [t.lag_sum / t.lag_count for t in self.threads if t.lag_count]
+        lag_sum, lag_count = sum(t.lag_sum for t in self.threads), sum(t.lag_count for t in self.threads)
+        if lag_count > self.lag_count:  # else no rollout since the last row: the last lag stands
+            self.lag = (lag_sum - self.lag_sum) / (lag_count - self.lag_count)
         figures = {
             "actor_steps_per_second": (collected - self.collected) / seconds,
             "learner_updates_per_second": (learned - self.learned) / seconds,
             "actor_wait_fraction": (actor_wait - self.actor_wait) / (seconds * len(self.threads)),
             "learner_wait_fraction": (learner_wait - self.learner_wait) / seconds,
-            "policy_lag": float(np.mean(lags)) if lags else 0.0,
+            "policy_lag": float(self.lag),
         }
         self.time, self.collected, self.learned = now, collected, learned
         self.actor_wait, self.learner_wait = actor_wait, learner_wait
+        self.lag_sum, self.lag_count = lag_sum, lag_count
         return figures
 
 
@@ -381,10 +386,11 @@ def _on_policy(
     last_update = num_updates(agent)
     channel = ParameterChannel(coordinator, updates, state, keep=runner.policy_lag + 2)
     queues = [queue.Queue(maxsize=1) for _ in actors]
+    first_update = updates  # the learner's loop below moves ``updates`` on; the actors count from here
 
     def collect(thread: ActorThread, index: int) -> None:
-        for k in range(updates, last_update):
-            version = max(k - runner.policy_lag, updates)
+        for k in range(first_update, last_update):
+            version = max(k - runner.policy_lag, first_update)
             params, waited = channel.get(version)
             if isinstance(experience, Episodes):
                 trajectory = thread.actor.episodes_from_reset(params, experience.max_steps)
