@@ -9,6 +9,7 @@ buffer-sized array, which a functional JAX update outside ``jit`` would.
 
 from __future__ import annotations
 
+import collections
 import queue
 import threading
 from collections.abc import Callable, Iterator
@@ -227,3 +228,35 @@ class _Prefetch:
         if item is None:
             raise RuntimeError("replay prefetch failed") from self.error
         return item
+
+
+class NStepAccumulator:
+    """The NumPy twin of :mod:`agentax.replay.nstep` for host loops: the same n-step transitions,
+    without a device round trip per env step. ``push`` returns them ``[num_envs]`` once the window of
+    the last ``n`` one-step batches is full, else None."""
+
+    def __init__(self, n: int, discount_factor: float):
+        if n < 1:
+            raise ValueError(f"n-step returns need n >= 1, got {n}")
+        self.window: collections.deque = collections.deque(maxlen=n)
+        self.discounts = (np.float32(discount_factor) ** np.arange(n, dtype=np.float32))[:, None]
+
+    def push(self, batch: Any) -> Any:
+        self.window.append(batch)
+        if len(self.window) < self.window.maxlen:
+            return None
+        window = self.window
+        reward = np.stack([t.reward for t in window])  # [n, num_envs]
+        terminated = np.stack([t.terminated for t in window])
+        truncated = np.stack([t.truncated for t in window])
+        done = terminated | truncated
+        alive = (np.cumsum(done, axis=0) - done) == 0  # no episode ended strictly before step i
+        last = alive.sum(axis=0) - 1  # [num_envs]: the window's last step inside the episode
+        envs = np.arange(reward.shape[1])
+        return window[0].replace(
+            reward=np.sum(alive * self.discounts * reward, axis=0, dtype=np.float32),
+            next_obs=np.stack([t.next_obs for t in window])[last, envs],
+            terminated=terminated[last, envs],
+            truncated=truncated[last, envs],
+            num_steps=(last + 1).astype(np.int32),
+        )

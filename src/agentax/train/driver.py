@@ -25,11 +25,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from agentax.envs.core import TimeStep
-from agentax.replay import Transition, nstep
+from agentax.replay import Transition
+from agentax.replay.host import NStepAccumulator
 
 Observer = Callable[[Transition], None]
 CollectPolicy = Callable[[np.ndarray, Any], tuple]  # (obs, policy_state) -> (action, policy_state[, info])
@@ -164,27 +164,19 @@ class AverageEpisodeLength(EpisodeAverage):
 class ReplayObserver:
     """Adds each transition ``[num_envs]`` to a host replay buffer (``buffer.add_batch``, as
     :class:`agentax.replay.host.ReplayBuffer`), through the n-step accumulator when ``n_step > 1``
-    (the jitted ``agentax.replay.nstep.push``, so every runner builds the same n-step transitions)."""
+    (:class:`agentax.replay.host.NStepAccumulator`, the NumPy twin of the compiled runner's)."""
 
     def __init__(self, buffer: Any, n_step: int = 1, discount_factor: float = 0.99):
         self.buffer = buffer
-        self.n_step = n_step
-        self.discount_factor = discount_factor
-        self.accumulator: nstep.NStepState | None = None
+        self.accumulator = NStepAccumulator(n_step, discount_factor) if n_step > 1 else None
 
     def __call__(self, transition: Transition) -> None:
         transition = transition.replace(info=None)
-        if self.n_step > 1:
-            if self.accumulator is None:
-                self.accumulator = nstep.init(self.n_step, jax.tree.map(jnp.asarray, transition))
-            self.accumulator, emitted, full = _push(self.accumulator, transition, self.discount_factor)
-            if not bool(full):
+        if self.accumulator is not None:
+            transition = self.accumulator.push(transition)
+            if transition is None:
                 return
-            transition = jax.device_get(emitted)
         self.buffer.add_batch(transition)
-
-
-_push = jax.jit(nstep.push)
 
 
 class TrajectoryObserver:

@@ -118,6 +118,17 @@ def record_returns(returns: FinishedReturns, trajectory: Transition, episodes: b
     return int(valid.sum())
 
 
+def act_and_split(act):
+    """``agent.act`` that also advances its key, so an actor makes one compiled call per step."""
+
+    def act_next(state, obs, key, progress):
+        key, act_key = jax.random.split(key)
+        action, info = act(state, obs, act_key, progress)
+        return action, info, key
+
+    return act_next
+
+
 class Actor:
     """One actor: its own vector env, the collect policy on the parameters it is given, a Driver.
 
@@ -132,7 +143,7 @@ class Actor:
         self.env = make_host_env(env_id, num_envs)
         self.seed = seed
         self.key = key
-        self.act = jax.jit(agent.act)
+        self.act = jax.jit(act_and_split(agent.act))
         self.state: Any = None
         self.steps, self.episodes, self.returns = (
             EnvironmentSteps(done_steps),
@@ -146,8 +157,8 @@ class Actor:
         self.valid: np.ndarray | None = None  # Episodes: the envs still in their first episode
 
     def policy(self, obs: np.ndarray, key: jax.Array) -> tuple[np.ndarray, jax.Array, Any]:
-        key, act_key = jax.random.split(key)
-        action, info = jax.device_get(self.act(self.state, obs, act_key, self.progress()))
+        action, info, key = self.act(self.state, obs, key, self.progress())
+        action, info = jax.device_get((action, info))
         return action, key, info or None
 
     def _run(self, observers: list, **limits: int) -> None:
