@@ -274,13 +274,16 @@ def loss_fn(params: Any, batch: dict[str, jax.Array], clip_eps: jax.Array, spec:
 def learn(
     agent: PPOAgent, rollout: Transition, key: jax.Array, spec: EnvSpec, cfg: PPOConfig
 ) -> tuple[PPOAgent, dict[str, jax.Array]]:
-    """One PPO iteration on a rollout ``[T, E, ...]`` (``info`` from :func:`act`): GAE, then epochs
-    of minibatch SGD."""
+    """One PPO iteration on a rollout ``[T, E, ...]`` (``info["log_prob"]`` from :func:`act`, the
+    behaviour policy's): GAE, then epochs of minibatch SGD."""
     net, tx = network(cfg, spec), optimizer(cfg)
+    # Both values from the learner's parameters: a rollout collected with older ones (a parallel
+    # runner's policy lag) would otherwise feed each change of V into the targets again.
+    _, values = net.apply(agent.params, rollout.obs)  # (T, E)
     _, next_values = net.apply(agent.params, rollout.next_obs)  # (T, E): V of the observation reached
     advantages, targets = gae(
         rollout.reward,
-        rollout.info["value"],
+        values,
         next_values,
         rollout.terminated,
         rollout.terminated | rollout.truncated,
@@ -341,8 +344,8 @@ def make_agent(spec: EnvSpec, cfg: PPOConfig) -> Agent:
     action_dim(spec)  # a clear error for actions PPO cannot take
 
     def act_with_info(state: PPOAgent, obs: jax.Array, key: jax.Array, progress: jax.Array):
-        action, action_log_prob, value = act(state.params, obs, key, spec, cfg)
-        return action, {"log_prob": action_log_prob, "value": value}
+        action, action_log_prob, _ = act(state.params, obs, key, spec, cfg)
+        return action, {"log_prob": action_log_prob}
 
     return Agent(
         name="ppo",
@@ -371,7 +374,7 @@ def make_train(env: Environment, cfg: PPOConfig, env_params: Any = None):
 
     def env_step(state: TrainState, _):
         key, act_key, step_key = jax.random.split(state.key, 3)
-        action, action_log_prob, value = act(state.agent.params, state.obs, act_key, spec, cfg)
+        action, action_log_prob, _ = act(state.agent.params, state.obs, act_key, spec, cfg)
         ts, env_state = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
             jax.random.split(step_key, cfg.num_envs), state.env_state, env_action(action, spec), params
         )
@@ -383,7 +386,7 @@ def make_train(env: Environment, cfg: PPOConfig, env_params: Any = None):
             terminated=ts.terminated,
             truncated=ts.truncated,
             num_steps=jnp.ones_like(ts.terminated, jnp.int32),
-            info={"log_prob": action_log_prob, "value": value},
+            info={"log_prob": action_log_prob},
         )
         episodes = state.episodes.record(ts.reward, ts.done)
         return state.replace(env_state=env_state, obs=ts.obs, key=key, episodes=episodes), transition

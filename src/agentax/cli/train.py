@@ -189,7 +189,7 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Any) -> int:
 
 def _start_host(algo, module, run_args: RunArgs, cfg, preset, kind: str, out: Path) -> int:
     """The host or parallel runner: one seed per process, any env id."""
-    from agentax.agents.protocol import EnvSpec
+    from agentax.agents.protocol import EnvSpec, OffPolicy
     from agentax.runs import Run, run_config
     from agentax.train.host import HostRunnerConfig, make_host_env
     from agentax.train.parallel import ParallelRunnerConfig
@@ -210,7 +210,9 @@ def _start_host(algo, module, run_args: RunArgs, cfg, preset, kind: str, out: Pa
     if kind == "parallel":
         runner = ParallelRunnerConfig(**common, actors=run_args.actors, policy_lag=run_args.policy_lag)
         runner.check(agent)
-        where = f"{runner.actors} actors, policy lag {runner.policy_lag}"
+        where = f"{runner.actors} actors"
+        if not isinstance(agent.experience, OffPolicy):
+            where += f", policy lag {runner.policy_lag}"
     else:
         runner, where = HostRunnerConfig(**common), "host"
     run = Run.create(
