@@ -34,6 +34,33 @@ class MLP(nn.Module):
         return x
 
 
+class NatureCNN(nn.Module):
+    """The DQN Nature paper's torso (Mnih et al., 2015): ``[..., 4, 84, 84]`` frames → ``[..., 512]``.
+
+    Conv 32 8×8 stride 4, conv 64 4×4 stride 2, conv 64 3×3 stride 1, dense 512, ReLU after each.
+    Observations stay uint8 (channel-first stacks, as EnvPool and the frame replay give them) until
+    here: the network divides by 255.
+    """
+
+    @nn.compact
+    def __call__(self, frames: jax.Array) -> jax.Array:
+        batch_shape = frames.shape[:-3]
+        x = frames.reshape(-1, *frames.shape[-3:]).astype(jnp.float32) / 255.0
+        x = jnp.transpose(x, (0, 2, 3, 1))  # [N, C, H, W] -> [N, H, W, C]
+        init = nn.initializers.orthogonal(jnp.sqrt(2.0))
+        for features, size, stride in ((32, 8, 4), (64, 4, 2), (64, 3, 1)):
+            x = nn.relu(
+                nn.Conv(features, (size, size), (stride, stride), padding="VALID", kernel_init=init)(x)
+            )
+        x = nn.relu(nn.Dense(512, kernel_init=init)(x.reshape(x.shape[0], -1)))
+        return x.reshape(*batch_shape, 512)
+
+
+def is_image(obs_shape: Sequence[int]) -> bool:
+    """Whether observations of this shape are stacked frames ``[C, H, W]`` (the Nature CNN's input)."""
+    return len(obs_shape) == 3
+
+
 class PolicyNet(nn.Module):
     """Action logits ``[..., num_actions]`` from observations ``[..., obs_dim]``.
 
@@ -65,10 +92,12 @@ class QNetwork(nn.Module):
     hidden: Sequence[int] = (32, 32)
     activation: str = "elu"
     dueling: str | None = None
+    cnn: bool = False
+    """the Nature CNN torso (image observations) instead of the MLP"""
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
-        x = MLP(self.hidden, self.activation)(obs)
+        x = NatureCNN()(obs) if self.cnn else MLP(self.hidden, self.activation)(obs.astype(jnp.float32))
         if self.dueling is None:
             return nn.Dense(self.num_actions)(x)
         value = nn.Dense(1)(x)  # (..., 1)
@@ -116,19 +145,22 @@ class ActorCritic(nn.Module):
     (``continuous=True``): ``actor_out`` is ``(mean, log_std)``, each ``[..., action_dim]``, a
     diagonal Gaussian whose ``log_std`` is a learned parameter independent of the state.
     Orthogonal initialisation (gain √2 hidden, 0.01 policy head, 1 value head) as in the PPO paper's code.
+    With ``cnn`` both heads sit on one shared Nature CNN.
     """
 
     action_dim: int
     continuous: bool = False
     hidden: Sequence[int] = (64, 64)
     activation: str = "tanh"
+    cnn: bool = False
+    """one Nature CNN torso shared by actor and critic (image observations), as CleanRL's Atari PPO"""
 
     @nn.compact
     def __call__(self, obs: jax.Array):
         act = ACTIVATIONS[self.activation]
         hidden_init = nn.initializers.orthogonal(jnp.sqrt(2.0))
-        actor, critic = obs, obs
-        for width in self.hidden:
+        actor = critic = NatureCNN()(obs) if self.cnn else obs.astype(jnp.float32)
+        for width in () if self.cnn else self.hidden:
             actor = act(nn.Dense(width, kernel_init=hidden_init)(actor))
             critic = act(nn.Dense(width, kernel_init=hidden_init)(critic))
         actor_out = nn.Dense(self.action_dim, kernel_init=nn.initializers.orthogonal(0.01))(actor)

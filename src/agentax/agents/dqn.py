@@ -54,7 +54,7 @@ from agentax.agents import Preset
 from agentax.agents.protocol import Agent, CompiledAlgorithm, EnvSpec, OffPolicy, any_seed
 from agentax.envs.core import Discrete, Environment
 from agentax.errors import UsageError
-from agentax.nets import QNetwork
+from agentax.nets import QNetwork, is_image
 from agentax.policies import Policy, epsilon_greedy, linear_schedule
 from agentax.replay import ReplaySample, Transition, example_transition, nstep, prioritized, uniform
 from agentax.returns import EpisodeStats
@@ -261,12 +261,13 @@ class DQNState:
     network: QNetwork = struct.field(pytree_node=False)
 
 
-def q_network(cfg: DQNConfig, num_actions: int) -> QNetwork:
+def q_network(cfg: DQNConfig, num_actions: int, cnn: bool = False) -> QNetwork:
     return QNetwork(
         num_actions=num_actions,
         hidden=tuple(cfg.hidden),
         activation=cfg.activation,
         dueling=cfg.dueling_baseline if cfg.dueling else None,
+        cnn=cnn,
     )
 
 
@@ -291,9 +292,10 @@ def num_actions_of(action_space: Any) -> int:
 
 
 def init(key: jax.Array, obs_example: jax.Array, num_actions: int, cfg: DQNConfig) -> DQNState:
-    """A fresh learner for observations shaped like ``obs_example`` (one observation)."""
-    network = q_network(cfg, num_actions)
-    params = network.init(key, jnp.asarray(obs_example, jnp.float32)[None])
+    """A fresh learner for observations shaped like ``obs_example`` (one observation; stacked
+    frames ``[4, 84, 84]`` get the Nature CNN)."""
+    network = q_network(cfg, num_actions, cnn=is_image(jnp.shape(obs_example)))
+    params = network.init(key, jnp.asarray(obs_example)[None])
     return DQNState(
         params=params,
         target_params=params,
@@ -448,7 +450,7 @@ def make_agent(spec: EnvSpec, cfg: DQNConfig) -> Agent:
     learn_step = make_learn(cfg)
 
     def act_epsilon_greedy(state: DQNState, obs: jax.Array, key: jax.Array, progress: jax.Array):
-        return act(state, obs.astype(jnp.float32), key, epsilon_at(cfg, progress)), {}
+        return act(state, obs, key, epsilon_at(cfg, progress)), {}
 
     experience = OffPolicy(
         num_envs=cfg.num_envs,
@@ -467,7 +469,7 @@ def make_agent(spec: EnvSpec, cfg: DQNConfig) -> Agent:
     )
     return Agent(
         name="dqn",
-        init=lambda key: init(key, jnp.zeros(spec.obs_shape, jnp.float32), num_actions, cfg),
+        init=lambda key: init(key, jnp.zeros(spec.obs_shape, spec.obs_dtype), num_actions, cfg),
         act=act_epsilon_greedy,
         greedy_policy=greedy_policy,
         learn=lambda state, sample, key: learn_step(state, sample),

@@ -31,7 +31,15 @@ from agentax.agents import Preset
 from agentax.agents.protocol import Agent, CompiledAlgorithm, EnvSpec, OnPolicy
 from agentax.envs.core import Box, Discrete, Environment
 from agentax.errors import UsageError
-from agentax.nets import ACTIVATIONS, ActorCritic, entropy, gaussian_entropy, gaussian_log_prob, log_prob
+from agentax.nets import (
+    ACTIVATIONS,
+    ActorCritic,
+    entropy,
+    gaussian_entropy,
+    gaussian_log_prob,
+    is_image,
+    log_prob,
+)
 from agentax.policies import Policy
 from agentax.replay import Transition
 from agentax.returns import EpisodeStats, gae, normalize
@@ -188,7 +196,8 @@ def action_dim(spec: EnvSpec) -> int:
 
 
 def network(cfg: PPOConfig, spec: EnvSpec) -> ActorCritic:
-    return ActorCritic(action_dim(spec), is_continuous(spec), tuple(cfg.hidden), cfg.activation)
+    cnn = is_image(spec.obs_shape)
+    return ActorCritic(action_dim(spec), is_continuous(spec), tuple(cfg.hidden), cfg.activation, cnn)
 
 
 def optimizer(cfg: PPOConfig) -> optax.GradientTransformation:
@@ -200,7 +209,7 @@ def optimizer(cfg: PPOConfig) -> optax.GradientTransformation:
 
 
 def init(key: jax.Array, spec: EnvSpec, cfg: PPOConfig) -> PPOAgent:
-    params = network(cfg, spec).init(key, jnp.zeros(spec.obs_shape, jnp.float32))
+    params = network(cfg, spec).init(key, jnp.zeros(spec.obs_shape, spec.obs_dtype))
     return PPOAgent(params, optimizer(cfg).init(params), jnp.int32(0))
 
 
