@@ -6,6 +6,7 @@ import shutil
 import subprocess
 import sys
 import textwrap
+import threading
 
 import jax
 import numpy as np
@@ -21,27 +22,37 @@ from agentax.train.compiled import RunnerConfig, train
 HANG_PROGRAM = textwrap.dedent(
     """
     import dataclasses, os
-    import agentax  # pins the process to one CPU before jax starts (agentax._xla.pin_cpu)
+    import agentax  # jax's CPU client will be made on one CPU (agentax._xla.create_cpu_client_on_one_cpu)
+    import jax
     from agentax.agents import ppo
     from agentax.envs import make_jax
     from agentax.train.compiled import RunnerConfig, train
 
+    jax.numpy.ones(3).block_until_ready()  # the client, and its threads, exist before the runner
     env = make_jax("CartPole-v1")
     cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=12 * 256)
     runner = RunnerConfig(num_seeds=8, updates_per_chunk=2, eval_episodes=4)
     result = train(ppo.make_train(env, cfg), env, runner)
-    masks = {tuple(os.sched_getaffinity(int(task))) for task in os.listdir(f"/proc/{os.getpid()}/task")}
-    print("calls", len(result.rows), "affinity", sorted(masks))
+    masks, pool = set(), 0
+    for task in os.listdir("/proc/self/task"):
+        try:
+            masks.add(tuple(sorted(os.sched_getaffinity(int(task)))))
+            pool += open(f"/proc/self/task/{task}/comm").read().startswith("tf_XLAEigen")
+        except OSError:
+            pass
+    print("calls", len(result.rows), "pool", pool, "affinity", sorted(masks))
     """
 )
 
 
 @pytest.mark.timeout(150)
-def test_vmapped_chunk_called_repeatedly_never_hangs():
+def test_vmapped_chunk_called_repeatedly_never_hangs_and_no_thread_stays_pinned():
     """The compiled runner's 8-seed PPO program, called 6 times (+ the final evaluation), finishes.
 
-    Without the one-CPU pin (``AGENTAX_PIN_CPU=0``) this program hung here, on a 2-core machine,
-    in 2 of 2 runs (all XLA threads idle, the main thread in ``BlockUntilReady``).
+    Without the cure (``AGENTAX_PIN_CPU=0``) this program hung here, on a 2-core machine, in 2 of 2
+    runs (all XLA threads idle, the main thread in ``BlockUntilReady``); with every thread pinned
+    to one CPU after jax had made its CPU client, a bigger one hung in 6 of 6. The cure is the
+    client made on one CPU (XLA's thread pool of one thread); then every thread runs on all CPUs.
     """
     env = {k: v for k, v in os.environ.items() if k != "AGENTAX_PIN_CPU"}
     result = subprocess.run(
@@ -49,9 +60,73 @@ def test_vmapped_chunk_called_repeatedly_never_hangs():
     )
     assert result.returncode == 0, result.stderr[-2000:]
     assert "calls 6" in result.stdout
-    if len(os.sched_getaffinity(0)) > 1:
+    if len(os.sched_getaffinity(0)) > 1 and os.path.isdir("/proc/self/task"):
+        assert int(result.stdout.split("pool", 1)[1].split()[0]) <= 1, result.stdout  # XLA's pool
         masks = result.stdout.split("affinity", 1)[1].strip()
-        assert masks.count("(") == 1, f"some thread escaped the one-CPU pin: {masks}"
+        assert masks == str([tuple(sorted(os.sched_getaffinity(0)))]), f"a thread stayed pinned: {masks}"
+
+
+def _thread_masks() -> dict[int, set[int]]:
+    masks = {}
+    for task in os.listdir("/proc/self/task"):
+        try:
+            masks[int(task)] = os.sched_getaffinity(int(task))
+        except OSError:  # the thread ended meanwhile
+            pass
+    return masks
+
+
+can_pin = pytest.mark.skipif(
+    not hasattr(os, "sched_setaffinity")
+    or not os.path.isdir("/proc/self/task")
+    or len(os.sched_getaffinity(0)) < 2,
+    reason="needs Linux and two allowed CPUs",
+)
+
+
+@can_pin
+@pytest.mark.timeout(30)
+def test_pinned_to_one_cpu_pins_every_thread_while_in_force_then_gives_each_its_mask_back(monkeypatch):
+    monkeypatch.setenv("AGENTAX_PIN_CPU", "1")
+    allowed = os.sched_getaffinity(0)
+    jax.jit(lambda x: x * 2)(np.ones(3)).block_until_ready()  # jax's CPU client and its threads exist
+    stop = threading.Event()
+    older = threading.Thread(target=stop.wait)  # a thread started before, with a mask of its own
+    older.start()
+    os.sched_setaffinity(older.native_id, {max(allowed)})
+    before = _thread_masks()
+    try:
+        with _xla.pinned_to_one_cpu() as cpu:
+            assert cpu in allowed
+            assert _xla.UNPINNED_CPUS == allowed
+            inside = _thread_masks()
+            assert set(inside) >= set(before)
+            assert all(mask == {cpu} for mask in inside.values()), inside
+            with _xla.pinned_to_one_cpu() as nested:  # re-entrant: changes nothing
+                assert nested == cpu
+            assert all(mask == {cpu} for mask in _thread_masks().values())
+            newer = threading.Thread(target=stop.wait)  # inherits the one-CPU mask
+            newer.start()
+            assert os.sched_getaffinity(newer.native_id) == {cpu}
+        after = _thread_masks()
+        assert {tid: after[tid] for tid in before if tid in after} == {
+            tid: mask for tid, mask in before.items() if tid in after
+        }
+        assert after[older.native_id] == {max(allowed)}
+        assert after[newer.native_id] == allowed  # started inside: the process's mask
+        assert not _xla.UNPINNED_CPUS
+    finally:
+        stop.set()
+
+
+@can_pin
+def test_pinned_to_one_cpu_is_off_with_agentax_pin_cpu_0(monkeypatch):
+    monkeypatch.setenv("AGENTAX_PIN_CPU", "0")
+    before = _thread_masks()
+    with _xla.pinned_to_one_cpu() as cpu:
+        assert cpu is None
+        assert _thread_masks() == before
+        assert not _xla.UNPINNED_CPUS
 
 
 # The runner itself: seeds, determinism, interruption and resume, on a tiny PPO.

@@ -2,7 +2,7 @@
 
 from agentax import _xla
 
-_xla.pin_cpu()  # before jax starts its CPU client: the cure for the XLA CPU hang (see _xla.py)
+_xla.create_cpu_client_on_one_cpu()  # the cure for the XLA CPU hang (see _xla.py)
 
 from agentax.envs import make  # noqa: E402  (registers the JAX envs in Gymnasium as agentax/ID)
 from agentax.evaluate import EvalStats, HostPolicy, evaluate  # noqa: E402

@@ -3,21 +3,30 @@
 **The hang** (DESIGN.md, "Known hazards"): on a 2-core machine, XLA's CPU backend (jaxlib 0.10.2)
 was seen to stop for good — 0 % CPU, waiting in ``BlockUntilReady`` — on the first or second call
 of a jitted PPO train program vmapped over seeds (11 of 12 processes). XLA flags that limit its
-thread pools did not help; pinning the process to one CPU did (8 of 8 calls completed at the
-same throughput). Reproduced again with jaxlib 0.10.2: the compiled runner's 8-seed PPO
-program hung in 7 of 7 unpinned processes (every XLA thread idle, the main thread in
-``BlockUntilReady`` fetching a result), and finished in 7 of 7 pinned ones (6 of them 41 calls
-each); small hand-written vmapped PPO chunks did not hang either way. :func:`pin_cpu` applies
-the cure. It must run before jax creates its CPU client, because only threads created after
-``sched_setaffinity`` inherit the mask (checked: all 14 threads of a process that ran a jitted,
-vmapped program carry the one-CPU mask).
-``agentax/__init__.py`` calls it first thing, so every program that imports agentax gets it.
+thread pools did not help; pinning the process to one CPU before jax started did (8 of 8 calls
+completed at the same throughput; later the compiled runner's 8-seed PPO program: 7 of 7
+unpinned processes hung, 7 of 7 pinned ones finished).
 
-Processes are spread over the allowed CPUs, so two trainings or two test workers do not share
-one core: a pytest-xdist worker by its number, any other process on the CPU the kernel started it
-on (it picks an idle one; choosing by pid put two trainings on one core while the other idled).
-``AGENTAX_PIN_CPU=0`` turns the pin off, ``AGENTAX_PIN_CPU=1`` forces it even where an accelerator
-plugin is installed (where it is off by default, since the hang is a CPU-backend one).
+What matters is the CPU count XLA sees **when jax creates its CPU client**: it sizes its thread
+pool by it (one ``tf_XLAEigen`` thread instead of two here), and the hang came only with two.
+Pinning the threads later does not help: with the client already made, every thread of the
+process pinned to one CPU, the same program hung in 6 of 6 processes. Leaving the threads free
+afterwards does not hurt: a client made on one CPU, every thread then given both CPUs back, ran
+it to the end in 10 of 10 processes (39 calls each), faster (13-17 s against 23 s). Hence
+:func:`create_cpu_client_on_one_cpu`, which ``agentax/__init__.py`` calls first thing: the client
+is made on one CPU whenever jax makes it, and no thread stays pinned, so actors, learners and env
+threads may use every core. (XLA's intra-op pool keeps one thread, as under the process-wide
+pin.)
+
+:func:`pinned_to_one_cpu` pins every thread of a running process for the length of a block. It
+does not cure the hang by itself once the client exists; it is there for measurements and for
+code that wants one core.
+
+The one CPU is chosen so that two trainings or two test workers do not share one core: a
+pytest-xdist worker's by its number, else the CPU the calling thread last ran on (the kernel picks
+an idle one; choosing by pid put two trainings on one core while the other idled).
+``AGENTAX_PIN_CPU=0`` turns both off, ``AGENTAX_PIN_CPU=1`` forces them even where an accelerator
+plugin is installed (where they are off by default, since the hang is a CPU-backend one).
 
 **The compilation cache**: :func:`enable_compilation_cache` keeps compiled programs on disk
 (``~/.cache/agentax/jax``, or ``$AGENTAX_JAX_CACHE``; ``none`` disables it), with the size and
@@ -30,6 +39,9 @@ from __future__ import annotations
 import importlib.util
 import os
 import re
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 _ACCELERATOR_PLUGINS = ("jax_cuda12_plugin", "jax_cuda13_plugin", "jax_rocm60_plugin", "libtpu")
@@ -43,41 +55,153 @@ def _accelerator_expected() -> bool:
 
 
 UNPINNED_CPUS: set[int] = set()
-"""The CPUs this process could use before :func:`pin_cpu` (empty if it did not pin): for Python
-threads that run no XLA code, such as :func:`agentax.runs.preload_plotting`."""
+"""While :func:`pinned_to_one_cpu` is in force, the CPUs the process could use before it (else
+empty): for Python threads started inside the block that run no XLA code, such as
+:func:`agentax.runs.preload_plotting`, to leave the pinned CPU to the others."""
+
+_pin_lock = threading.Lock()
+_pinned_cpu: int | None = None
+_pin_depth = 0
 
 
-def pin_cpu() -> int | None:
-    """Pin this process (and the threads it creates later) to one allowed CPU; return it.
-
-    Returns None where pinning is off or impossible (``AGENTAX_PIN_CPU=0``, an accelerator
-    backend, a platform without ``sched_setaffinity``, or a single allowed CPU already).
-    """
+def _pin_wanted() -> bool:
     setting = os.environ.get("AGENTAX_PIN_CPU", "auto").lower()
     if setting in ("0", "false", "no", "off"):
-        return None
+        return False
     if setting == "auto" and _accelerator_expected():
-        return None
-    if not hasattr(os, "sched_setaffinity"):
-        return None
-    allowed = sorted(os.sched_getaffinity(0))
-    UNPINNED_CPUS.update(allowed)
-    if len(allowed) == 1:
-        return allowed[0]
+        return False
+    return hasattr(os, "sched_setaffinity") and os.path.isdir("/proc/self/task")
+
+
+def _choose_cpu(allowed: list[int]) -> int:
+    """A pytest-xdist worker's CPU by its number, else the CPU the calling thread last ran on
+    (the kernel picks an idle one; choosing by pid put two trainings on one core while the other
+    idled), so that two trainings or two test workers do not share one core."""
     worker = re.fullmatch(r"gw(\d+)", os.environ.get("PYTEST_XDIST_WORKER", ""))
     current = _current_cpu()
     if worker or current not in allowed:
-        cpu = allowed[(int(worker.group(1)) if worker else os.getpid()) % len(allowed)]
-    else:
-        cpu = current
-    os.sched_setaffinity(0, {cpu})
-    return cpu
+        return allowed[(int(worker.group(1)) if worker else os.getpid()) % len(allowed)]
+    return current
+
+
+def _threads() -> list[int]:
+    return [int(tid) for tid in os.listdir("/proc/self/task")]
+
+
+def _set_affinity(tid: int, cpus: set[int]) -> None:
+    try:
+        os.sched_setaffinity(tid, cpus)
+    except OSError:  # the thread ended meanwhile (ProcessLookupError is an OSError)
+        pass
+
+
+@contextmanager
+def pinned_to_one_cpu() -> Iterator[int | None]:
+    """Run the block with every thread of the process pinned to one allowed CPU; yield that CPU.
+
+    On entry every existing thread (the main one, XLA's thread pools, any other) is pinned to one
+    CPU, so threads created inside the block inherit it; on exit each thread that existed before
+    gets its own mask back, and each one created inside the block the mask the process had.
+    The CPU is a pytest-xdist worker's by its number, else the one this thread last ran on.
+    A nested use (from any thread) changes nothing and yields the CPU already pinned.
+    Yields None where pinning is off or impossible (``AGENTAX_PIN_CPU=0``; an accelerator
+    backend expected, unless ``AGENTAX_PIN_CPU=1``; no ``sched_setaffinity`` or ``/proc``).
+    Where the process may use one CPU only, nothing changes and it yields that CPU.
+    It does not cure the XLA CPU hang once jax's CPU client exists (see the module docstring).
+    """
+    global _pinned_cpu, _pin_depth
+    saved: dict[int, set[int]] = {}
+    allowed: set[int] = set()
+    with _pin_lock:
+        outer = _pin_depth == 0
+        if outer:
+            _pinned_cpu, saved, allowed = _pin_all_threads()
+        _pin_depth += 1
+        cpu = _pinned_cpu
+    try:
+        yield cpu
+    finally:
+        with _pin_lock:
+            _pin_depth -= 1
+            if outer:
+                if saved:
+                    _restore(saved, allowed)
+                UNPINNED_CPUS.clear()
+                _pinned_cpu = None
+
+
+def _pin_all_threads() -> tuple[int | None, dict[int, set[int]], set[int]]:
+    """Pin every thread to one CPU: (the CPU, each thread's previous mask, the process's mask)."""
+    if not _pin_wanted():
+        return None, {}, set()
+    allowed = os.sched_getaffinity(0)
+    if len(allowed) == 1:
+        return next(iter(allowed)), {}, allowed
+    cpu = _choose_cpu(sorted(allowed))
+    saved: dict[int, set[int]] = {}
+    new = _threads()
+    while new:  # again until no thread appears that an unpinned one started meanwhile
+        for tid in new:
+            try:
+                saved[tid] = os.sched_getaffinity(tid)
+            except OSError:
+                saved[tid] = set()  # ended meanwhile; nothing to restore
+                continue
+            _set_affinity(tid, {cpu})
+        new = [tid for tid in _threads() if tid not in saved]
+    UNPINNED_CPUS.update(allowed)
+    return cpu, saved, allowed
+
+
+def _restore(saved: dict[int, set[int]], allowed: set[int]) -> None:
+    for tid in _threads():
+        mask = saved.get(tid) or allowed
+        _set_affinity(tid, mask)
+
+
+def create_cpu_client_on_one_cpu() -> bool:
+    """Have jax create its CPU client, whenever it does, on one CPU: the cure for the XLA CPU hang.
+
+    Wraps jax's CPU backend factory (before anything creates the client): the thread that creates
+    the client is pinned to one CPU while it does, so XLA sizes its thread pool for one CPU; then
+    that thread, and the threads the client started, get the process's mask back, so every
+    thread (the runner's, actors, a learner) may run on all CPUs. Returns whether the factory is
+    wrapped: not where pinning is off (:func:`pinned_to_one_cpu`'s settings), nor once the CPU
+    client exists (too late), nor where jax's private registry looks different.
+    """
+    if not _pin_wanted():
+        return False
+    from jax._src import xla_bridge
+
+    registration = getattr(xla_bridge, "_backend_factories", {}).get("cpu")
+    if registration is None or "cpu" in getattr(xla_bridge, "_backends", {"cpu": None}):
+        return False
+    original = registration.factory
+    if getattr(original, "agentax_one_cpu", False):
+        return True
+
+    def factory():
+        allowed = os.sched_getaffinity(0)
+        if len(allowed) == 1:
+            return original()
+        before = set(_threads())
+        os.sched_setaffinity(0, {_choose_cpu(sorted(allowed))})  # the calling thread only
+        try:
+            return original()
+        finally:
+            os.sched_setaffinity(0, allowed)
+            for tid in set(_threads()) - before:  # the client's threads inherited the one CPU
+                _set_affinity(tid, allowed)
+
+    factory.agentax_one_cpu = True  # type: ignore[attr-defined]
+    registration.factory = factory
+    return True
 
 
 def _current_cpu() -> int | None:
-    """The CPU this process last ran on (``/proc/self/stat``'s 39th field), None if unknown."""
+    """The CPU the calling thread last ran on (``/proc/thread-self/stat``'s 39th field), or None."""
     try:
-        with open("/proc/self/stat") as f:
+        with open("/proc/thread-self/stat") as f:
             return int(f.read().rsplit(")", 1)[1].split()[36])
     except (OSError, IndexError, ValueError):
         return None
