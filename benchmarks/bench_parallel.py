@@ -117,9 +117,8 @@ def _actor(agent, num_envs: int):
     from agentax.train import host
 
     init_key, _, actors_key = host.agent_keys(0)
-    actor = host.Actor(
-        agent, ENV_ID, num_envs, host.actor_seed(0, 0, 0), host.fold_actor_key(actors_key, 0, 0)
-    )
+    env = host.make_host_env(ENV_ID, num_envs, training=True)
+    actor = host.Actor(agent, env, host.actor_seed(0, 0, 0), host.fold_actor_key(actors_key, 0, 0))
     return actor, agent.init(init_key)
 
 
@@ -130,7 +129,7 @@ def collect_alone_off_policy(agent):
 
     experience = agent.experience
     actor, state = _actor(agent, experience.num_envs)
-    replay = host.replay_for(agent, ENV_ID, 0)
+    replay = host.replay_for(agent, actor.env, 0)
     observer = ReplayObserver(replay, experience.n_step, experience.discount_factor)
     with Clock() as clock:
         while actor.steps.count < agent.total_steps:

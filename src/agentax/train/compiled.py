@@ -29,8 +29,9 @@ checkpoints the whole TrainState (so a resumed run continues exactly), and stops
 every seed's evaluation mean reaches ``stop_at_return`` (solved means solved on every seed).
 At the end it evaluates the greedy policies once more on fresh keys, writes eval.json and curve.png.
 
-Every process that imports agentax is pinned to one CPU first (:mod:`agentax._xla`), the cure
-for the XLA CPU hang this program, called over and over, once met.
+``import agentax`` has jax create its CPU client on one CPU (:mod:`agentax._xla`), the cure for
+the XLA CPU hang this program, called over and over, once met; the threads stay free to use
+every core afterwards, as the host and parallel runners need.
 """
 
 from __future__ import annotations

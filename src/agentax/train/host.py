@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,6 +31,7 @@ import numpy as np
 from agentax.agents.protocol import Agent, Episodes, OffPolicy, OnPolicy
 from agentax.envs.gym import NAMESPACE, GymnasiumEnv
 from agentax.evaluate import host_episode_returns
+from agentax.nets import is_image
 from agentax.policies import Policy
 from agentax.replay import Transition, example_transition
 from agentax.replay.host import ReplayBuffer
@@ -60,6 +62,10 @@ class HostRunnerConfig:
     """stop once an evaluation (run at each row) reaches this mean return (None: train to the end)"""
     checkpoint_every_seconds: float = 30.0
     """write a checkpoint at most this often (and at the end)"""
+    env_backend: str = "auto"
+    """Atari only: envpool or ale (auto: envpool where it is installed)"""
+    sticky_actions: float = 0.25
+    """Atari only: the probability that the emulator repeats the last action (Gymnasium's v5: 0.25)"""
 
 
 @dataclass
@@ -81,8 +87,23 @@ def host_env_id(env_id: str) -> str:
     return f"{NAMESPACE}/{env_id}"
 
 
-def make_host_env(env_id: str, num_envs: int) -> GymnasiumEnv:
+def make_host_env(
+    env_id: str, num_envs: int, *, training: bool = False, backend: str = "auto", sticky_actions: float = 0.25
+) -> Any:
+    """``num_envs`` copies of ``env_id`` stepped on the host. Atari games get the standard
+    preprocessing (``agentax.envs.atari``): with ``training``, the learning view (a lost life ends
+    an episode, clipped rewards), else whole games and true scores; other envs ignore these options."""
+    from agentax.envs.atari import is_atari_id, make_atari
+
+    if is_atari_id(env_id):
+        return make_atari(env_id, num_envs, backend=backend, sticky_actions=sticky_actions, training=training)
     return GymnasiumEnv(host_env_id(env_id), num_envs)
+
+
+def env_factory(env_id: str, runner: Any) -> Callable[..., Any]:
+    """``make(num_envs, training=False)``: the run's envs, with the runner's Atari options."""
+    options = {"backend": runner.env_backend, "sticky_actions": runner.sticky_actions}
+    return lambda num_envs, training=False: make_host_env(env_id, num_envs, training=training, **options)
 
 
 def agent_keys(seed: int) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -136,11 +157,9 @@ class Actor:
     of the whole run, which a parallel runner sums over its actors.
     """
 
-    def __init__(
-        self, agent: Agent, env_id: str, num_envs: int, seed: int, key: jax.Array, done_steps: int = 0
-    ):
+    def __init__(self, agent: Agent, env: Any, seed: int, key: jax.Array, done_steps: int = 0):
         self.agent = agent
-        self.env = make_host_env(env_id, num_envs)
+        self.env = env
         self.seed = seed
         self.key = key
         self.act = jax.jit(act_and_split(agent.act))
@@ -155,6 +174,13 @@ class Actor:
         self.progress = lambda: self.episodes.count if self.by_episode else self.steps.count
         self.time_step = first_time_step(self.env, seed)
         self.valid: np.ndarray | None = None  # Episodes: the envs still in their first episode
+
+    def finished_returns(self) -> list[float]:
+        """The returns of the episodes finished since the last call: whole games' true scores where
+        the env keeps them (Atari), else the episodes' summed rewards."""
+        if hasattr(self.env, "drain_scores"):
+            return [score for score, _ in self.env.drain_scores()]
+        return self.returns.drain()
 
     def policy(self, obs: np.ndarray, key: jax.Array) -> tuple[np.ndarray, jax.Array, Any]:
         action, info, key = self.act(self.state, obs, key, self.progress())
@@ -206,16 +232,29 @@ class Actor:
         self.env.close()
 
 
-def replay_for(agent: Agent, env_id: str, seed: int) -> ReplayBuffer:
-    """An empty host replay buffer shaped for ``agent``'s transitions in ``env_id``."""
+def replay_for(agent: Agent, env: Any, seed: int) -> Any:
+    """An empty host replay buffer for ``agent``'s transitions in ``env``: for stacked frames the
+    frame-deduplicated one (each frame stored once, n-step returns at sampling), else a plain one."""
     experience = agent.experience
-    env = make_host_env(env_id, 1)
-    obs = np.zeros(env.observation_space().shape, np.float32)
-    env.close()
-    action = jax.eval_shape(
-        agent.act, jax.eval_shape(agent.init, jax.random.key(0)), obs[None], jax.random.key(0), 0
-    )
-    one = jax.device_get(example_transition(obs, np.zeros((), action[0].dtype)))
+    obs_shape = tuple(env.observation_space().shape)
+    if is_image(obs_shape):
+        from agentax.replay.frames import FrameReplayBuffer
+
+        return FrameReplayBuffer(
+            experience.capacity,
+            experience.num_envs,
+            stack=obs_shape[0],
+            frame_shape=obs_shape[1:],
+            n_step=experience.n_step,
+            discount_factor=experience.discount_factor,
+            prioritized=experience.prioritized,
+            priority_exponent=experience.priority_exponent,
+            seed=seed,
+        )
+    obs = np.zeros(obs_shape, np.float32)
+    state = jax.eval_shape(agent.init, jax.random.key(0))
+    action, _ = jax.eval_shape(agent.act, state, obs[None], jax.random.key(0), 0)
+    one = jax.device_get(example_transition(obs, np.zeros((), action.dtype)))
     return ReplayBuffer(
         experience.capacity,
         one,
@@ -290,9 +329,9 @@ def collection_over(agent: Agent, env_steps: int, episodes: int, updates: int = 
 class Evaluator:
     """The greedy policy's mean return on a side env (for stop-at-return and the final evaluation)."""
 
-    def __init__(self, agent: Agent, env_id: str, episodes: int):
+    def __init__(self, agent: Agent, make_env: Callable[..., Any], episodes: int):
         self.agent, self.episodes = agent, episodes
-        self.env = make_host_env(env_id, min(episodes, 8))
+        self.env = make_env(min(episodes, 8))
         self.count = 0
 
     def __call__(self, state: Any, seed: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -333,20 +372,20 @@ def train(
     else:
         state = agent.init(init_key)
     updates, done_steps = int(meta["updates"]), int(meta["env_steps"])
+    make_env = env_factory(env_id, runner)
     actor = Actor(
         agent,
-        env_id,
-        agent.experience.num_envs,
+        make_env(agent.experience.num_envs, training=True),
         actor_seed(runner.seed, 0, updates),
         fold_actor_key(actors_key, 0, updates),
         done_steps,
     )
     actor.episodes.count = int(meta["episodes"])
-    evaluator = Evaluator(agent, env_id, runner.eval_episodes)
+    evaluator = Evaluator(agent, make_env, runner.eval_episodes)
     experience = agent.experience
     learn = jax.jit(agent.learn)
     if isinstance(experience, OffPolicy):
-        replay = replay_for(agent, env_id, runner.seed)
+        replay = replay_for(agent, actor.env, runner.seed)
         observer = ReplayObserver(replay, experience.n_step, experience.discount_factor)
         learner = OffPolicyLearner(agent, replay)
     logger = RunLogger(
@@ -359,7 +398,11 @@ def train(
         elapsed_before=float(meta["elapsed"]),
     )
     metrics: dict[str, Any] = {}
-    learned_returns = actor.returns if isinstance(experience, OffPolicy) else FinishedReturns()
+    # the returns of each row: from what was learned (on-policy, so a parallel run with lag 0 logs
+    # the same), else from the actor (off-policy, or whole Atari games, which only the env knows)
+    learned_returns = FinishedReturns()
+    from_actor = isinstance(experience, OffPolicy) or hasattr(actor.env, "drain_scores")
+    drain_returns = actor.finished_returns if from_actor else learned_returns.drain
     next_log = done_steps + runner.log_every_steps
     steps_at_log, time_at_log = done_steps, time.perf_counter()
     with logger:
@@ -389,7 +432,7 @@ def train(
                 row = row_of(
                     env_steps,
                     updates,
-                    learned_returns.drain(),
+                    drain_returns(),
                     (env_steps - steps_at_log) / max(now - time_at_log, 1e-9),
                 )
                 if runner.stop_at_return is not None:

@@ -46,6 +46,7 @@ from agentax.train.host import (
     actor_seed,
     agent_keys,
     collection_over,
+    env_factory,
     fold_actor_key,
     num_updates,
     record_returns,
@@ -78,6 +79,10 @@ class ParallelRunnerConfig:
     """stop once an evaluation (run at each row) reaches this mean return (None: train to the end)"""
     checkpoint_every_seconds: float = 30.0
     """write a checkpoint at most this often (and at the end)"""
+    env_backend: str = "auto"
+    """Atari only: envpool or ale (auto: envpool where it is installed)"""
+    sticky_actions: float = 0.25
+    """Atari only: the probability that the emulator repeats the last action (Gymnasium's v5: 0.25)"""
 
     def check(self, agent: Agent) -> None:
         """A ``UsageError`` for settings this agent cannot run with."""
@@ -288,18 +293,18 @@ def train(
     updates, done_steps = int(meta["updates"]), int(meta["env_steps"])
     experience = agent.experience
     envs_per_actor = experience.num_envs // runner.actors
+    make_env = env_factory(env_id, runner)
     actors = [
         Actor(
             agent,
-            env_id,
-            envs_per_actor,
+            make_env(envs_per_actor, training=True),
             actor_seed(runner.seed, i, updates),
             fold_actor_key(actors_key, i, updates),
             done_steps // runner.actors,
         )
         for i in range(runner.actors)
     ]
-    evaluator = Evaluator(agent, env_id, runner.eval_episodes)
+    evaluator = Evaluator(agent, make_env, runner.eval_episodes)
     logger = RunLogger(
         run,
         agent.total_steps,
@@ -403,6 +408,12 @@ def _on_policy(
     rows.meter = Meter(threads)
     learn = jax.jit(agent.learn)
     returns = FinishedReturns()
+    drain = returns.drain  # from what was learned, so runs repeat; whole Atari games from the envs
+    if hasattr(actors[0].env, "drain_scores"):
+
+        def drain() -> list[float]:
+            return [r for actor in actors for r in actor.finished_returns()]
+
     learner_wait, env_steps, metrics = 0.0, done_steps, {}
     for thread in threads:
         thread.start()
@@ -422,7 +433,7 @@ def _on_policy(
         final = updates == last_update
         collected = sum(a.steps.count for a in actors)
         if rows.maybe_log(
-            state, learner_key, env_steps, collected, updates, learner_wait, returns.drain, metrics, final
+            state, learner_key, env_steps, collected, updates, learner_wait, drain, metrics, final
         ):
             break
     return state, updates, env_steps
@@ -433,7 +444,7 @@ def _off_policy(
 ):
     """Actors fill the shared replay as the rate limiter allows; the learner learns as it allows."""
     experience: OffPolicy = agent.experience
-    replay = replay_for(agent, env_id, runner.seed)
+    replay = replay_for(agent, actors[0].env, runner.seed)
     chunk = experience.train_frequency * (experience.num_envs // runner.actors)
     limiter = RateLimiter(
         coordinator,
@@ -467,7 +478,7 @@ def _off_policy(
     learner = OffPolicyLearner(agent, replay)
 
     def drain() -> list[float]:
-        return [r for actor in actors for r in actor.returns.drain()]
+        return [r for actor in actors for r in actor.finished_returns()]
 
     learner_wait, metrics, phases = 0.0, {}, 0
     for thread in threads:
