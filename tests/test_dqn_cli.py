@@ -2,9 +2,15 @@
 
 import json
 
+import numpy as np
 import pytest
 
+from agentax.agents import dqn
+from agentax.agents.protocol import EnvSpec
 from agentax.cli import main
+from agentax.evaluate import host_episode_returns
+from agentax.runs import load_checkpoint, load_policy, read_metrics
+from agentax.train import host
 
 
 @pytest.mark.timeout(240)
@@ -67,4 +73,18 @@ def test_a_gymnasium_env_trains_through_the_host_driver(tmp_path):
     config = json.loads((out / "config.json").read_text())
     assert config["runner_kind"] == "host" and config["env"] == "Acrobot-v1"
     evaluation = json.loads((out / "eval.json").read_text())
-    assert -500 <= evaluation["mean_return"] <= 0  # Acrobot pays -1 a step for at most 500 steps
+    # 4 envs collect 64 steps each between learning phases: the run stops at 1,024 env steps, after
+    # its one learning phase (learning starts at 1,000) of 128 learning steps.
+    assert evaluation["env_steps"] == 1024 and evaluation["updates"] == 128
+    assert read_metrics(out)[-1]["updates"] == 128
+    episodes = config["runner"]["eval_episodes"]
+    env = host.make_host_env("Acrobot-v1", min(episodes, 8))  # as the runner's evaluator
+    agent = dqn.make_agent(EnvSpec.of(env), dqn.config_from_dict(config["config"]))
+    (state, _), meta, _ = load_checkpoint(out, host.checkpoint_target(agent))
+    assert int(state.step) == meta["updates"] == 128 and meta["env_steps"] == 1024
+    # The reloaded policy replays the final evaluation (seed + 123,457) to eval.json's returns.
+    _, policy = load_policy(out)
+    returns, lengths = host_episode_returns(env, policy, episodes, seed=config["runner"]["seed"] + 123_457)
+    env.close()
+    assert float(np.mean(returns)) == pytest.approx(evaluation["mean_return"], rel=1e-6)
+    assert evaluation["episodes"] == episodes

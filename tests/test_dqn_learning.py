@@ -7,11 +7,13 @@ import numpy as np
 import pytest
 
 from agentax.agents import dqn
+from agentax.agents.protocol import EnvSpec
 from agentax.envs import make_jax
 from agentax.envs.gym import GymnasiumEnv
 from agentax.evaluate import host_episode_returns
+from agentax.runs import Run, load_checkpoint, run_config
+from agentax.train import host
 from agentax.train.compiled import RunnerConfig, train
-from agentax.train.driver import train_dqn_host
 
 # The tuned preset, cut down: 16 learning steps per 64 env steps instead of 128 per 256, the target
 # network synced every 128 learning steps.
@@ -45,23 +47,34 @@ def test_dqn_improves_on_the_compiled_runner_and_freezes():
     assert int(state.agent.step[0]) < full_run
 
 
+def host_agent(env_id: str, cfg: dqn.DQNConfig):
+    env = GymnasiumEnv(env_id, 1)
+    spec = EnvSpec.of(env)
+    env.close()
+    return dqn.make_agent(spec, cfg)
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_dqn_improves_through_the_host_driver():
-    env = GymnasiumEnv("CartPole-v1", SMALL.num_envs)
-    agent, logs = train_dqn_host(env, SMALL, seed=0, log_every_steps=2_048)
-    assert [log.env_steps for log in logs] == [2_048, 4_096, 6_144, 8_192]
+    agent = host_agent("CartPole-v1", SMALL)
+    result = host.train(agent, "CartPole-v1", host.HostRunnerConfig(seed=0, log_every_steps=2_048))
+    rows = result.rows
+    assert [row["env_steps"] for row in rows] == [2_048, 4_096, 6_144, 8_192]
     # Learning phases after every 64 env steps from step 1,024 on: (8,192 − 1,024) / 64 + 1 = 113,
     # 16 learning steps each.
-    assert logs[-1].learning_steps == 113 * 16
-    assert logs[0].mean_return < 40 < 100 < logs[-1].mean_return
-    returns, _ = host_episode_returns(GymnasiumEnv("CartPole-v1", 8), dqn.greedy_policy(agent), 8, seed=123)
+    assert result.updates == int(result.state.step) == 113 * 16
+    assert [row["updates"] for row in rows] == [(1_024 // 64 + 1) * 16, 49 * 16, 81 * 16, 113 * 16]
+    assert rows[0]["mean_return"] < 40 < 100 < rows[-1]["mean_return"]
+    env = GymnasiumEnv("CartPole-v1", 8)
+    returns, _ = host_episode_returns(env, agent.greedy_policy(result.state), 8, seed=123)
     assert returns.mean() > 100, returns  # Gymnasium's own CartPole, greedy policy
+    assert result.eval["mean_return"] > 100, result.eval
     env.close()
 
 
 @pytest.mark.timeout(240)
-def test_lecture_schedule_counts_episodes():
+def test_lecture_schedule_counts_episodes(tmp_path):
     """The lecture: one learning step at the end of each episode once 50 are done; nothing after the last."""
     cfg = dataclasses.replace(dqn.PRESETS["lecture"].config, max_episodes=55, total_steps=2_000)
     env = make_jax("CartPole-v0")
@@ -74,10 +87,18 @@ def test_lecture_schedule_counts_episodes():
     # ε = max(1 − episode/500, 0.01) is still ≥ 0.89 in these episodes: nearly random, short episodes,
     # and the env steps stop counting with the 55th.
     assert 55 * 8 < int(state.episodes.env_steps[0]) < 55 * 60
-    host_env = GymnasiumEnv("CartPole-v0", 1)
-    agent, logs = train_dqn_host(host_env, cfg, seed=0, log_every_steps=10_000)
-    assert logs[-1].episodes == 55 and int(agent.step) == 5
-    host_env.close()
+    # The host runner: the same schedule, episodes counted by the Driver's observers.
+    agent = host_agent("CartPole-v0", cfg)
+    runner = host.HostRunnerConfig(seed=0, log_every_steps=10_000, eval_episodes=1)
+    run = Run.create(
+        tmp_path / "host",
+        run_config("dqn", "CartPole-v0", "lecture", "host", runner, dqn.config_to_dict(cfg)),
+    )
+    result = host.train(agent, "CartPole-v0", runner, run)
+    assert result.updates == int(result.state.step) == 5
+    _, meta, _ = load_checkpoint(run.path, host.checkpoint_target(agent))
+    assert meta["episodes"] == 55 and meta["updates"] == 5 and meta["env_steps"] == result.env_steps
+    assert 55 * 8 < result.env_steps < 55 * 60
 
 
 @pytest.mark.timeout(240)

@@ -77,14 +77,16 @@ def test_replay_observer_adds_n_step_transitions():
     env = GymnasiumEnv("CartPole-v1", 1)
     seen = []
     Driver(env, push_left, [seen.append], max_steps=6).run(first_time_step(env, seed=1), 0)
-    buffer = host.init(100, jax.device_get(example_transition(np.zeros(4, np.float32), np.int32(0))))
+    one = jax.device_get(example_transition(np.zeros(4, np.float32), np.int32(0)))
+    buffer = host.ReplayBuffer(100, one)
     observer = ReplayObserver(buffer, n_step=3, discount_factor=0.5)
     for transition in seen:
         observer(transition)
     assert buffer.size == 4  # 6 steps, the first 2 pushes only fill the 3-step window
-    np.testing.assert_allclose(buffer.storage.reward[:4], 1.75)  # 1 + 0.5 + 0.25, no episode ended
-    np.testing.assert_array_equal(buffer.storage.num_steps[:4], 3)
-    np.testing.assert_array_equal(buffer.storage.next_obs[0], seen[2].next_obs[0])
+    storage = buffer.state.storage
+    np.testing.assert_allclose(storage.reward[:4], 1.75)  # 1 + 0.5 + 0.25, no episode ended
+    np.testing.assert_array_equal(storage.num_steps[:4], 3)
+    np.testing.assert_array_equal(storage.next_obs[0], seen[2].next_obs[0])
     env.close()
 
 

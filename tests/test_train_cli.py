@@ -1,6 +1,7 @@
 """``agentax train`` / ``agentax plot``: bad input is one line and exit code 2; kill then --resume."""
 
 import json
+import math
 import os
 import signal
 import subprocess
@@ -9,10 +10,16 @@ import time
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import pytest
 
 from agentax.cli import main
+from agentax.envs import make_jax
+from agentax.envs.core import episode_returns
+from agentax.evaluate import host_episode_returns
 from agentax.runs import load_policy, read_metrics
+from agentax.train.compiled import EVAL_KEY_OFFSET
+from agentax.train.host import make_host_env
 
 
 @pytest.mark.parametrize(
@@ -23,7 +30,7 @@ from agentax.runs import load_policy, read_metrics
         (["train", "ppo", "--seeds", "0"], "--seeds must be at least 1"),
         (["train", "ppo", "--learning-rate", "-0.1"], "learning_rate must be positive"),
         (["train", "reinforce", "--stop-at-return", "lots"], "--stop-at-return must be a number"),
-        (["train", "reinforce", "--env", "Pendulum-v1"], "reinforce trains only on agentax's JAX envs"),
+        (["train", "reinforce", "--env", "Pendulum-v1"], "REINFORCE here needs discrete actions, not Box"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_code_2(argv, message, capsys):
@@ -62,8 +69,17 @@ def test_train_then_plot_then_load_policy(tmp_path, capsys):
     assert read_metrics(out)[-1]["env_steps"] == 4096
     assert main(["plot", str(out), "--out", str(tmp_path / "curves.png")]) == 0
     env_id, policy = load_policy(out)
-    action = jax.jit(policy)(jnp.zeros(4, jnp.float32), jax.random.key(0))
-    assert env_id == "CartPole-v1" and int(action) in (0, 1)
+    assert env_id == "CartPole-v1"
+    # The reloaded policy is the best seed's: replaying the final evaluation's episodes (its key:
+    # the seed's, folded with the number of evaluations before it) gives eval.json's return.
+    evaluation = json.loads((out / "eval.json").read_text())
+    best = int(np.argmax([s["mean_return"] for s in evaluation["per_seed"]]))
+    evaluations = sum(not math.isnan(row["eval_return"]) for row in read_metrics(out))
+    seed_key = jax.random.key(config["runner"]["seed"] + best)
+    key = jax.random.fold_in(seed_key, EVAL_KEY_OFFSET + evaluations)
+    episodes = config["runner"]["eval_episodes"]
+    returns, _ = jax.jit(episode_returns, static_argnums=(0, 1, 3))(make_jax(env_id), policy, key, episodes)
+    assert float(np.mean(returns)) == pytest.approx(evaluation["per_seed"][best]["mean_return"])
 
 
 @pytest.mark.timeout(180)
@@ -72,10 +88,18 @@ def test_host_loop_trains_pendulum_and_loads(tmp_path):
     argv = ["train", "ppo", "--env", "Pendulum-v1", "--preset", "pendulum", "--total-steps", "4096"]
     assert main([*argv, "--out", str(out), "--no-progress"]) == 0
     evaluation = json.loads((out / "eval.json").read_text())
-    assert -2000 < evaluation["mean_return"] <= 0  # Pendulum's returns lie in [-16.3 * 200, 0]
+    config = json.loads((out / "config.json").read_text())
+    assert config["runner_kind"] == "host" and evaluation["env_steps"] == 4096
     _, policy = load_policy(out)
     action = policy(jnp.zeros(3, jnp.float32), jax.random.key(0))
     assert action.shape == (1,) and -2.0 <= float(action[0]) <= 2.0
+    # The reloaded policy is the trained one: its episodes on the final evaluation's seed (the host
+    # runner's: seed + 123,457) give eval.json's mean return.
+    episodes = config["runner"]["eval_episodes"]
+    env = make_host_env("Pendulum-v1", min(episodes, 8))
+    returns, _ = host_episode_returns(env, policy, episodes, seed=config["runner"]["seed"] + 123_457)
+    env.close()
+    assert float(np.mean(returns)) == pytest.approx(evaluation["mean_return"], rel=1e-6)
 
 
 @pytest.mark.slow
