@@ -164,11 +164,14 @@ class AverageEpisodeLength(EpisodeAverage):
 class ReplayObserver:
     """Adds each transition ``[num_envs]`` to a host replay buffer (``buffer.add_batch``, as
     :class:`agentax.replay.host.ReplayBuffer`), through the n-step accumulator when ``n_step > 1``
-    (:class:`agentax.replay.host.NStepAccumulator`, the NumPy twin of the compiled runner's)."""
+    (:class:`agentax.replay.host.NStepAccumulator`, the NumPy twin of the compiled runner's) unless
+    the buffer builds n-step transitions itself (``handles_n_step``, as
+    :class:`agentax.replay.frames.FrameReplayBuffer`): it is then given one-step transitions."""
 
     def __init__(self, buffer: Any, n_step: int = 1, discount_factor: float = 0.99):
         self.buffer = buffer
-        self.accumulator = NStepAccumulator(n_step, discount_factor) if n_step > 1 else None
+        one_step = n_step == 1 or getattr(buffer, "handles_n_step", False)
+        self.accumulator = None if one_step else NStepAccumulator(n_step, discount_factor)
 
     def __call__(self, transition: Transition) -> None:
         transition = transition.replace(info=None)
