@@ -6,6 +6,7 @@ import difflib
 from collections.abc import Callable
 from typing import Any
 
+from agentax.envs.atari import AtariEnv, atari_games, is_atari_id, make_atari
 from agentax.envs.cartpole import CartPole, cartpole_v0, cartpole_v1
 from agentax.envs.core import Box, Discrete, Environment, TimeStep
 from agentax.envs.gym import (
@@ -38,20 +39,25 @@ def make_jax(env_id: str) -> Environment:
 _made: dict[str, Environment] = {}
 
 
-def make(env_id: str, num_envs: int = 1, **gymnasium_kwargs: Any) -> Environment | GymnasiumEnv:
-    """The JAX-native env ``env_id`` where one exists, else Gymnasium's, stepped on the host.
+def make(env_id: str, num_envs: int = 1, **gymnasium_kwargs: Any) -> Environment | GymnasiumEnv | AtariEnv:
+    """The JAX-native env ``env_id`` where one exists, else an Atari game or Gymnasium's, on the host.
 
-    ``agentax/ID`` names the same JAX env as ``ID``. ``num_envs`` and ``gymnasium_kwargs`` only
-    shape a Gymnasium env (``gymnasium.make_vec``); JAX envs batch with ``vmap`` instead.
+    ``agentax/ID`` names the same JAX env as ``ID``. Atari ids (``ALE/Breakout-v5``, EnvPool's
+    ``Breakout-v5``) give ``make_atari(env_id, num_envs, **gymnasium_kwargs)`` (its keywords:
+    backend, sticky_actions, noop_max, training, max_frames). ``num_envs`` and ``gymnasium_kwargs``
+    otherwise shape a Gymnasium env (``gymnasium.make_vec``); JAX envs batch with ``vmap`` instead.
     """
     name = env_id.removeprefix(f"{NAMESPACE}/")
     if name in JAX_ENVS:
         if name not in _made:  # one instance per id, so compiled functions keyed on the env are reused
             _made[name] = JAX_ENVS[name]()
         return _made[name]
+    if is_atari_id(env_id):
+        return make_atari(env_id, num_envs, **gymnasium_kwargs)
     if is_gymnasium_id(env_id):
         return GymnasiumEnv(env_id, num_envs, **gymnasium_kwargs)
-    close = difflib.get_close_matches(env_id, [*JAX_ENVS, *GYMNASIUM_SELECTION], n=3, cutoff=0.6)
+    atari = [f"ALE/{game}-v5" for game in atari_games()]
+    close = difflib.get_close_matches(env_id, [*JAX_ENVS, *GYMNASIUM_SELECTION, *atari], n=3, cutoff=0.6)
     hint = f"did you mean {' or '.join(close)}? " if close else ""
     raise UsageError(
         f"unknown env {env_id!r}; {hint}choose from agentax's JAX envs ({', '.join(JAX_ENVS)}) "
