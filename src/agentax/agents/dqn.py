@@ -81,7 +81,11 @@ class DQNConfig:
     discount_factor: float = 0.99
     """γ, the weight of the next state's value in the TD target."""
     learning_rate: float = 2.3e-3
-    """Adam's step size."""
+    """The optimizer's step size."""
+    optimizer: str = "adam"
+    """"adam", or "rmsprop" (centered, decay 0.95, ε 1e-5: the TF-Agents and Nature DQN's optimizer)."""
+    adam_eps: float = 1e-8
+    """Adam's ε (1e-8 as Optax's; DQN on Atari often uses 1.5e-4 or 1e-2 / batch size)."""
     anneal_learning_rate: bool = False
     """Decay the step size linearly to 0 over the run's learning steps (settles a solved agent)."""
     max_grad_norm: float | None = 10.0
@@ -154,6 +158,10 @@ class DQNConfig:
             (self.learning_rate > 0, f"learning_rate must be positive, got {self.learning_rate}"),
             (self.loss in ("mse", "huber"), f"unknown loss {self.loss!r}; choose from mse, huber"),
             (
+                self.optimizer in ("adam", "rmsprop"),
+                f"unknown optimizer {self.optimizer!r}; choose from adam, rmsprop",
+            ),
+            (
                 self.dueling_baseline in ("max", "mean"),
                 f"unknown dueling_baseline {self.dueling_baseline!r}; choose from max, mean",
             ),
@@ -223,6 +231,52 @@ lecture stores ``done`` and so also cuts bootstrapping at the 200-step time limi
 truncation apart and bootstraps through it.
 """
 
+LECTURE_ATARI = DQNConfig(
+    optimizer="rmsprop",
+    learning_rate=2.5e-4,
+    max_grad_norm=None,
+    loss="huber",
+    discount_factor=0.99,
+    double=False,
+    n_step=1,
+    target_update_period=2_000,
+    batch_size=64,
+    buffer_size=100_000,
+    num_envs=4,
+    learning_starts=20_000,
+    train_frequency=1,
+    gradient_steps=1,
+    epsilon_start=1.0,
+    epsilon_end=0.01,
+    exploration_duration=250_000,
+    total_steps=2_500_000,
+)
+"""The lecture's TF-Agents DQN on Breakout (LECTURE-FACTS.md): RMSprop 2.5e-4 (ρ 0.95, ε 1e-5,
+centered), Huber, γ 0.99, target update every 2,000 learning steps, ε 1 → 0.01 over 1M frames
+(250k agent steps), a learning step (batch 64) every 4 agent steps (4 envs, one step each), 20k
+random steps first, 100k transitions of replay; 10M frames."""
+
+NATURE = dataclasses.replace(
+    LECTURE_ATARI,
+    optimizer="adam",
+    learning_rate=1e-4,
+    adam_eps=1e-8,
+    target_update_period=1_000,
+    batch_size=32,
+    buffer_size=1_000_000,
+    num_envs=1,
+    learning_starts=80_000,
+    train_frequency=4,
+    exploration_duration=1_000_000,
+    total_steps=10_000_000,
+)
+"""DQN as in Mnih et al. 2015 with CleanRL's ``dqn_atari`` settings: Adam 1e-4, Huber, γ 0.99, target
+synced every 1,000 learning steps, a learning step of batch 32 every 4 agent steps, ε 1 → 0.01 over
+1M agent steps, 80k random steps first, 1M transitions of replay, 10M agent steps."""
+
+DEFAULT_PRESETS: dict[str, str] = {"atari": "lecture-atari"}
+"""the preset ``--preset auto`` picks for an env ("atari": every Atari game; else "default")"""
+
 PRESETS: dict[str, Preset] = {
     "default": Preset(
         DQNConfig(freeze_at_return=475.0),
@@ -232,6 +286,14 @@ PRESETS: dict[str, Preset] = {
         eval_every_chunks=1,
         eval_episodes=20,
         stop_at_solved=True,
+    ),
+    "lecture-atari": Preset(
+        LECTURE_ATARI,
+        "the lecture's TF-Agents DQN on Breakout: RMSprop 2.5e-4, target every 2,000 steps, ε over 1M frames",
+        eval_episodes=10,
+    ),
+    "nature": Preset(
+        NATURE, "DQN as in the Nature paper / CleanRL's dqn_atari (Adam 1e-4, 1M replay)", eval_episodes=10
     ),
     "lecture": Preset(
         LECTURE,
@@ -275,9 +337,12 @@ def optimizer(cfg: DQNConfig) -> optax.GradientTransformation:
     learning_rate = cfg.learning_rate
     if cfg.anneal_learning_rate:
         learning_rate = optax.linear_schedule(cfg.learning_rate, 0.0, max(cfg.num_learning_steps, 1))
-    adam = optax.adam(learning_rate)
+    if cfg.optimizer == "rmsprop":
+        step = optax.rmsprop(learning_rate, decay=0.95, eps=1e-5, centered=True)
+    else:
+        step = optax.adam(learning_rate, eps=cfg.adam_eps)
     return (
-        adam if cfg.max_grad_norm is None else optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), adam)
+        step if cfg.max_grad_norm is None else optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), step)
     )
 
 

@@ -159,12 +159,34 @@ PRESETS: dict[str, Preset] = {
 }
 
 
+PRESETS["atari"] = Preset(
+    PPOConfig(
+        total_steps=10_000_000,
+        num_envs=8,
+        num_steps=128,
+        learning_rate=2.5e-4,
+        discount_factor=0.99,
+        gae_lambda=0.95,
+        num_minibatches=4,
+        update_epochs=4,
+        clip_eps=0.1,
+        ent_coef=0.01,
+        vf_coef=0.5,
+        max_grad_norm=0.5,
+    ),
+    "CleanRL's ppo_atari_envpool settings (8 envs × 128 steps, lr 2.5e-4 annealed, clip 0.1, 4 epochs × 4 "
+    "minibatches, GAE 0.95, entropy 0.01; no value clipping), 10M agent steps, Nature CNN",
+    eval_episodes=10,
+)
+
+
 DEFAULT_PRESETS: dict[str, str] = {
+    "atari": "atari",
     "CartPole-v0": "cartpole-fast",
     "CartPole-v1": "cartpole-fast",
     "Pendulum-v1": "pendulum",
 }
-"""the preset ``--preset auto`` picks for an env (else "default")"""
+"""the preset ``--preset auto`` picks for an env ("atari": for every Atari game; else "default")"""
 
 
 def preset(name: str) -> Preset:
@@ -311,6 +333,9 @@ def learn(
     progress = agent.updates.astype(jnp.float32) / cfg.num_updates
     clip_eps = cfg.clip_eps * (1.0 - progress) if cfg.anneal_clip else jnp.float32(cfg.clip_eps)
     grad_fn = jax.grad(loss_fn, has_aux=True)
+    # XLA's CPU backend runs convolutions ~30x slower inside a loop (measured: 4 Nature-CNN gradient
+    # steps of batch 256 took 51 s in a lax.scan, 1.6 s unrolled), so a CNN's SGD steps are unrolled.
+    unroll = is_image(spec.obs_shape)
 
     def sgd_step(carry, minibatch):
         params, opt_state = carry
@@ -326,10 +351,10 @@ def learn(
             minibatches = jax.tree.map(
                 lambda x: x[order].reshape(cfg.num_minibatches, -1, *x.shape[1:]), flat
             )
-        return jax.lax.scan(sgd_step, carry, minibatches)
+        return jax.lax.scan(sgd_step, carry, minibatches, unroll=unroll)
 
     (params, opt_state), metrics = jax.lax.scan(
-        epoch, (agent.params, agent.opt_state), jax.random.split(key, cfg.update_epochs)
+        epoch, (agent.params, agent.opt_state), jax.random.split(key, cfg.update_epochs), unroll=unroll
     )
     agent = PPOAgent(params, opt_state, agent.updates + 1)
     return agent, jax.tree.map(jnp.mean, metrics)

@@ -54,6 +54,11 @@ class RunArgs:
     """parallel runner: envs per actor (sets the algorithm's number of envs to actors × this)"""
     policy_lag: int = 1
     """parallel runner, on-policy: parameter versions between collecting and learning (0: sequential)"""
+    env_backend: str = "auto"
+    """Atari: envpool or ale (ale-py with Gymnasium's wrappers); auto: envpool where it is installed"""
+    sticky_actions: float = 0.25
+    """Atari: probability that the emulator repeats the last action (0.25 as Gymnasium's v5; 0 as
+    CleanRL's and EnvPool's published figures)"""
 
 
 _module = algorithm
@@ -87,7 +92,10 @@ def parse(algo: str, argv: list[str]) -> tuple[RunArgs, Any, Any]:
     preset_name = _option(argv, "--preset", "auto")
     if preset_name == "auto":
         env_id = _option(argv, "--env", RunArgs.env)
-        preset_name = getattr(module, "DEFAULT_PRESETS", {}).get(env_id, "default")
+        from agentax.envs.atari import is_atari_id
+
+        key = "atari" if is_atari_id(env_id) else env_id
+        preset_name = getattr(module, "DEFAULT_PRESETS", {}).get(key, "default")
     if preset_name not in module.PRESETS:
         raise UsageError(f"unknown {algo} preset {preset_name!r}; choose from {', '.join(module.PRESETS)}")
     preset = module.PRESETS[preset_name]
@@ -201,16 +209,19 @@ def _start_host(algo, module, run_args: RunArgs, cfg, preset, kind: str, out: Pa
     if kind == "parallel" and run_args.envs_per_actor is not None:
         envs = "num_envs" if hasattr(cfg, "num_envs") else "episodes_per_update"
         cfg = dataclasses.replace(cfg, **{envs: run_args.actors * run_args.envs_per_actor}).validate()
-    probe = make_host_env(run_args.env, 1)
-    spec, env_spec = EnvSpec.of(probe), probe.vector_env.spec
+    atari = {"env_backend": run_args.env_backend, "sticky_actions": run_args.sticky_actions}
+    probe = make_host_env(
+        run_args.env, 1, backend=run_args.env_backend, sticky_actions=run_args.sticky_actions
+    )
+    spec, env_spec = EnvSpec.of(probe), getattr(getattr(probe, "vector_env", None), "spec", None)
     probe.close()
     agent = module.make_agent(spec, cfg)  # refuses what the agent cannot train before anything is written
     stop = parse_stop(run_args.stop_at_return, preset, env_spec)
-    common = {"seed": run_args.seed, "eval_episodes": preset.eval_episodes, "stop_at_return": stop}
+    common = {"seed": run_args.seed, "eval_episodes": preset.eval_episodes, "stop_at_return": stop, **atari}
     if kind == "parallel":
         runner = ParallelRunnerConfig(**common, actors=run_args.actors, policy_lag=run_args.policy_lag)
         runner.check(agent)
-        where = f"{runner.actors} actors"
+        where = f"{runner.actors} actor{'s' if runner.actors > 1 else ''}"
         if not isinstance(agent.experience, OffPolicy):
             where += f", policy lag {runner.policy_lag}"
     else:
@@ -298,7 +309,9 @@ def resume(run_dir: Path, progress: bool = True) -> int:
             from agentax.train.parallel import ParallelRunnerConfig
 
             runner = (ParallelRunnerConfig if kind == "parallel" else HostRunnerConfig)(**config["runner"])
-            probe = make_host_env(config["env"], 1)
+            probe = make_host_env(
+                config["env"], 1, backend=runner.env_backend, sticky_actions=runner.sticky_actions
+            )
             spec = EnvSpec.of(probe)
             probe.close()
             agent = module.make_agent(spec, cfg)

@@ -30,7 +30,12 @@ def load_policy(run_dir: str | Path, config: dict[str, Any]) -> Policy:
         return restore_policy(run_dir, module.make_train(env, cfg), RunnerConfig(**config["runner"]))
     from agentax.train.host import make_host_env, restore_policy
 
-    env = make_host_env(config["env"], 1)
+    runner = config.get("runner", {})
+    options = {
+        "backend": runner.get("env_backend", "auto"),
+        "sticky_actions": runner.get("sticky_actions", 0.25),
+    }
+    env = make_host_env(config["env"], 1, **options)
     spec = EnvSpec.of(env)
     env.close()
     return restore_policy(Path(run_dir), module.make_agent(spec, cfg))

@@ -269,7 +269,7 @@ class OffPolicyLearner:
     uniform replay (a ``lax.scan`` over batches drawn ahead by ``as_dataset``), step by step for
     prioritized replay (each batch depends on the priorities the last one set)."""
 
-    def __init__(self, agent: Agent, replay: ReplayBuffer):
+    def __init__(self, agent: Agent, replay: Any, unroll: bool = False):
         self.experience: OffPolicy = agent.experience
         self.replay = replay
         self.learn = jax.jit(agent.learn)
@@ -280,7 +280,7 @@ class OffPolicyLearner:
                 return state, {"loss": metrics["loss"], "q_mean": metrics.get("q_mean", metrics["loss"])}
 
             keys = jax.random.split(key, self.experience.gradient_steps)
-            state, metrics = jax.lax.scan(one, state, (samples, keys))
+            state, metrics = jax.lax.scan(one, state, (samples, keys), unroll=unroll)
             return state, jax.tree.map(lambda m: m.mean(), metrics)
 
         self.learn_many = jax.jit(learn_many)
@@ -387,7 +387,7 @@ def train(
     if isinstance(experience, OffPolicy):
         replay = replay_for(agent, actor.env, runner.seed)
         observer = ReplayObserver(replay, experience.n_step, experience.discount_factor)
-        learner = OffPolicyLearner(agent, replay)
+        learner = OffPolicyLearner(agent, replay, unroll=is_image(actor.env.observation_space().shape))
     logger = RunLogger(
         run,
         agent.total_steps,

@@ -36,6 +36,7 @@ import numpy as np
 
 from agentax.agents.protocol import Agent, Episodes, OffPolicy
 from agentax.errors import UsageError
+from agentax.nets import is_image
 from agentax.runs import Run
 from agentax.train.driver import FinishedReturns, ReplayObserver
 from agentax.train.host import (
@@ -475,7 +476,7 @@ def _off_policy(
     for i, actor in enumerate(actors):
         threads.append(ActorThread(actor, lambda thread, i=i: collect(thread, i), coordinator, i))
     rows.meter = Meter(threads)
-    learner = OffPolicyLearner(agent, replay)
+    learner = OffPolicyLearner(agent, replay, unroll=is_image(actors[0].env.observation_space().shape))
 
     def drain() -> list[float]:
         return [r for actor in actors for r in actor.finished_returns()]
