@@ -56,6 +56,8 @@ class RunArgs:
     """parallel runner, on-policy: parameter versions between collecting and learning (0: sequential)"""
     env_backend: str = "auto"
     """Atari: envpool or ale (ale-py with Gymnasium's wrappers); auto: envpool where it is installed"""
+    checkpoint_replay: bool = True
+    """off-policy (host, parallel): save the replay buffer with the checkpoints (--no-checkpoint-replay)"""
     sticky_actions: float = 0.25
     """Atari: probability that the emulator repeats the last action (0.25 as Gymnasium's v5; 0 as
     CleanRL's and EnvPool's published figures)"""
@@ -217,7 +219,13 @@ def _start_host(algo, module, run_args: RunArgs, cfg, preset, kind: str, out: Pa
     probe.close()
     agent = module.make_agent(spec, cfg)  # refuses what the agent cannot train before anything is written
     stop = parse_stop(run_args.stop_at_return, preset, env_spec)
-    common = {"seed": run_args.seed, "eval_episodes": preset.eval_episodes, "stop_at_return": stop, **atari}
+    common = {
+        "seed": run_args.seed,
+        "eval_episodes": preset.eval_episodes,
+        "stop_at_return": stop,
+        "checkpoint_replay": run_args.checkpoint_replay,
+        **atari,
+    }
     if kind == "parallel":
         runner = ParallelRunnerConfig(**common, actors=run_args.actors, policy_lag=run_args.policy_lag)
         runner.check(agent)

@@ -10,6 +10,7 @@ buffer-sized array, which a functional JAX update outside ``jit`` would.
 from __future__ import annotations
 
 import collections
+import json
 import queue
 import threading
 from collections.abc import Callable, Iterator
@@ -166,14 +167,57 @@ class ReplayBuffer:
         else:
             self.state = init(capacity, example_transition)
         self.rng = np.random.default_rng(seed)
-        self.lock = threading.Lock()
+        self.lock = threading.RLock()
 
     @property
     def size(self) -> int:
         return self.state.buffer.size if self.prioritized else self.state.size
 
-    def add_batch(self, batch: Any) -> None:
-        """Add transitions ``[batch, ...]``."""
+    @property
+    def nbytes(self) -> int:
+        """Bytes the buffer's arrays hold."""
+        uniform = self.state.buffer if self.prioritized else self.state
+        tree = self.state.tree.nbytes if self.prioritized else 0
+        return tree + sum(leaf.nbytes for leaf in jax.tree.leaves(uniform.storage))
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """Every array (not copies) and counter as NumPy arrays, for a checkpoint."""
+        with self.lock:
+            uniform = self.state.buffer if self.prioritized else self.state
+            names = [
+                jax.tree_util.keystr(path) for path, _ in jax.tree_util.tree_leaves_with_path(uniform.storage)
+            ]
+            state = {
+                f"storage{name}": leaf
+                for name, leaf in zip(names, jax.tree.leaves(uniform.storage), strict=True)
+            }
+            state["counters"] = np.array([uniform.position, uniform.size])
+            if self.prioritized:
+                state["tree"], state["max_priority"] = self.state.tree, np.float64(self.state.max_priority)
+            state["rng"] = np.array(json.dumps(self.rng.bit_generator.state))
+            return state
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore what :meth:`state_dict` returned, into a buffer made with the same settings."""
+        with self.lock:
+            uniform = self.state.buffer if self.prioritized else self.state
+            paths = jax.tree_util.tree_leaves_with_path(uniform.storage)
+            for path, leaf in paths:
+                got = np.asarray(state[f"storage{jax.tree_util.keystr(path)}"])
+                if got.shape != leaf.shape or got.dtype != leaf.dtype:
+                    raise ValueError(
+                        f"replay array {jax.tree_util.keystr(path)} is {got.dtype}{list(got.shape)}"
+                    )
+                leaf[...] = got
+            uniform.position, uniform.size = (int(x) for x in state["counters"])
+            if self.prioritized:
+                self.state.tree[...] = state["tree"]
+                self.state.max_priority = float(state["max_priority"])
+            self.rng.bit_generator.state = json.loads(str(state["rng"]))
+
+    def add_batch(self, batch: Any, envs: Any = None) -> None:
+        """Add transitions ``[batch, ...]``. ``envs`` (which env streams they come from) is ignored:
+        this buffer keeps whole transitions, not streams (``FrameReplayBuffer`` needs it)."""
         with self.lock:
             (add_prioritized if self.prioritized else add)(self.state, batch)
 
@@ -260,3 +304,17 @@ class NStepAccumulator:
             truncated=truncated[last, envs],
             num_steps=(last + 1).astype(np.int32),
         )
+
+
+def save_replay(buffer: Any, path: Any) -> None:
+    """Write a replay buffer's ``state_dict`` (this module's or the frame buffer's) compressed and
+    atomically (no pickle)."""
+    from agentax.replay import frames
+
+    frames.save(buffer, path)
+
+
+def restore_replay(buffer: Any, path: Any) -> None:
+    """Load what :func:`save_replay` wrote into ``buffer`` (made with the same settings)."""
+    with np.load(path, allow_pickle=False) as data:
+        buffer.load_state_dict({name: data[name] for name in data.files})

@@ -18,6 +18,7 @@ Gymnasium env's state cannot be saved) and refills its replay buffer.
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -34,7 +35,7 @@ from agentax.evaluate import host_episode_returns
 from agentax.nets import is_image
 from agentax.policies import Policy
 from agentax.replay import Transition, example_transition
-from agentax.replay.host import ReplayBuffer
+from agentax.replay.host import ReplayBuffer, restore_replay, save_replay
 from agentax.runs import Run, load_checkpoint
 from agentax.train.driver import (
     Driver,
@@ -66,6 +67,10 @@ class HostRunnerConfig:
     """Atari only: envpool or ale (auto: envpool where it is installed)"""
     sticky_actions: float = 0.25
     """Atari only: the probability that the emulator repeats the last action (Gymnasium's v5: 0.25)"""
+    checkpoint_replay: bool = True
+    """off-policy: keep the replay buffer beside the checkpoints, so a resumed run has its experience"""
+    replay_checkpoint_every_seconds: float = 600.0
+    """off-policy: save the replay at most this often (it can hold gigabytes), and at the end"""
 
 
 @dataclass
@@ -343,6 +348,43 @@ class Evaluator:
         self.env.close()
 
 
+class ReplayCheckpoints:
+    """The replay buffer beside the agent's checkpoints: ``checkpoints/replay-<updates>.npz``,
+    compressed and written atomically (no pickle), after an agent checkpoint at most every
+    ``every_seconds`` and whenever the run ends; the two newest are kept. A resumed run loads the
+    newest one not after its agent checkpoint (users of SB3, RLlib and TF-Agents report learning
+    collapsing after a restore without the buffer)."""
+
+    PREFIX = "replay-"
+
+    def __init__(self, run: Run | None, replay: Any, enabled: bool, every_seconds: float):
+        self.run, self.replay = run, replay
+        self.enabled = enabled and run is not None
+        self.every_seconds, self.saved_at = every_seconds, time.perf_counter()
+
+    def files(self) -> list[Path]:
+        folder = self.run.path / "checkpoints"
+        found = folder.glob(f"{self.PREFIX}*.npz")
+        return sorted(found, key=lambda p: int(p.stem.removeprefix(self.PREFIX)))
+
+    def after_checkpoint(self, updates: int, force: bool) -> None:
+        if not self.enabled or not (force or time.perf_counter() - self.saved_at >= self.every_seconds):
+            return
+        save_replay(self.replay, self.run.path / "checkpoints" / f"{self.PREFIX}{updates}.npz")
+        self.saved_at = time.perf_counter()
+        for old in self.files()[:-2]:
+            old.unlink(missing_ok=True)
+
+    def restore(self, updates: int) -> None:
+        if not self.enabled:
+            return
+        usable = [p for p in self.files() if int(p.stem.removeprefix(self.PREFIX)) <= updates]
+        if not usable:
+            print("note: no saved replay buffer to resume with; it refills", file=sys.stderr)
+            return
+        restore_replay(self.replay, usable[-1])
+
+
 def checkpoint_target(agent: Agent) -> Any:
     """The shapes of a host checkpoint: ``(agent state, learner key)``."""
     return jax.eval_shape(lambda key: (agent.init(key), key), jax.random.key(0))
@@ -388,6 +430,11 @@ def train(
         replay = replay_for(agent, actor.env, runner.seed)
         observer = ReplayObserver(replay, experience.n_step, experience.discount_factor)
         learner = OffPolicyLearner(agent, replay, unroll=is_image(actor.env.observation_space().shape))
+        replay_checkpoints = ReplayCheckpoints(
+            run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
+        )
+        if resume:
+            replay_checkpoints.restore(updates)
     logger = RunLogger(
         run,
         agent.total_steps,
@@ -435,6 +482,8 @@ def train(
                     drain_returns(),
                     (env_steps - steps_at_log) / max(now - time_at_log, 1e-9),
                 )
+                if isinstance(experience, OffPolicy):
+                    row.update(replay_size=replay.size, replay_bytes=replay.nbytes)
                 if runner.stop_at_return is not None:
                     row["eval_return"] = float(np.mean(evaluator(state)[0]))
                     solved = row["eval_return"] >= runner.stop_at_return
@@ -446,7 +495,9 @@ def train(
                     "episodes": actor.episodes.count,
                     "elapsed": logger.wall_seconds(),
                 }
-                logger.checkpoint(updates, (state, learner_key), meta, force=finished or solved)
+                saved = logger.checkpoint(updates, (state, learner_key), meta, force=finished or solved)
+                if saved and isinstance(experience, OffPolicy):
+                    replay_checkpoints.after_checkpoint(updates, force=finished or solved)
                 if solved:
                     break
         finally:

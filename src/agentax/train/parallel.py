@@ -44,6 +44,7 @@ from agentax.train.host import (
     Evaluator,
     HostResult,
     OffPolicyLearner,
+    ReplayCheckpoints,
     actor_seed,
     agent_keys,
     collection_over,
@@ -84,6 +85,10 @@ class ParallelRunnerConfig:
     """Atari only: envpool or ale (auto: envpool where it is installed)"""
     sticky_actions: float = 0.25
     """Atari only: the probability that the emulator repeats the last action (Gymnasium's v5: 0.25)"""
+    checkpoint_replay: bool = True
+    """off-policy: keep the replay buffer beside the checkpoints, so a resumed run has its experience"""
+    replay_checkpoint_every_seconds: float = 600.0
+    """off-policy: save the replay at most this often (it can hold gigabytes), and at the end"""
 
     def check(self, agent: Agent) -> None:
         """A ``UsageError`` for settings this agent cannot run with."""
@@ -352,6 +357,8 @@ class _Rows:
     def __init__(self, runner, logger: RunLogger, evaluator: Evaluator, done_steps: int):
         self.runner, self.logger, self.evaluator = runner, logger, evaluator
         self.meter: Meter | None = None  # set once the actor threads exist
+        self.replay: Any = None  # off-policy: its size in the rows
+        self.replay_checkpoints: ReplayCheckpoints | None = None
         self.next_log = done_steps + runner.log_every_steps
         self.steps_at_log, self.time_at_log = done_steps, time.perf_counter()
 
@@ -368,6 +375,8 @@ class _Rows:
             env_steps, updates, returns(), (env_steps - self.steps_at_log) / max(now - self.time_at_log, 1e-9)
         )
         row.update(self.meter.row(collected, updates, learner_wait))
+        if self.replay is not None:
+            row.update(replay_size=self.replay.size, replay_bytes=self.replay.nbytes)
         solved = False
         if self.runner.stop_at_return is not None:
             row["eval_return"] = float(np.mean(self.evaluator(state)[0]))
@@ -380,7 +389,9 @@ class _Rows:
             "episodes": 0,
             "elapsed": self.logger.wall_seconds(),
         }
-        self.logger.checkpoint(updates, (state, learner_key), meta, force=final or solved)
+        saved = self.logger.checkpoint(updates, (state, learner_key), meta, force=final or solved)
+        if saved and self.replay_checkpoints is not None:
+            self.replay_checkpoints.after_checkpoint(updates, force=final or solved)
         return solved
 
 
@@ -446,6 +457,12 @@ def _off_policy(
     """Actors fill the shared replay as the rate limiter allows; the learner learns as it allows."""
     experience: OffPolicy = agent.experience
     replay = replay_for(agent, actors[0].env, runner.seed)
+    rows.replay = replay
+    rows.replay_checkpoints = ReplayCheckpoints(
+        rows.logger.run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
+    )
+    if updates:  # a resumed run
+        rows.replay_checkpoints.restore(updates)
     chunk = experience.train_frequency * (experience.num_envs // runner.actors)
     limiter = RateLimiter(
         coordinator,
@@ -459,7 +476,8 @@ def _off_policy(
     total = agent.total_steps
 
     def collect(thread: ActorThread, index: int) -> None:
-        observer = ReplayObserver(replay, experience.n_step, experience.discount_factor)
+        envs = slice(index * thread.actor.env.num_envs, (index + 1) * thread.actor.env.num_envs)
+        observer = ReplayObserver(replay, experience.n_step, experience.discount_factor, envs)
         thread.actor.progress = lambda: limiter.inserted  # ε follows the whole run's env steps
         while True:
             thread.wait_seconds += limiter.await_insert()
