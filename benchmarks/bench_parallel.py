@@ -277,11 +277,11 @@ def overlap_rows(label: str, agent, on_policy: bool) -> tuple[list[list], dict]:
 
 def collection_breakdown(agent) -> dict:
     """Microseconds per env step of DQN collection's parts: Gymnasium's step, the jitted act call
-    (dispatch, run, device_get), the jitted n-step push; the rest is the Driver and observers."""
+    (dispatch, run, device_get), the NumPy n-step push; the rest is the Driver and observers."""
     import jax
 
-    from agentax.replay import nstep
-    from agentax.train.driver import _push, first_time_step
+    from agentax.replay.host import NStepAccumulator
+    from agentax.train.driver import first_time_step
     from agentax.train.host import make_host_env
 
     experience = agent.experience
@@ -317,8 +317,8 @@ def collection_breakdown(agent) -> dict:
         num_steps=np.ones(envs, np.int32),
         info=None,
     )
-    accumulator = nstep.init(experience.n_step, jax.tree.map(np.asarray, transition))
-    push_us = per_step(lambda: jax.device_get(_push(accumulator, transition, experience.discount_factor)))
+    accumulator = NStepAccumulator(experience.n_step, experience.discount_factor)
+    push_us = per_step(lambda: accumulator.push(transition))
     env.close()
     return {"gym": gym_us, "act": act_us, "push": push_us}
 
