@@ -390,3 +390,113 @@ def test_as_dataset_draws_batches_ahead_for_uniform_replay_only():
     assert set(batch.indices.ravel().tolist()) <= set(buffer.valid_indices().tolist())
     with pytest.raises(ValueError, match="uniform replay only"):
         filled(prioritized=True).as_dataset(4)
+
+
+def split_batch(batch, envs):
+    """The rows ``envs`` of a transition ``[num_envs]``: what an actor stepping those envs adds."""
+    return Transition(**{name: np.asarray(getattr(batch, name))[envs] for name in FIELDS})
+
+
+def assert_same_buffers(got, expected):
+    valid = expected.valid_indices()
+    assert got.size == expected.size and np.array_equal(np.sort(got.valid_indices()), np.sort(valid))
+    for name, counter in expected.counters.items():
+        np.testing.assert_array_equal(got.counters[name], counter, err_msg=name)
+    if len(valid):
+        for name, x in vars(got.gather(valid)).items():
+            np.testing.assert_array_equal(x, getattr(expected.gather(valid), name), err_msg=name)
+    if expected.tree is not None:
+        np.testing.assert_array_equal(got.tree, expected.tree)
+
+
+@settings(max_examples=25, deadline=None, database=None)
+@given(
+    seed=st.integers(0, 2**16),
+    capacity=st.integers(8, 40),
+    n_step=st.integers(1, 3),
+    mean_length=st.sampled_from([1.5, 4.0, 1e9]),
+    prioritized=st.booleans(),
+    permuted=st.booleans(),
+)
+def test_two_actors_adding_interleaved_halves_give_what_one_adder_of_all_envs_gives(
+    seed, capacity, n_step, mean_length, prioritized, permuted
+):
+    num_envs = 4
+    kwargs = dict(stack=3, frame_shape=(2, 2), n_step=n_step, prioritized=prioritized, seed=seed)
+    one, two = (
+        FrameReplayBuffer(capacity, num_envs, **kwargs),
+        FrameReplayBuffer(capacity, num_envs, **kwargs),
+    )
+    halves = [np.array([3, 0]), np.array([1, 2])] if permuted else [slice(0, 2), np.array([2, 3])]
+    for t, batch in enumerate(env_stream(seed, num_envs, 3, (2, 2), mean_length, 3 * capacity)):
+        one.add_batch(batch)
+        for envs in halves if t % 2 else halves[::-1]:  # the actors' order changes from step to step
+            two.add_batch(split_batch(batch, envs), envs=envs)
+        assert_same_buffers(two, one)
+        if not two.size:
+            continue
+        sample = two.sample(6)
+        np.testing.assert_array_equal(sample.transition.obs, one.gather(sample.indices).obs)
+
+
+def test_actors_at_different_paces_add_their_envs_to_one_buffer():
+    num_envs, capacity = 4, 80
+    stream = list(env_stream(5, num_envs, 4, (2, 2), 6.0, 60))
+    naive = NaiveReplay(capacity, num_envs, 3, 0.99)
+    for batch in stream:
+        naive.add_batch(batch)  # the whole history: a complete window never changes afterwards
+    buffer = FrameReplayBuffer(capacity, num_envs, stack=4, frame_shape=(2, 2), n_step=3, prioritized=True)
+    one = FrameReplayBuffer(capacity, num_envs, stack=4, frame_shape=(2, 2), n_step=3, prioritized=True)
+    first, second = slice(0, 2), np.array([2, 3])
+    for t in range(len(stream) + 7):  # the first actor runs 7 steps ahead of the second
+        if t < len(stream):
+            buffer.add_batch(split_batch(stream[t], first), envs=first)
+        if t >= 7:
+            buffer.add_batch(split_batch(stream[t - 7], second), envs=second)
+        valid = buffer.valid_indices()
+        for i, index in enumerate(valid):
+            step, env = divmod(int(index), num_envs)
+            assert_same(buffer.gather(valid), i, naive.transition(env, step), f"env {env} step {step}")
+        leaves = buffer.tree[len(buffer.tree) // 2 :]
+        assert set(np.flatnonzero(leaves > 0).tolist()) == set(buffer.leaves(valid).tolist())
+    for batch in stream:
+        one.add_batch(batch)
+    assert_same_buffers(buffer, one)
+
+
+def test_add_batch_checks_its_envs():
+    buffer = FrameReplayBuffer(16, 4, stack=2, frame_shape=(1, 1))
+    batch = next(env_stream(0, 4, 2, (1, 1), 1e9, 1))
+    with pytest.raises(ValueError, match=r"uint8 \[2, 2, 1, 1\]"):
+        buffer.add_batch(batch, envs=slice(0, 2))  # four envs' rows for two envs
+    for envs, message in ((np.array([0, 4]), "not all in 0..3"), (np.array([1, 1]), "twice")):
+        with pytest.raises(ValueError, match=message):
+            buffer.add_batch(split_batch(batch, [0, 1]), envs=envs)
+    with pytest.raises(ValueError, match="1-D integer"):
+        buffer.add_batch(split_batch(batch, [0, 1]), envs=np.array([0.0, 1.0]))
+    assert buffer.counters["steps"].tolist() == [0, 0, 0, 0]  # nothing was added
+
+
+def test_replay_observers_of_two_actors_fill_their_envs_of_a_shared_buffer():
+    from agentax.replay import example_transition
+    from agentax.replay.host import ReplayBuffer
+
+    shared = FrameReplayBuffer(64, 4, stack=2, frame_shape=(1, 1), n_step=3)
+    one = FrameReplayBuffer(64, 4, stack=2, frame_shape=(1, 1), n_step=3)
+    observers = [ReplayObserver(shared, 3, 0.99, envs=slice(2 * i, 2 * i + 2)) for i in range(2)]
+    for batch in env_stream(2, 4, 2, (1, 1), 5.0, 20):
+        one.add_batch(batch)
+        for i, observer in enumerate(observers):
+            observer(split_batch(batch, slice(2 * i, 2 * i + 2)))
+    assert_same_buffers(shared, one)
+    plain = ReplayBuffer(16, example_transition(np.zeros(3, np.float32), np.int32(0)))
+    observer = ReplayObserver(plain, 1, 0.99, envs=slice(2, 4))  # stores transitions: envs ignored
+    observer(
+        Transition(
+            **{
+                name: x[:, :1, 0, 0].astype(np.float32) if name.endswith("obs") else x
+                for name, x in vars(split_batch(batch, slice(2, 4))).items()
+            }
+        )
+    )
+    assert plain.size == 2

@@ -278,13 +278,17 @@ class FrameReplayBuffer:
 
     # ------------------------------------------------------------------ adding
 
-    def add_batch(self, transition: Transition) -> None:
-        """Add one step of every env: one-step transition fields ``[num_envs, ...]``, ``obs`` and
-        ``next_obs`` uint8 ``[num_envs, stack, *frame_shape]``, ``next_obs`` the observation the step
-        really reached (``TimeStep.final_obs``), ``action`` integer (stored as int32). Only
-        ``next_obs[:, -1]`` is stored, and a first stack where a stream or an episode starts."""
+    def add_batch(self, transition: Transition, envs: Any = None) -> None:
+        """Add one step of the env streams ``envs`` (an int array or a slice of ``range(num_envs)``;
+        None: all of them): one-step transition fields ``[len(envs), ...]``, ``obs`` and ``next_obs``
+        uint8 ``[len(envs), stack, *frame_shape]``, ``next_obs`` the observation the step really
+        reached (``TimeStep.final_obs``), ``action`` integer (stored as int32). Only
+        ``next_obs[:, -1]`` is stored, and a first stack where a stream or an episode starts. Actors
+        that each step a share of the envs add their share with its ``envs``; each stream's calls must
+        be consecutive steps of that env."""
+        envs = self._env_ids(envs)
         obs, next_obs = np.asarray(transition.obs), np.asarray(transition.next_obs)
-        shape = (self.num_envs, self.stack, *self.frame_shape)
+        shape = (len(envs), self.stack, *self.frame_shape)
         for name, x in (("obs", obs), ("next_obs", next_obs)):
             if x.shape != shape or x.dtype != np.uint8:
                 raise ValueError(f"{name} must be uint8 {list(shape)}, got {x.dtype}{list(x.shape)}")
@@ -295,23 +299,41 @@ class FrameReplayBuffer:
         terminated = np.asarray(transition.terminated, bool)
         truncated = np.asarray(transition.truncated, bool)
         with self.lock:
-            self._add(obs, next_obs, transition.action, transition.reward, terminated, truncated)
+            self._add(envs, obs, next_obs, transition.action, transition.reward, terminated, truncated)
 
-    def _add(self, obs, next_obs, action, reward, terminated, truncated) -> None:
-        c, data, envs = self.counters, self.step_data, np.arange(self.num_envs)
-        steps, written, slots, frame_slots = c["steps"], c["frames_written"], self.slots, self.frame_slots
-        old_lo, old_hi = c["lo"].copy(), c["hi"].copy()
+    def _env_ids(self, envs: Any) -> np.ndarray:
+        """``envs`` (None, a slice or integers) as distinct env indices ``int64 [k]``."""
+        if envs is None:
+            return np.arange(self.num_envs)
+        if isinstance(envs, slice):
+            return np.arange(self.num_envs)[envs]
+        ids = np.asarray(envs)
+        if ids.ndim != 1 or not np.issubdtype(ids.dtype, np.integer):
+            raise ValueError(f"envs must be a slice or a 1-D integer array, got {ids.dtype}{list(ids.shape)}")
+        if len(ids) and (ids.min() < 0 or ids.max() >= self.num_envs):
+            raise ValueError(f"envs {ids.tolist()} are not all in 0..{self.num_envs - 1}")
+        if len(np.unique(ids)) != len(ids):
+            raise ValueError(f"envs {ids.tolist()} name an env twice")
+        return ids.astype(np.int64)
+
+    def _add(self, envs, obs, next_obs, action, reward, terminated, truncated) -> None:
+        """One step of the streams ``envs``: their counters are read, advanced and written back."""
+        c, data = self.counters, self.step_data
+        slots, frame_slots = self.slots, self.frame_slots
+        steps, written, last_end = c["steps"][envs], c["frames_written"][envs], c["last_end"][envs]
+        old_lo, old_hi = c["lo"][envs], c["hi"][envs]
+        new_stream = self.new_stream[envs]
         # a stream that restarts mid-episode ends the n-step windows of its last step there
-        broken = np.flatnonzero(self.new_stream & (steps > 0) & (c["last_end"] != steps - 1))
-        data["cut"][broken, (steps[broken] - 1) % slots] = True
-        c["last_end"][broken] = steps[broken] - 1
-        starting = np.flatnonzero(self.new_stream)
+        broken = new_stream & (steps > 0) & (last_end != steps - 1)
+        data["cut"][envs[broken], (steps[broken] - 1) % slots] = True
+        last_end[broken] = steps[broken] - 1
+        starting = np.flatnonzero(new_stream)
         if len(starting):
             positions = (written[starting, None] + np.arange(self.stack)) % frame_slots
             first = obs[starting]
             if self.zero_pad_starts:
                 first = np.concatenate([np.zeros_like(first[:, 1:]), first[:, -1:]], axis=1)
-            self.frames[starting[:, None], positions] = first
+            self.frames[envs[starting, None], positions] = first
             written[starting] += self.stack
         self.frames[envs, written % frame_slots] = next_obs[:, -1]
         slot = steps % slots
@@ -323,9 +345,8 @@ class FrameReplayBuffer:
         data["cut"][envs, slot] = False
         written += 1
         ended = terminated | truncated
-        c["last_end"][ended] = steps[ended]
+        last_end[ended] = steps[ended]
         steps += 1
-        self.new_stream = ended
         # the oldest sampleable step: still in the step ring, its first stack frame still in the frame ring
         lo = np.maximum(old_lo, steps - slots)
         while True:
@@ -335,17 +356,20 @@ class FrameReplayBuffer:
             if not stale.any():
                 break
             lo += stale
-        hi = np.maximum(np.maximum(steps - self.n_step + 1, c["last_end"] + 1), lo)
-        c["lo"], c["hi"] = lo, hi
+        hi = np.maximum(np.maximum(steps - self.n_step + 1, last_end + 1), lo)
+        c["steps"][envs], c["frames_written"][envs], c["last_end"][envs] = steps, written, last_end
+        c["lo"][envs], c["hi"][envs] = lo, hi
+        self.new_stream[envs] = ended
         if self.tree is not None:
-            self._update_leaves(old_lo, old_hi, lo, hi)
+            self._update_leaves(envs, old_lo, old_hi, lo, hi)
 
-    def _update_leaves(self, old_lo, old_hi, lo, hi) -> None:
-        """Zero the leaves of steps no longer sampleable, give the newly sampleable ones max priority."""
+    def _update_leaves(self, envs, old_lo, old_hi, lo, hi) -> None:
+        """Zero the leaves of steps no longer sampleable, give the newly sampleable ones max priority
+        (the streams ``envs``; the bounds are theirs, in the same order)."""
         gone, new = [], []
-        for e in range(self.num_envs):
-            gone.append(e * self.slots + np.arange(old_lo[e], min(lo[e], old_hi[e])) % self.slots)
-            new.append(e * self.slots + np.arange(max(old_hi[e], lo[e]), hi[e]) % self.slots)
+        for i, e in enumerate(envs):
+            gone.append(e * self.slots + np.arange(old_lo[i], min(lo[i], old_hi[i])) % self.slots)
+            new.append(e * self.slots + np.arange(max(old_hi[i], lo[i]), hi[i]) % self.slots)
         gone, new = np.concatenate(gone).astype(np.int64), np.concatenate(new).astype(np.int64)
         if len(gone) and len(new):  # a slot can hold a step that left and one that came in
             gone = gone[~np.isin(gone, new)]

@@ -166,10 +166,15 @@ class ReplayObserver:
     :class:`agentax.replay.host.ReplayBuffer`), through the n-step accumulator when ``n_step > 1``
     (:class:`agentax.replay.host.NStepAccumulator`, the NumPy twin of the compiled runner's) unless
     the buffer builds n-step transitions itself (``handles_n_step``, as
-    :class:`agentax.replay.frames.FrameReplayBuffer`): it is then given one-step transitions."""
+    :class:`agentax.replay.frames.FrameReplayBuffer`): it is then given one-step transitions.
 
-    def __init__(self, buffer: Any, n_step: int = 1, discount_factor: float = 0.99):
+    ``envs`` (an int array or a slice; None: all) names the buffer's env streams this observer's
+    envs are, in order: an actor that steps a share of the envs of a shared buffer passes its share
+    (``add_batch(transition, envs=envs)``; a buffer of whole transitions ignores it)."""
+
+    def __init__(self, buffer: Any, n_step: int = 1, discount_factor: float = 0.99, envs: Any = None):
         self.buffer = buffer
+        self.envs = envs
         one_step = n_step == 1 or getattr(buffer, "handles_n_step", False)
         self.accumulator = None if one_step else NStepAccumulator(n_step, discount_factor)
 
@@ -179,7 +184,7 @@ class ReplayObserver:
             transition = self.accumulator.push(transition)
             if transition is None:
                 return
-        self.buffer.add_batch(transition)
+        self.buffer.add_batch(transition, envs=self.envs)
 
 
 class TrajectoryObserver:
