@@ -13,7 +13,8 @@ and ``agentax train --resume DIR`` work on any of them::
       curve.png        episode return against env steps: mean and 95 % interval across seeds
       eval.json        the trained greedy policy on fresh evaluation seeds: mean_return,
                        std_return, min_return, max_return, episodes, pooled over seeds at the top
-                       level and per seed under "per_seed"
+                       level and per seed under "per_seed"; with several seeds also iqm, median
+                       and 95 % intervals across the seeds (iqm_ci, mean_ci, median_ci)
 
 ``load_policy(run_dir)`` rebuilds the trained policy of any run (any algorithm, any runner).
 """
@@ -39,6 +40,7 @@ from agentax import _xla
 from agentax.errors import UsageError
 from agentax.evaluate import EvalStats
 from agentax.policies import Policy
+from agentax.report import aggregate
 
 SEARCH_MODULES: dict[str, str] = {
     "ga": "agentax.search.genetic",
@@ -313,17 +315,23 @@ class Run:
         return path
 
     def write_eval(self, per_seed_returns: np.ndarray, per_seed_lengths: np.ndarray, **extra: Any) -> dict:
-        """Write eval.json from returns ``[num_seeds, episodes]``: pooled stats on top, per seed below."""
+        """Write eval.json from returns ``[num_seeds, episodes]``: pooled stats on top, per seed below.
+
+        With several seeds it also holds the aggregates of :mod:`agentax.report` over the seeds'
+        mean returns: ``iqm``, ``median`` and the 95 % stratified-bootstrap intervals ``iqm_ci``,
+        ``mean_ci`` (of ``mean_return``, which equals the mean of the seeds' means) and ``median_ci``.
+        """
         per_seed_returns, per_seed_lengths = np.atleast_2d(per_seed_returns), np.atleast_2d(per_seed_lengths)
         pooled = EvalStats.from_returns(per_seed_returns.ravel(), per_seed_lengths.ravel())
-        result = {
-            **vars(pooled),
-            "per_seed": [
-                vars(EvalStats.from_returns(r, n))
-                for r, n in zip(per_seed_returns, per_seed_lengths, strict=True)
-            ],
-            **extra,
-        }
+        per_seed = [
+            vars(EvalStats.from_returns(returns, lengths))
+            for returns, lengths in zip(per_seed_returns, per_seed_lengths, strict=True)
+        ]
+        across_seeds = {}
+        if len(per_seed) > 1:
+            across_seeds = aggregate([s["mean_return"] for s in per_seed])
+            del across_seeds["mean"]  # mean_return already
+        result = {**vars(pooled), "per_seed": per_seed, **across_seeds, **extra}
         write_json(self.path / "eval.json", result)
         return result
 

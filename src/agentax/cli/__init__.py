@@ -26,14 +26,29 @@ COMMANDS: dict[str, str] = {
     "demo": "the main job: train an agent on CartPole and show the result",
     "train": "train an agent (reinforce, ppo, dqn) into a run folder; --resume DIR continues one",
     "plot": "overlay the learning curves of run folders into one PNG",
+    "report": "compare runs across seeds: IQM, mean, median with 95 % bootstrap intervals",
     "search": "policy search: (p, r) of the vacuum robot by grid/random search; GA or CEM on CartPole",
     "solve": "solve a tabular MDP: value / Q-value iteration, TD, Q-learning, SARSA (--plot compares)",
 }
 
 
+def version() -> str:
+    """The installed distribution's version (importlib.metadata), else the package's ``__version__``."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as installed_version
+
+    try:
+        return installed_version("agentax")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        from agentax import __version__
+
+        return __version__
+
+
 def usage() -> str:
     width = max(map(len, COMMANDS))
-    lines = ["usage: agentax COMMAND [ARGS] (agentax COMMAND --help for its arguments)", "", "commands:"]
+    lines = ["usage: agentax [--version] COMMAND [ARGS] (agentax COMMAND --help for its arguments)", ""]
+    lines += ["commands:"]
     lines += [f"  {name:<{width}}  {summary}" for name, summary in COMMANDS.items()]
     return "\n".join(lines)
 
@@ -42,6 +57,9 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if not argv or argv[0] in ("-h", "--help"):
         print(usage())
+        return 0
+    if argv[0] in ("-V", "--version"):
+        print(f"agentax {version()}")
         return 0
     name, args = argv[0], argv[1:]
     if name not in COMMANDS:

@@ -3,16 +3,38 @@
 ``compiled`` trains JAX envs inside one jitted, vmapped-over-seeds program; ``host`` steps any env
 on the host with a Driver, one step after the other; ``parallel`` runs the host runner's actors in
 threads beside a learner. :func:`load_policy` rebuilds the greedy policy of a run of any of them.
+
+This module is also callable: ``agentax.train("ppo", env=..., ...)`` is :func:`agentax.api.train`.
+Python sets the attribute ``agentax.train`` to this subpackage whenever it is first imported
+(``import agentax.train.host``), so a *function* named ``agentax.train`` would be replaced by the
+module, or would hide it (``agentax.train.compiled`` would fail). The module's class is therefore a
+``ModuleType`` subclass with a ``__call__`` that forwards to the API (``__class__`` assignment on a
+module is supported since Python 3.5), and both uses share one name. The API is imported only on
+call, so the runners do not depend on it.
 """
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 from agentax.policies import Policy
 
 RUNNERS = ("compiled", "host", "parallel")
+
+
+class _CallableModule(ModuleType):
+    """``agentax.train``: the runners' subpackage, and, called, :func:`agentax.api.train`."""
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        from agentax.api import train
+
+        return train(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule
 
 
 def load_policy(run_dir: str | Path, config: dict[str, Any]) -> Policy:

@@ -1,0 +1,472 @@
+"""One Python call for what ``agentax train`` does, and the trained run as an object.
+
+::
+
+    import agentax
+
+    run = agentax.train("ppo", env="CartPole-v1", seeds=4, total_steps=50_000, learning_rate=1e-3)
+    run.evaluate(episodes=100, seed=1).mean_return   # the statistics `agentax evaluate` prints
+    run.metrics[-1]["mean_return"]                    # the rows of metrics.csv
+    run.plot("curve.png"); run.video("episode.gif")
+    run = agentax.load(run.path)                      # the same, from the folder, later
+
+:func:`train` picks the preset and the runner exactly as ``agentax train`` does (the compiled
+runner for agentax's JAX envs, the host runner for other ids; ``runner="parallel"``,
+``actors=...``, ``policy_lag=...`` as the flags); keyword arguments beyond its own override fields of
+the algorithm's config (``learning_rate=...``) or of :class:`RunArgs` (``env_backend=...``). The
+command line is a thin layer over this module: ``agentax train`` parses its flags into a
+:class:`RunArgs` and the algorithm's config with tyro, then calls :func:`start` (``--resume``:
+:func:`resume`), the functions :func:`train` calls.
+
+The function is reached as ``agentax.train(...)`` although ``agentax.train`` is the runners'
+subpackage: that module is callable (see :mod:`agentax.train`), so ``import agentax.train.host``
+and ``agentax.train("ppo", ...)`` work side by side.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from agentax.agents import Preset, algorithm
+from agentax.errors import UsageError
+from agentax.evaluate import EvalStats
+from agentax.policies import Policy
+
+
+@dataclass(frozen=True)
+class RunArgs:
+    """Where and how to train (the algorithm's own settings follow)."""
+
+    env: str = "CartPole-v1"
+    """environment id (agentax's JAX envs train compiled; other Gymnasium ids on the host)"""
+    preset: str = "auto"
+    """named, tuned settings to start from; 'auto' picks the algorithm's preset for the env, else 'default'"""
+    seed: int = 0
+    """seed of the first agent (agent k uses seed + k)"""
+    seeds: int = 1
+    """independent agents trained together (vmapped into one program)"""
+    stop_at_return: str = "auto"
+    """stop once the evaluation mean reaches this number; 'none' trains for all of total_steps; 'auto' uses
+    the env's solved threshold in solving presets"""
+    out: str | None = None
+    """run folder (default runs/<algo>-<env>-<time>)"""
+    progress: bool = True
+    """show a progress bar"""
+    runner: str = "auto"
+    """compiled (JAX envs, seeds vmapped), host (any env, one step after the other), parallel (actor
+    threads beside a learner); auto: compiled for agentax's JAX envs, else host"""
+    actors: int = 2
+    """parallel runner: actor threads (the envs are split evenly between them)"""
+    envs_per_actor: int | None = None
+    """parallel runner: envs per actor (sets the algorithm's number of envs to actors × this)"""
+    policy_lag: int = 1
+    """parallel runner, on-policy: parameter versions between collecting and learning (0: sequential)"""
+    env_backend: str = "auto"
+    """Atari: envpool or ale (ale-py with Gymnasium's wrappers); auto: envpool where it is installed"""
+    checkpoint_replay: bool = True
+    """off-policy (host, parallel): save the replay buffer with the checkpoints (--no-checkpoint-replay)"""
+    sticky_actions: float = 0.25
+    """Atari: probability that the emulator repeats the last action (0.25 as Gymnasium's v5; 0 as
+    CleanRL's and EnvPool's published figures)"""
+
+    def check(self) -> RunArgs:
+        """Raise ``UsageError`` on a value no runner accepts; return ``self``."""
+        if self.seeds < 1:
+            raise UsageError(f"--seeds must be at least 1, got {self.seeds}")
+        return self
+
+
+# The trained run.
+
+
+class Run:
+    """A run folder written by :func:`train` (or ``agentax train``), with what a user asks of it.
+
+    ``policy`` is the greedy policy (the best seed by the final evaluation); ``evaluate`` plays it
+    on fresh episodes; ``metrics`` are the rows of metrics.csv; ``final_eval`` is eval.json (the
+    evaluation at the end of training); ``plot`` and ``video`` write the learning curve and one
+    episode. ``result`` is the runner's :class:`~agentax.train.compiled.TrainResult` or
+    :class:`~agentax.train.host.HostResult` when this process trained the run, else ``None``.
+    (Not to be confused with :class:`agentax.runs.Run`, the writer a runner logs through.)
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        config: dict[str, Any] | None = None,
+        result: Any = None,
+        seconds: float | None = None,
+        greedy: Policy | None = None,
+    ):
+        from agentax.runs import read_config
+
+        self.path = Path(path)
+        self.config = read_config(self.path) if config is None else config
+        self.result = result
+        self.seconds = seconds
+        if greedy is not None:
+            self.__dict__["policy"] = greedy  # fills the cached property: the trained state, in memory
+
+    @property
+    def algo(self) -> str:
+        return self.config["algo"]
+
+    @property
+    def env(self) -> str:
+        """The env id the run trained on."""
+        return self.config["env"]
+
+    @property
+    def runner_kind(self) -> str:
+        return self.config.get("runner_kind", "compiled")
+
+    @cached_property
+    def policy(self) -> Policy:
+        """The greedy policy ``(obs, key) -> action`` of the run's best seed, from its newest checkpoint."""
+        from agentax.train import load_policy
+
+        return load_policy(self.path, self.config)
+
+    def evaluate(self, episodes: int = 100, seed: int = 0) -> EvalStats:
+        """The policy's returns over ``episodes`` fresh episodes: what ``agentax evaluate --policy DIR
+        --episodes N --seed S`` prints (``mean_return``, ``std_return``, ...)."""
+        from agentax.envs import make
+        from agentax.evaluate import check_policy_fits, evaluate
+
+        if episodes <= 0:
+            raise UsageError(f"episodes must be at least 1, not {episodes}")
+        env = make(self.env, num_envs=min(episodes, 16))
+        check_policy_fits(env, self.policy, self.env)
+        return evaluate(env, self.policy, episodes, seed)
+
+    @property
+    def metrics(self) -> list[dict[str, float]]:
+        """The rows of metrics.csv (env_steps, mean_return, return_seed<k>, ...), as floats."""
+        from agentax.runs import read_metrics
+
+        return read_metrics(self.path)
+
+    @property
+    def final_eval(self) -> dict[str, Any]:
+        """eval.json: the evaluation at the end of training, pooled and ``per_seed``."""
+        import json
+
+        path = self.path / "eval.json"
+        if not path.is_file():
+            raise UsageError(f"{self.path} has no eval.json yet (its training has not finished)")
+        return json.loads(path.read_text())
+
+    def plot(self, path: str | Path | None = None) -> Path:
+        """Write the learning curve (mean over seeds, 95 % band) as a PNG; default ``<run>/curve.png``."""
+        from agentax.runs import plot_curves
+
+        return plot_curves([self.path], self.path / "curve.png" if path is None else path)
+
+    def video(self, path: str | Path | None = None, seed: int = 0) -> Path:
+        """Play one episode of the policy and write it as a .gif or .mp4; default ``<run>/episode.gif``."""
+        from agentax.envs import make
+        from agentax.render import check_video_path, save_episode
+
+        path = check_video_path(self.path / "episode.gif" if path is None else path)
+        written, _ = save_episode(make(self.env, 1), self.policy, path, seed)
+        return written
+
+    def __repr__(self) -> str:
+        return f"Run({str(self.path)!r}, algo={self.algo!r}, env={self.env!r}, runner={self.runner_kind!r})"
+
+
+def load(run_dir: str | Path) -> Run:
+    """The run in ``run_dir`` (written by :func:`train` or ``agentax train``)."""
+    return Run(run_dir)
+
+
+# Choosing the settings (shared with ``agentax train``).
+
+
+def choose_preset(algo: str, env_id: str, name: str = "auto") -> tuple[str, Preset]:
+    """``(name, preset)``: ``name``, or for 'auto' the algorithm's preset for the env (any Atari id
+    counts as 'atari'), else 'default'."""
+    module = algorithm(algo)
+    if name == "auto":
+        from agentax.envs.atari import is_atari_id
+
+        key = "atari" if is_atari_id(env_id) else env_id
+        name = getattr(module, "DEFAULT_PRESETS", {}).get(key, "default")
+    if name not in module.PRESETS:
+        raise UsageError(f"unknown {algo} preset {name!r}; choose from {', '.join(module.PRESETS)}")
+    return name, module.PRESETS[name]
+
+
+def parse_stop(value: str, preset: Any, env: Any) -> float | None:
+    if value == "none":
+        return None
+    if value == "auto":
+        solved = getattr(env, "reward_threshold", None)
+        return float(solved) if preset.stop_at_solved and solved is not None else None
+    try:
+        return float(value)
+    except ValueError:
+        raise UsageError(f"--stop-at-return must be a number, 'none' or 'auto', got {value!r}") from None
+
+
+def _is_jax_env(env_id: str) -> bool:
+    from agentax.envs import JAX_ENVS
+
+    return env_id in JAX_ENVS
+
+
+def _jax_env_ids() -> list[str]:
+    from agentax.envs import JAX_ENVS
+
+    return list(JAX_ENVS)
+
+
+def runner_kind(run_args: RunArgs) -> str:
+    """The runner a training uses: ``--runner``, or compiled for a JAX env and host for others."""
+    if run_args.runner == "auto":
+        return "compiled" if _is_jax_env(run_args.env) else "host"
+    from agentax.train import RUNNERS
+
+    if run_args.runner not in RUNNERS:
+        raise UsageError(f"unknown runner {run_args.runner!r}; choose from {', '.join(RUNNERS)}")
+    if run_args.runner == "compiled" and not _is_jax_env(run_args.env):
+        raise UsageError(
+            f"the compiled runner needs one of agentax's JAX envs ({', '.join(_jax_env_ids())}); "
+            f"train {run_args.env} with --runner host or --runner parallel"
+        )
+    return run_args.runner
+
+
+# Training: the one code path of agentax.train and `agentax train`.
+
+
+def _announce(message: str, quiet: bool) -> None:
+    if not quiet:
+        print(message, file=sys.stderr)
+
+
+def start(algo: str, run_args: RunArgs, cfg: Any, preset: Preset, *, quiet: bool = False) -> Run:
+    """Create the run folder and train ``cfg`` of ``algo`` as ``run_args`` say; the trained :class:`Run`."""
+    from agentax import _xla
+    from agentax.runs import Run as RunFolder
+    from agentax.runs import default_run_dir, run_config
+
+    module = algorithm(algo)
+    _xla.enable_compilation_cache()
+    out = Path(run_args.out) if run_args.out else default_run_dir(algo, run_args.env)
+    kind = runner_kind(run_args)
+    if kind == "compiled":
+        from agentax.envs import make_jax
+        from agentax.train.compiled import RunnerConfig
+
+        env = make_jax(run_args.env)
+        stop = parse_stop(run_args.stop_at_return, preset, env)
+        runner = RunnerConfig(
+            seed=run_args.seed,
+            num_seeds=run_args.seeds,
+            updates_per_chunk=preset.updates_per_chunk,
+            eval_every_chunks=preset.eval_every_chunks,
+            eval_episodes=preset.eval_episodes,
+            stop_at_return=stop,
+        )
+        settings = module.config_to_dict(cfg)
+        run = RunFolder.create(
+            out, run_config(algo, run_args.env, run_args.preset, "compiled", runner, settings)
+        )
+        _announce(f"training {algo} on {run_args.env} ({run_args.seeds} seed(s)) into {out}", quiet)
+        return _train_compiled(module, env, cfg, runner, run, resume=False, progress=run_args.progress)
+    return _start_host(algo, module, run_args, cfg, preset, kind, out, quiet)
+
+
+def _start_host(
+    algo: str, module: Any, run_args: RunArgs, cfg: Any, preset: Preset, kind: str, out: Path, quiet: bool
+) -> Run:
+    """The host or parallel runner: one seed per process, any env id."""
+    from agentax.agents.protocol import EnvSpec, OffPolicy
+    from agentax.runs import Run as RunFolder
+    from agentax.runs import run_config
+    from agentax.train.host import HostRunnerConfig, make_host_env
+    from agentax.train.parallel import ParallelRunnerConfig
+
+    if run_args.seeds != 1:
+        raise UsageError(
+            f"the {kind} runner trains one seed per process (--seeds 1); --seeds N is compiled-only"
+        )
+    if kind == "parallel" and run_args.envs_per_actor is not None:
+        envs = "num_envs" if hasattr(cfg, "num_envs") else "episodes_per_update"
+        cfg = dataclasses.replace(cfg, **{envs: run_args.actors * run_args.envs_per_actor}).validate()
+    atari = {"env_backend": run_args.env_backend, "sticky_actions": run_args.sticky_actions}
+    probe = make_host_env(
+        run_args.env, 1, backend=run_args.env_backend, sticky_actions=run_args.sticky_actions
+    )
+    spec, env_spec = EnvSpec.of(probe), getattr(getattr(probe, "vector_env", None), "spec", None)
+    probe.close()
+    agent = module.make_agent(spec, cfg)  # refuses what the agent cannot train before anything is written
+    stop = parse_stop(run_args.stop_at_return, preset, env_spec)
+    common = {
+        "seed": run_args.seed,
+        "eval_episodes": preset.eval_episodes,
+        "stop_at_return": stop,
+        "checkpoint_replay": run_args.checkpoint_replay,
+        **atari,
+    }
+    if kind == "parallel":
+        runner = ParallelRunnerConfig(**common, actors=run_args.actors, policy_lag=run_args.policy_lag)
+        runner.check(agent)
+        where = f"{runner.actors} actor{'s' if runner.actors > 1 else ''}"
+        if not isinstance(agent.experience, OffPolicy):
+            where += f", policy lag {runner.policy_lag}"
+    else:
+        runner, where = HostRunnerConfig(**common), "host"
+    run = RunFolder.create(
+        out, run_config(algo, run_args.env, run_args.preset, kind, runner, module.config_to_dict(cfg))
+    )
+    _announce(f"training {algo} on {run_args.env} ({where}) into {out}", quiet)
+    return _train_host(agent, kind, runner, run, resume=False, progress=run_args.progress)
+
+
+def _train_host(agent: Any, kind: str, runner: Any, run: Any, *, resume: bool, progress: bool) -> Run:
+    from agentax.train import host, parallel
+
+    start_time = time.perf_counter()
+    train = parallel.train if kind == "parallel" else host.train
+    result = train(agent, run.config["env"], runner, run, resume=resume, progress=progress)
+    seconds = time.perf_counter() - start_time
+    return Run(run.path, run.config, result, seconds, greedy=agent.greedy_policy(result.state))
+
+
+def _train_compiled(
+    module: Any, env: Any, cfg: Any, runner: Any, run: Any, *, resume: bool, progress: bool
+) -> Run:
+    from agentax.train.compiled import train
+
+    start_time = time.perf_counter()
+    # algo, env id and config determine the program (agentax's own envs take no outside params)
+    description = {key: run.config[key] for key in ("algo", "env", "config")}
+    compiled_algorithm = module.make_train(env, cfg)
+    result = train(
+        compiled_algorithm,
+        env,
+        runner,
+        run,
+        resume=resume,
+        progress=progress,
+        program_description=description,
+    )
+    seconds = time.perf_counter() - start_time
+    per_seed = result.eval.get("per_seed", [])
+    best = int(np.argmax([s["mean_return"] for s in per_seed])) if per_seed else 0  # as restore_policy
+    greedy = compiled_algorithm.greedy_policy(jax.tree.map(lambda x: x[best], result.state))
+    return Run(run.path, run.config, result, seconds, greedy=greedy)
+
+
+def resume(run_dir: str | Path, progress: bool = True, *, quiet: bool = False) -> Run:
+    """Continue the run in ``run_dir`` from its newest good checkpoint; the trained :class:`Run`."""
+    from agentax import _xla
+    from agentax.runs import Run as RunFolder
+    from agentax.runs import latest_checkpoint, read_config
+
+    run_dir = Path(run_dir)
+    config = read_config(run_dir)
+    latest_checkpoint(run_dir)  # a clear error before anything starts if there is none
+    algo = config["algo"]
+    module = algorithm(algo)
+    cfg = module.config_from_dict(config["config"])
+    _xla.enable_compilation_cache()
+    kind = config.get("runner_kind", "compiled")
+    _announce(f"resuming {algo} on {config['env']} ({kind} runner) from {run_dir}", quiet)
+    try:
+        if kind in ("host", "parallel"):
+            from agentax.agents.protocol import EnvSpec
+            from agentax.train.host import HostRunnerConfig, make_host_env
+            from agentax.train.parallel import ParallelRunnerConfig
+
+            runner = (ParallelRunnerConfig if kind == "parallel" else HostRunnerConfig)(**config["runner"])
+            probe = make_host_env(
+                config["env"], 1, backend=runner.env_backend, sticky_actions=runner.sticky_actions
+            )
+            spec = EnvSpec.of(probe)
+            probe.close()
+            agent = module.make_agent(spec, cfg)
+            return _train_host(agent, kind, runner, RunFolder.open(run_dir), resume=True, progress=progress)
+        from agentax.envs import make_jax
+        from agentax.train.compiled import RunnerConfig
+
+        runner = RunnerConfig(**config["runner"])
+    except (KeyError, TypeError) as error:
+        raise UsageError(f"{run_dir}/config.json has no valid 'runner' settings ({error})") from None
+    env = make_jax(config["env"])
+    return _train_compiled(module, env, cfg, runner, RunFolder.open(run_dir), resume=True, progress=progress)
+
+
+def _overridden(cfg: Any, overrides: dict[str, Any]) -> Any:
+    """``cfg`` with ``overrides`` (lists become tuples, as in config.json), validated."""
+    values = {k: tuple(v) if isinstance(v, list) else v for k, v in overrides.items()}
+    cfg = dataclasses.replace(cfg, **values)
+    return cfg.validate() if hasattr(cfg, "validate") else cfg
+
+
+def train(
+    algo: str,
+    env: str = "CartPole-v1",
+    *,
+    seeds: int = 1,
+    total_steps: int | None = None,
+    preset: str = "auto",
+    out: str | Path | None = None,
+    seed: int = 0,
+    runner: str = "auto",
+    actors: int = 2,
+    policy_lag: int = 1,
+    stop_at_return: float | str | None = "auto",
+    progress: bool = True,
+    **overrides: Any,
+) -> Run:
+    """Train ``algo`` ('reinforce', 'ppo', 'dqn') on ``env`` into a run folder, as ``agentax train`` does.
+
+    ``preset`` ('auto': the algorithm's preset for the env) gives the starting config; ``total_steps``
+    and any further keyword naming a field of the algorithm's config (``learning_rate=1e-3``,
+    ``num_envs=8``) or of :class:`RunArgs` (``envs_per_actor=4``, ``env_backend='ale'``) override it;
+    another name is a :class:`~agentax.errors.UsageError` listing the known ones. ``runner``:
+    'auto' (compiled for agentax's JAX envs, else host), 'compiled', 'host' or 'parallel'.
+    ``stop_at_return``: a number, ``None`` (train all ``total_steps``) or 'auto' (the env's solved
+    threshold in solving presets). ``out``: the run folder (default ``runs/<algo>-<env>-<time>``).
+    ``progress``: the progress bar and the line naming the folder, on stderr.
+    """
+    preset_name, chosen = choose_preset(algo, env, preset)
+    run_fields = [f.name for f in dataclasses.fields(RunArgs)]
+    config_fields = [f.name for f in dataclasses.fields(chosen.config)]
+    unknown = sorted(set(overrides) - set(run_fields) - set(config_fields))
+    if unknown:
+        raise UsageError(
+            f"unknown {algo} setting{'s' if len(unknown) > 1 else ''} {', '.join(unknown)}; "
+            f"the {type(chosen.config).__name__} fields are {', '.join(config_fields)}; "
+            f"the run's: {', '.join(run_fields)}"
+        )
+    config_overrides = {k: v for k, v in overrides.items() if k in config_fields}
+    if total_steps is not None:
+        config_overrides["total_steps"] = total_steps
+    run_args = RunArgs(
+        env=env,
+        preset=preset_name,
+        seed=seed,
+        seeds=seeds,
+        stop_at_return="none" if stop_at_return is None else str(stop_at_return),
+        out=None if out is None else str(out),
+        progress=progress,
+        runner=runner,
+        actors=actors,
+        policy_lag=policy_lag,
+        **{k: v for k, v in overrides.items() if k in run_fields},
+    ).check()
+    cfg = _overridden(chosen.config, config_overrides)
+    return start(algo, run_args, cfg, chosen, quiet=not progress)
