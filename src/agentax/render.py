@@ -5,6 +5,10 @@ drawn afterwards on the host with the env's ``render_frame`` (CartPole's cart an
 vacuum's room with the dust it has left). A Gymnasium env draws itself with
 ``render_mode="rgb_array"``. A thin bar along the bottom of each frame shows the time elapsed
 out of the episode's limit.
+
+An Atari game (:func:`record_atari_game`) is filmed from the emulator's full-resolution RGB screen
+(210x160, upscaled by an integer factor, nearest neighbour), one frame per agent step, written to
+the file as it is played (an MP4 of a whole 108,000-frame game never sits in memory).
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ import imageio.v3 as iio
 import jax
 import numpy as np
 
-from agentax.envs import Environment, GymnasiumEnv
+from agentax.envs import AtariEnv, Environment, GymnasiumEnv
 from agentax.envs.core import EnvParams, rollout
 from agentax.envs.gym import frames_per_second
 from agentax.errors import UsageError
@@ -67,6 +71,8 @@ def record_episode(
     (a :class:`GymnasiumEnv` or an id) is made again with ``render_mode="rgb_array"``. Episodes of
     more than ``max_frames`` frames keep ``max_frames`` of them, evenly spread.
     """
+    if isinstance(env, AtariEnv):
+        raise UsageError(f"{env.id} is an Atari game: record it with record_atari_game (whole games)")
     if isinstance(env, str | GymnasiumEnv):
         return _record_gymnasium(env, policy, seed, max_steps, max_frames)
     if isinstance(policy, HostPolicy):
@@ -175,3 +181,138 @@ def save_episode(
     check_video_path(path)
     episode = record_episode(env, policy, seed, env_params)
     return write_video(episode.frames, path, episode.fps), episode
+
+
+ATARI_FPS = 15.0
+"""frames per second of an Atari video: one per agent step, 4 of the emulator's 60 a second (real time)"""
+
+
+@dataclass(frozen=True)
+class Game:
+    """One recorded Atari game."""
+
+    score: float  # the true score: every life, raw rewards
+    length: int  # agent steps (4 emulator frames each)
+    video_frames: int  # frames written: ``length``, fewer in a GIF of a game longer than its cap
+    truncated: bool  # ended by the frame cap (108,000 frames), not by game over
+
+
+def _upscaled(frame: np.ndarray, scale: int) -> np.ndarray:
+    """``frame [H, W, 3]`` ``scale`` times larger (nearest neighbour), padded to even sides for H.264."""
+    if scale > 1:
+        frame = np.repeat(np.repeat(frame, scale, axis=0), scale, axis=1)
+    height, width = frame.shape[:2]
+    if height % 2 or width % 2:
+        frame = np.pad(frame, ((0, height % 2), (0, width % 2), (0, 0)), mode="edge")
+    return np.ascontiguousarray(frame, np.uint8)
+
+
+class _Mp4Writer:
+    """Frames streamed to ffmpeg (H.264) as they come."""
+
+    def __init__(self, path: Path, fps: float, scale: int):
+        self.path, self.fps, self.scale, self.frames, self.writer = path, fps, scale, 0, None
+
+    def append(self, frame: np.ndarray) -> None:
+        frame = _upscaled(frame, self.scale)
+        if self.writer is None:
+            import imageio_ffmpeg
+
+            height, width = frame.shape[:2]
+            self.writer = imageio_ffmpeg.write_frames(
+                str(self.path), (width, height), fps=self.fps, macro_block_size=1, ffmpeg_log_level="error"
+            )
+            self.writer.send(None)
+        self.writer.send(frame)
+        self.frames += 1
+
+    def close(self) -> int:
+        if self.writer is not None:
+            self.writer.close()
+        return self.frames
+
+
+class _GifWriter:
+    """At most ``max_frames`` frames, evenly spaced over the game: every frame while they fit, then
+    every second one, every fourth..., so memory stays bounded however long the game runs."""
+
+    def __init__(self, path: Path, fps: float, scale: int, max_frames: int):
+        self.path, self.fps, self.scale, self.max_frames = path, fps, scale, max(max_frames, 2)
+        self.kept: list[np.ndarray] = []
+        self.stride, self.seen = 1, 0
+
+    def append(self, frame: np.ndarray) -> None:
+        if self.seen % self.stride == 0:
+            self.kept.append(np.array(frame, np.uint8))
+            if len(self.kept) > self.max_frames:
+                self.kept, self.stride = self.kept[::2], self.stride * 2
+        self.seen += 1
+
+    def close(self) -> int:
+        from PIL import Image
+
+        first, *rest = (
+            image.resize((image.width * self.scale, image.height * self.scale), Image.Resampling.NEAREST)
+            for image in gif_frames(np.stack(self.kept))
+        )
+        # GIF counts in hundredths of a second: durations rounded so that their running sum keeps time
+        ends = np.round(np.arange(len(self.kept) + 1) * (100.0 * self.stride / self.fps)) * 10
+        durations = np.diff(ends).astype(int).tolist()
+        first.save(self.path, save_all=True, append_images=rest, duration=durations, loop=0)
+        return len(self.kept)
+
+
+def record_atari_game(
+    env: AtariEnv,
+    policy: Policy | HostPolicy,
+    path: str | os.PathLike,
+    seed: int = 0,
+    scale: int = 3,
+    max_gif_frames: int = 1500,
+) -> tuple[Path, Game]:
+    """Play one whole game of ``policy`` (every life, until game over or the env's frame cap) and
+    write it to ``path`` (.mp4 or .gif) from the full-resolution RGB screens, ``scale`` times larger.
+
+    ``env`` is an :class:`~agentax.envs.AtariEnv` of one env in the evaluation view
+    (``training=False``), so the policy plays on after a lost life as it was evaluated. Frame ``t``
+    is the screen the policy acted on at step ``t``: an MP4 has exactly the game's ``length`` frames
+    at :data:`ATARI_FPS` (real time); a GIF keeps at most ``max_gif_frames`` of them, evenly spaced
+    and each shown as long as the frames it stands for. The file is written whole or not at all.
+    """
+    if env.num_envs != 1 or env.training:
+        raise ValueError(
+            f"record an Atari game in one env of the evaluation view (training=False), not {env}"
+        )
+    if scale < 1:
+        raise UsageError(f"the video's scale must be at least 1, not {scale}")
+    path = check_video_path(path)
+    partial_path = path.with_name(f".{path.stem}.partial{path.suffix}")
+    gif = path.suffix.lower() == ".gif"
+    writer = (
+        _GifWriter(partial_path, ATARI_FPS, scale, max_gif_frames)
+        if gif
+        else _Mp4Writer(partial_path, ATARI_FPS, scale)
+    )
+    act = host_actor(policy, seed)
+    try:
+        with warnings.catch_warnings():  # ffmpeg runs in a subprocess; its fork is followed by exec
+            warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
+            obs = env.reset(seed=seed)
+            env.drain_scores()
+            finished: list[tuple[float, int]] = []
+            truncated = False
+            while not finished:
+                writer.append(env.render_rgb())  # before the step: it shows the new game once it ends
+                time_step = env.step(act(obs))
+                finished, obs = env.drain_scores(), time_step.obs
+                truncated = bool(time_step.truncated[0] and not time_step.terminated[0])
+            video_frames = writer.close()
+        os.replace(partial_path, path)
+    except OSError as error:
+        raise UsageError(f"cannot write video {str(path)!r}: {error}") from error
+    finally:
+        if isinstance(writer, _Mp4Writer) and writer.writer is not None:
+            writer.writer.close()
+        partial_path.unlink(missing_ok=True)
+    score, length = finished[0]
+    return path, Game(score, length, video_frames, truncated)

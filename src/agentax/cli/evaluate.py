@@ -1,4 +1,9 @@
-"""``agentax evaluate``: returns of a policy over N episodes, as a table or one JSON object."""
+"""``agentax evaluate``: returns of a policy over N episodes, as a table or one JSON object.
+
+Atari games are played whole (every life, raw rewards: the true score) in EnvPool's or ale-py's
+envs, up to 16 side by side, with the trained run's env settings (backend, sticky actions) unless
+the options override them.
+"""
 
 from __future__ import annotations
 
@@ -11,9 +16,10 @@ import tyro
 from rich.console import Console
 from rich.table import Table
 
-from agentax.cli.policies import resolve_policy
+from agentax.cli.policies import env_description, resolve_policy
+from agentax.envs import AtariEnv
 from agentax.errors import UsageError
-from agentax.evaluate import EvalStats, evaluate
+from agentax.evaluate import EvalStats, evaluate, host_episode_returns
 
 
 @dataclass(frozen=True)
@@ -25,11 +31,15 @@ class EvaluateArgs:
     policy: str = "basic"
     """basic (the lecture's CartPole policy), random, or a trained run's folder"""
     episodes: int = 100
-    """number of episodes"""
+    """number of episodes (Atari: whole games, their true scores)"""
     seed: int = 0
     """random seed of the episodes and of the policy"""
     json: bool = False
     """print one JSON object instead of a table"""
+    env_backend: str | None = None
+    """Atari: envpool, ale or auto (default: the run's, else auto)"""
+    sticky_actions: float | None = None
+    """Atari: probability that the emulator repeats the last action (default: the run's, else 0.25)"""
 
 
 def policy_label(policy: str) -> str:
@@ -37,9 +47,11 @@ def policy_label(policy: str) -> str:
     return Path(policy).name if Path(policy).is_dir() else policy
 
 
-def stats_table(env_id: str, policy: str, stats: EvalStats, seed: int, seconds: float) -> Table:
+def stats_table(
+    env_id: str, policy: str, stats: EvalStats, seed: int, seconds: float, settings: str = ""
+) -> Table:
     table = Table(
-        title=f"{policy} policy on {env_id}",
+        title=f"{policy} policy on {env_id}" + (f" ({settings})" if settings else ""),
         caption=f"{stats.episodes} episodes, seed {seed}, {seconds:.2f} s",
     )
     for column in ("mean return", "std", "min", "max", "mean length"):
@@ -58,13 +70,30 @@ def main(argv: list[str]) -> int:
     args = tyro.cli(EvaluateArgs, args=argv, prog="agentax evaluate")
     if args.episodes <= 0:
         raise UsageError(f"--episodes must be at least 1, not {args.episodes}")
-    env_id, env, policy = resolve_policy(args.policy, args.env, num_envs=min(args.episodes, 16))
+    env_id, env, policy = resolve_policy(
+        args.policy,
+        args.env,
+        num_envs=min(args.episodes, 16),
+        env_backend=args.env_backend,
+        sticky_actions=args.sticky_actions,
+    )
     start = time.perf_counter()
-    stats = evaluate(env, policy, args.episodes, args.seed)
+    if isinstance(env, AtariEnv):  # whole games side by side in the evaluation view
+        try:
+            stats = EvalStats.from_returns(*host_episode_returns(env, policy, args.episodes, args.seed))
+        finally:
+            env.close()
+    else:
+        stats = evaluate(env, policy, args.episodes, args.seed)
     seconds = time.perf_counter() - start
     label = policy_label(args.policy)
     if args.json:
-        print(json.dumps({"env": env_id, "policy": label, "seed": args.seed, **vars(stats)}))
+        atari = (
+            {"env_backend": env.backend_name, "sticky_actions": env.sticky_actions}
+            if isinstance(env, AtariEnv)
+            else {}
+        )
+        print(json.dumps({"env": env_id, "policy": label, "seed": args.seed, **atari, **vars(stats)}))
     else:
-        Console().print(stats_table(env_id, label, stats, args.seed, seconds))
+        Console().print(stats_table(env_id, label, stats, args.seed, seconds, env_description(env)))
     return 0
