@@ -1,4 +1,5 @@
-"""Flax modules shared by every agent: MLP torso and the heads of the lecture.
+"""Flax modules shared by every agent: MLP torso and the heads of the lecture; DQN's Rainbow pieces
+(noisy layers, distributional heads, random-shift augmentation).
 
 Parameters are plain pytrees (``module.init`` / ``module.apply``), so they scan, vmap over seeds
 and checkpoint cleanly. Every policy network returns action *logits* ``[..., num_actions]``;
@@ -82,10 +83,80 @@ class PolicyNet(nn.Module):
         return nn.Dense(self.num_actions)(x)
 
 
-class QNetwork(nn.Module):
-    """Q-values ``[..., num_actions]``; ``dueling`` = "max" (the lecture) or "mean" splits V and A.
+class NatureConvTorso(nn.Module):
+    """The Nature CNN's three convolutions without its dense layer: ``[..., 4, 84, 84]`` → ``[..., 3136]``
+    (for a noisy 512 layer on top; :class:`NatureCNN` is the same convolutions with a plain one)."""
 
-    Dueling: ``Q = V + (A - max A)`` or ``Q = V + (A - mean A)``.
+    @nn.compact
+    def __call__(self, frames: jax.Array) -> jax.Array:
+        batch_shape = frames.shape[:-3]
+        x = frames.reshape(-1, *frames.shape[-3:]).astype(jnp.float32) / 255.0
+        x = jnp.transpose(x, (0, 2, 3, 1))  # [N, C, H, W] -> [N, H, W, C]
+        init = nn.initializers.orthogonal(jnp.sqrt(2.0))
+        for features, size, stride in ((32, 8, 4), (64, 4, 2), (64, 3, 1)):
+            x = nn.relu(
+                nn.Conv(features, (size, size), (stride, stride), padding="VALID", kernel_init=init)(x)
+            )
+        return x.reshape(*batch_shape, -1)
+
+
+def scaled_noise(x: jax.Array) -> jax.Array:
+    """``f(x) = sgn(x) · √|x|``, the map factorised noisy layers apply to their Gaussian draws."""
+    return jnp.sign(x) * jnp.sqrt(jnp.abs(x))
+
+
+def factorised_noise(key: jax.Array, in_features: int, out_features: int) -> tuple[jax.Array, jax.Array]:
+    """Factorised Gaussian noise (Fortunato et al., 2018): ``(ε_kernel [in, out], ε_bias [out])``.
+
+    ``in + out`` standard normal draws instead of ``in · out``: ``ε_kernel = f(ε_in) ⊗ f(ε_out)``,
+    ``ε_bias = f(ε_out)`` with ``f`` = :func:`scaled_noise`.
+    """
+    in_key, out_key = jax.random.split(key)
+    eps_in = scaled_noise(jax.random.normal(in_key, (in_features,)))
+    eps_out = scaled_noise(jax.random.normal(out_key, (out_features,)))
+    return jnp.outer(eps_in, eps_out), eps_out
+
+
+class NoisyDense(nn.Module):
+    """A dense layer with factorised Gaussian weight noise (NoisyNet, Fortunato et al., 2018).
+
+    ``y = x (μ_W + σ_W ⊙ ε_W) + μ_b + σ_b ⊙ ε_b`` with the noise of :func:`factorised_noise`, drawn
+    per call from the ``"noise"`` rng (``apply(..., rngs={"noise": key})``); one draw serves the
+    whole batch. ``deterministic=True`` uses the mean weights (evaluation). The means are named
+    ``kernel`` and ``bias`` as in ``nn.Dense``; initialisation as in the paper: ``μ ~ U[−1/√p, 1/√p]``,
+    ``σ = σ0/√p`` for ``p`` inputs.
+    """
+
+    features: int
+    sigma0: float = 0.5
+
+    @nn.compact
+    def __call__(self, x: jax.Array, deterministic: bool = True) -> jax.Array:
+        in_features = x.shape[-1]
+        bound = 1.0 / jnp.sqrt(in_features)
+
+        def uniform(key, shape, dtype=jnp.float32):
+            return jax.random.uniform(key, shape, dtype, -bound, bound)
+
+        sigma = nn.initializers.constant(self.sigma0 * bound)
+        kernel = self.param("kernel", uniform, (in_features, self.features))
+        bias = self.param("bias", uniform, (self.features,))
+        sigma_kernel = self.param("sigma_kernel", sigma, (in_features, self.features))
+        sigma_bias = self.param("sigma_bias", sigma, (self.features,))
+        if deterministic:
+            return x @ kernel + bias
+        eps_kernel, eps_bias = factorised_noise(self.make_rng("noise"), in_features, self.features)
+        return x @ (kernel + sigma_kernel * eps_kernel) + bias + sigma_bias * eps_bias
+
+
+class QNetwork(nn.Module):
+    """Q-values ``[..., num_actions]``, or with ``num_atoms`` the logits ``[..., num_actions, num_atoms]``
+    of a return distribution on ``support(v_min, v_max, num_atoms)`` (C51).
+
+    ``dueling`` = "max" (the lecture) or "mean" splits V and A: ``Q = V + (A - max A)`` or
+    ``Q = V + (A - mean A)``; with atoms, per atom, before the softmax over atoms (Rainbow).
+    ``noisy``: the last hidden layer (the Nature CNN's 512 dense, or the MLP's last) and the heads are
+    :class:`NoisyDense`; call with ``deterministic=False`` and ``rngs={"noise": key}`` to draw noise.
     """
 
     num_actions: int
@@ -94,26 +165,68 @@ class QNetwork(nn.Module):
     dueling: str | None = None
     cnn: bool = False
     """the Nature CNN torso (image observations) instead of the MLP"""
+    num_atoms: int | None = None
+    """distributional (C51): logits over this many atoms per action (None: Q-values)"""
+    v_min: float = -10.0
+    v_max: float = 10.0
+    noisy: bool = False
+    """factorised noisy layers (NoisyNet) after the torso"""
+    noisy_sigma0: float = 0.5
 
     @nn.compact
-    def __call__(self, obs: jax.Array) -> jax.Array:
-        x = NatureCNN()(obs) if self.cnn else MLP(self.hidden, self.activation)(obs.astype(jnp.float32))
+    def __call__(self, obs: jax.Array, deterministic: bool = True) -> jax.Array:
+        def dense(features: int):
+            if self.noisy:
+                return lambda x: NoisyDense(features, self.noisy_sigma0)(x, deterministic)
+            return nn.Dense(features)
+
+        if not self.noisy:
+            x = NatureCNN()(obs) if self.cnn else MLP(self.hidden, self.activation)(obs.astype(jnp.float32))
+        elif self.cnn:
+            x = nn.relu(dense(512)(NatureConvTorso()(obs)))
+        else:
+            x = MLP(self.hidden[:-1], self.activation)(obs.astype(jnp.float32))
+            if self.hidden:
+                x = ACTIVATIONS[self.activation](dense(self.hidden[-1])(x))
+        atoms = self.num_atoms or 1
+        batch_shape = x.shape[:-1]
         if self.dueling is None:
-            return nn.Dense(self.num_actions)(x)
-        value = nn.Dense(1)(x)  # (..., 1)
-        advantage = nn.Dense(self.num_actions)(x)  # (..., num_actions)
-        return dueling_aggregate(value, advantage, self.dueling)
+            out = dense(self.num_actions * atoms)(x).reshape(*batch_shape, self.num_actions, atoms)
+        else:
+            value = dense(atoms)(x).reshape(*batch_shape, 1, atoms)
+            advantage = dense(self.num_actions * atoms)(x).reshape(*batch_shape, self.num_actions, atoms)
+            out = dueling_aggregate(value, advantage, self.dueling, axis=-2)
+        return out[..., 0] if self.num_atoms is None else out  # (..., num_actions[, num_atoms])
 
 
-def dueling_aggregate(value: jax.Array, advantage: jax.Array, mode: str) -> jax.Array:
-    """``V + (A - max A)`` (mode "max") or ``V + (A - mean A)`` (mode "mean")."""
+def support(v_min: float, v_max: float, num_atoms: int) -> jax.Array:
+    """The C51 support ``[num_atoms]``: returns evenly spaced from ``v_min`` to ``v_max``."""
+    return jnp.linspace(v_min, v_max, num_atoms)
+
+
+def dueling_aggregate(value: jax.Array, advantage: jax.Array, mode: str, axis: int = -1) -> jax.Array:
+    """``V + (A - max A)`` (mode "max") or ``V + (A - mean A)`` (mode "mean"), over the actions ``axis``."""
     if mode == "max":
-        baseline = advantage.max(axis=-1, keepdims=True)
+        baseline = advantage.max(axis=axis, keepdims=True)
     elif mode == "mean":
-        baseline = advantage.mean(axis=-1, keepdims=True)
+        baseline = advantage.mean(axis=axis, keepdims=True)
     else:
         raise ValueError(f"unknown dueling mode {mode!r}; choose from max, mean")
     return value + advantage - baseline
+
+
+def shift(frames: jax.Array, dx: jax.Array, dy: jax.Array, pad: int = 4) -> jax.Array:
+    """Frames ``[C, H, W]`` moved right by ``dx`` and down by ``dy`` pixels (each in ``[−pad, pad]``),
+    the edges replicated: ``out[:, y, x] = frames[:, clip(y − dy), clip(x − dx)]``."""
+    padded = jnp.pad(frames, ((0, 0), (pad, pad), (pad, pad)), mode="edge")
+    return jax.lax.dynamic_slice(padded, (0, pad - dy, pad - dx), frames.shape)
+
+
+def random_shift(key: jax.Array, frames: jax.Array, pad: int = 4) -> jax.Array:
+    """DrQ's augmentation (Kostrikov et al., 2020) on a batch ``[B, C, H, W]``: pad each sample by
+    ``pad`` replicated pixels and crop back to ``H × W`` at a uniformly random offset, per sample."""
+    offsets = jax.random.randint(key, (frames.shape[0], 2), -pad, pad + 1)
+    return jax.vmap(lambda f, o: shift(f, o[0], o[1], pad))(frames, offsets)
 
 
 def sample_action(key: jax.Array, logits: jax.Array) -> jax.Array:

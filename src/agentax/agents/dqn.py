@@ -18,7 +18,17 @@ Double DQN          ``double``                     Q_select is the online networ
 dueling             ``dueling``                    ``Q = V + (A − max A)`` (the lecture) or mean
 prioritized replay  ``prioritized``                sample ∝ (|δ| + ε)^ζ, loss weighted by w
 n-step returns      ``n_step`` > 1                 r is a discounted sum of n rewards, γ^n bootstrap
+distributional      ``distributional``             C51: a categorical return distribution per
+(C51)               (``num_atoms``, ``v_min``,     action, Q = Σ z p; the target distribution
+                    ``v_max``)                     r + γ^k z (1 − terminated) is projected onto the
+                                                   support; cross-entropy loss (also the priority)
+noisy networks      ``noisy`` (``noisy_sigma0``)   factorised Gaussian weight noise after the torso
+                                                   explores (ε can be 0); evaluation: mean weights
+augmentation        ``augment="shift"``            DrQ's random shifts of replayed frames (±4 px)
 ==================  =============================  ==========================================
+
+All of them together (Double, dueling, prioritized, n-step, distributional, noisy) are Rainbow
+(Hessel et al., 2018); preset ``der`` is its data-efficient version for Atari 100k.
 
 Without a target network (``target_update_period=0``, the lecture's plain DQN) both Q_select and
 Q_target are the online network, and ``double`` changes nothing.
@@ -54,7 +64,7 @@ from agentax.agents import Preset
 from agentax.agents.protocol import Agent, CompiledAlgorithm, EnvSpec, OffPolicy, any_seed
 from agentax.envs.core import Discrete, Environment
 from agentax.errors import UsageError
-from agentax.nets import QNetwork, is_image
+from agentax.nets import QNetwork, is_image, random_shift, support
 from agentax.policies import Policy, epsilon_greedy, linear_schedule
 from agentax.replay import ReplaySample, Transition, example_transition, nstep, prioritized, uniform
 from agentax.returns import EpisodeStats
@@ -130,6 +140,24 @@ class DQNConfig:
     ``freeze_episodes`` episodes, played on side envs during training, returned at least this."""
     freeze_episodes: int = 8
     """Greedy episodes (and side envs) behind ``freeze_at_return``."""
+    distributional: bool = False
+    """C51 (Bellemare et al., 2017): learn a categorical return distribution on ``num_atoms`` atoms from
+    v_min to v_max (cross-entropy to the projected target; ``loss`` is then unused)."""
+    num_atoms: int = 51
+    """Atoms of the distributional support."""
+    v_min: float = -10.0
+    """The distributional support's lowest return."""
+    v_max: float = 10.0
+    """The distributional support's highest return."""
+    noisy: bool = False
+    """Noisy networks (Fortunato et al., 2018): factorised Gaussian noise in the last hidden layer and
+    the heads, drawn anew at every action and learning step; exploration comes from the noise (ε can be
+    0); evaluation uses the mean weights."""
+    noisy_sigma0: float = 0.5
+    """σ0 of the noisy layers: the noise scale starts at σ0/√(inputs)."""
+    augment: str = "none"
+    """Image augmentation of replayed observations: "none" or "shift" (DrQ: pad 4 pixels by replication,
+    crop back at a random offset, per sample, for obs and next_obs)."""
 
     @property
     def steps_per_update(self) -> int:
@@ -186,6 +214,13 @@ class DQNConfig:
             (
                 self.schedule_unit == "steps" or self.num_envs == 1,
                 "schedule_unit='episodes' (the lecture's loop) needs num_envs=1",
+            ),
+            (self.num_atoms >= 2, f"num_atoms must be at least 2, got {self.num_atoms}"),
+            (self.v_min < self.v_max, f"v_min must be below v_max, got {self.v_min} and {self.v_max}"),
+            (self.noisy_sigma0 >= 0, f"noisy_sigma0 must be >= 0, got {self.noisy_sigma0}"),
+            (
+                self.augment in AUGMENTATIONS,
+                f"unknown augment {self.augment!r}; choose from {', '.join(AUGMENTATIONS)}",
             ),
         ]
         for ok, message in checks:
@@ -274,6 +309,45 @@ NATURE = dataclasses.replace(
 synced every 1,000 learning steps, a learning step of batch 32 every 4 agent steps, ε 1 → 0.01 over
 1M agent steps, 80k random steps first, 1M transitions of replay, 10M agent steps."""
 
+DER = DQNConfig(
+    distributional=True,
+    num_atoms=51,
+    v_min=-10.0,
+    v_max=10.0,
+    noisy=True,
+    noisy_sigma0=0.1,
+    dueling=True,
+    dueling_baseline="mean",
+    double=True,
+    prioritized=True,
+    priority_exponent=0.5,
+    importance_exponent_start=0.4,
+    n_step=10,
+    discount_factor=0.99,
+    optimizer="adam",
+    learning_rate=1e-4,
+    adam_eps=1.5e-4,
+    max_grad_norm=10.0,
+    batch_size=32,
+    buffer_size=100_000,
+    target_update_period=2_000,
+    num_envs=1,
+    learning_starts=1_600,
+    train_frequency=1,
+    gradient_steps=1,
+    epsilon_start=0.0,
+    epsilon_end=0.0,
+    exploration_duration=1,
+    total_steps=100_000,
+)
+"""Data-efficient Rainbow (van Hasselt, Hessel & Aslanides, 2019) for Atari 100k: 100k agent steps
+(400k frames), a learning step (batch 32) every agent step from step 1,600 on, target every 2,000
+learning steps, Adam 1e-4 (ε 1.5e-4), 10-step returns (the paper: 20; 10 as SPR and Dopamine's
+``DER.gin``), prioritized replay (ζ 0.5, β 0.4 → 1) of all 100k transitions, dueling (mean), Double,
+C51 (51 atoms on ±10), noisy nets σ0 0.1 and no ε (Dopamine's DER.gin keeps ε 0.01 after 2,000 steps).
+The paper's smaller torso (256 hidden units) is not reproduced: the Nature CNN's. ``--augment shift``
+adds DrQ's random shifts."""
+
 DEFAULT_PRESETS: dict[str, str] = {"atari": "lecture-atari"}
 """the preset ``--preset auto`` picks for an env ("atari": every Atari game; else "default")"""
 
@@ -294,6 +368,12 @@ PRESETS: dict[str, Preset] = {
     ),
     "nature": Preset(
         NATURE, "DQN as in the Nature paper / CleanRL's dqn_atari (Adam 1e-4, 1M replay)", eval_episodes=10
+    ),
+    "der": Preset(
+        DER,
+        "data-efficient Rainbow for Atari 100k (van Hasselt et al. 2019): C51, noisy nets, dueling, "
+        "Double, PER, 10-step returns, a learning step per agent step; add --augment shift for DrQ's shifts",
+        eval_episodes=10,
     ),
     "lecture": Preset(
         LECTURE,
@@ -330,7 +410,28 @@ def q_network(cfg: DQNConfig, num_actions: int, cnn: bool = False) -> QNetwork:
         activation=cfg.activation,
         dueling=cfg.dueling_baseline if cfg.dueling else None,
         cnn=cnn,
+        num_atoms=cfg.num_atoms if cfg.distributional else None,
+        v_min=cfg.v_min,
+        v_max=cfg.v_max,
+        noisy=cfg.noisy,
+        noisy_sigma0=cfg.noisy_sigma0,
     )
+
+
+def forward(network: QNetwork, params: Any, obs: jax.Array, noise_key: jax.Array | None = None) -> jax.Array:
+    """The network's output (Q-values, or C51 logits ``[..., num_actions, num_atoms]``); a noisy network
+    draws its noise from ``noise_key``, or uses its mean weights without one."""
+    if network.noisy and noise_key is not None:
+        return network.apply(params, obs, deterministic=False, rngs={"noise": noise_key})
+    return network.apply(params, obs)
+
+
+def q_values(network: QNetwork, output: jax.Array) -> jax.Array:
+    """Q-values ``[..., num_actions]`` from the network's output: itself, or ``Σ_i z_i p_i`` (C51)."""
+    if network.num_atoms is None:
+        return output
+    probs = jax.nn.softmax(output, axis=-1)  # (..., num_actions, num_atoms)
+    return jnp.sum(probs * support(network.v_min, network.v_max, network.num_atoms), axis=-1)
 
 
 def optimizer(cfg: DQNConfig) -> optax.GradientTransformation:
@@ -359,7 +460,12 @@ def num_actions_of(action_space: Any) -> int:
 def init(key: jax.Array, obs_example: jax.Array, num_actions: int, cfg: DQNConfig) -> DQNState:
     """A fresh learner for observations shaped like ``obs_example`` (one observation; stacked
     frames ``[4, 84, 84]`` get the Nature CNN)."""
-    network = q_network(cfg, num_actions, cnn=is_image(jnp.shape(obs_example)))
+    cnn = is_image(jnp.shape(obs_example))
+    if cfg.augment != "none" and not cnn:
+        raise UsageError(
+            f"augment={cfg.augment!r} shifts image frames, not observations {jnp.shape(obs_example)}"
+        )
+    network = q_network(cfg, num_actions, cnn=cnn)
     params = network.init(key, jnp.asarray(obs_example)[None])
     return DQNState(
         params=params,
@@ -371,15 +477,25 @@ def init(key: jax.Array, obs_example: jax.Array, num_actions: int, cfg: DQNConfi
 
 
 def act(state: DQNState, obs: jax.Array, key: jax.Array, epsilon: jax.Array) -> jax.Array:
-    """ε-greedy actions ``[num_envs]`` for observations ``[num_envs, *obs_shape]``."""
-    q_values = state.network.apply(state.params, obs)  # (num_envs, num_actions)
-    keys = jax.random.split(key, q_values.shape[0])
-    return jax.vmap(epsilon_greedy, in_axes=(0, 0, None))(keys, q_values, epsilon)
+    """ε-greedy actions ``[num_envs]`` for observations ``[num_envs, *obs_shape]``; a noisy network
+    draws fresh noise (one draw for all envs) from ``key``."""
+    noise_key = None
+    if state.network.noisy:
+        key, noise_key = jax.random.split(key)
+    output = forward(state.network, state.params, obs, noise_key)
+    q = q_values(state.network, output)  # (num_envs, num_actions)
+    keys = jax.random.split(key, q.shape[0])
+    return jax.vmap(epsilon_greedy, in_axes=(0, 0, None))(keys, q, epsilon)
+
+
+def greedy_q(state: DQNState, obs: jax.Array) -> jax.Array:
+    """Q-values ``[..., num_actions]`` of the online network, noisy layers at their mean weights."""
+    return q_values(state.network, forward(state.network, state.params, obs))
 
 
 def greedy_policy(state: DQNState) -> Policy:
     """The trained greedy policy ``(obs, key) -> action`` on one observation (for evaluation)."""
-    return lambda obs, key: jnp.argmax(state.network.apply(state.params, obs)).astype(jnp.int32)
+    return lambda obs, key: jnp.argmax(greedy_q(state, obs)).astype(jnp.int32)
 
 
 def td_error(
@@ -400,6 +516,43 @@ def td_error(
     return jax.lax.stop_gradient(target) - q_tm1[a_tm1]
 
 
+def categorical_projection(
+    z_t: jax.Array, probs_t: jax.Array, r_t: jax.Array, discount_t: jax.Array, z_tm1: jax.Array
+) -> jax.Array:
+    """The distribution with atoms ``r_t + discount_t · z_t`` and probabilities ``probs_t`` projected
+    onto the support ``z_tm1``, for ONE transition (C51's projection Φ).
+
+    z_t, probs_t: ``[n]``; z_tm1: ``[m]``, evenly spaced; r_t, discount_t: scalars (``discount_t`` holds
+    ``γ^k · (1 − terminated)``). Returns ``[m]`` probabilities. Each shifted atom is clipped to
+    ``[z_tm1[0], z_tm1[-1]]`` and its mass split between the two nearest support atoms in proportion to
+    closeness (all of it to one atom it lands on), so the total mass is kept.
+    """
+    delta = z_tm1[1] - z_tm1[0]
+    target_z = jnp.clip(r_t + discount_t * z_t, z_tm1[0], z_tm1[-1])  # (n,)
+    closeness = jnp.clip(1.0 - jnp.abs(target_z[None, :] - z_tm1[:, None]) / delta, 0.0, 1.0)  # (m, n)
+    return closeness @ probs_t
+
+
+def categorical_td_loss(
+    logits_tm1: jax.Array,
+    a_tm1: jax.Array,
+    r_t: jax.Array,
+    discount_t: jax.Array,
+    logits_t_value: jax.Array,
+    q_t_selector: jax.Array,
+    z: jax.Array,
+) -> jax.Array:
+    """C51's cross-entropy ``−Σ_i Φ(r_t + discount_t z)_i · log p_i(s, a_tm1)`` for ONE transition.
+
+    logits_tm1, logits_t_value: ``[num_actions, num_atoms]``; q_t_selector: ``[num_actions]`` (picks
+    the next action: the target network's Q, or the online one's for Double DQN); z: the support
+    ``[num_atoms]``. The projected target is a constant.
+    """
+    probs_t = jax.nn.softmax(logits_t_value[jnp.argmax(q_t_selector)])  # (num_atoms,)
+    target = jax.lax.stop_gradient(categorical_projection(z, probs_t, r_t, discount_t, z))
+    return -jnp.sum(target * jax.nn.log_softmax(logits_tm1[a_tm1]))
+
+
 def bootstrap_discount(transition: Transition, discount_factor: float) -> jax.Array:
     """``γ^k · (1 − terminated)`` ``[batch]``: truncation bootstraps, termination does not."""
     return (discount_factor ** transition.num_steps.astype(jnp.float32)) * (1.0 - transition.terminated)
@@ -415,6 +568,33 @@ def huber_loss(td: jax.Array) -> jax.Array:
 
 LOSSES: dict[str, Callable[[jax.Array], jax.Array]] = {"mse": squared_loss, "huber": huber_loss}
 
+AUGMENTATIONS: dict[str, Callable[[jax.Array, jax.Array], jax.Array]] = {
+    "none": lambda key, obs: obs,
+    "shift": random_shift,
+}
+"""``augment(key, obs [batch, *obs_shape]) -> obs`` applied to replayed observations"""
+
+
+def per_sample_loss(cfg: DQNConfig) -> Callable:
+    """``(out_tm1, a_tm1, r_t, discount_t, out_t_value, q_t_selector) -> (loss, priority)`` for ONE
+    transition: the TD error under ``cfg.loss`` (priority: the TD error), or C51's cross-entropy
+    (priority: itself)."""
+    if cfg.distributional:
+        z = support(cfg.v_min, cfg.v_max, cfg.num_atoms)
+
+        def cross_entropy(*args):
+            loss = categorical_td_loss(*args, z)
+            return loss, loss
+
+        return cross_entropy
+    loss_fn = LOSSES[cfg.loss]
+
+    def td_loss(*args):
+        td = td_error(*args)
+        return loss_fn(td), td
+
+    return td_loss
+
 
 def update_target(target_params: Any, params: Any, step: jax.Array, period: int, tau: float) -> Any:
     """Every ``period`` learning steps ``θ⁻ ← τ θ + (1 − τ) θ⁻`` (τ = 1: copy); otherwise ``θ⁻``."""
@@ -422,34 +602,44 @@ def update_target(target_params: Any, params: Any, step: jax.Array, period: int,
     return jax.tree.map(lambda t, p: jnp.where(due, tau * p + (1 - tau) * t, t), target_params, params)
 
 
-def make_learn(cfg: DQNConfig) -> Callable[[DQNState, ReplaySample], tuple[DQNState, dict]]:
-    """``learn(state, sample) -> (state, metrics)``: one gradient step on a replayed batch.
+def make_learn(cfg: DQNConfig) -> Callable[..., tuple[DQNState, dict]]:
+    """``learn(state, sample, key=None) -> (state, metrics)``: one gradient step on a replayed batch.
 
-    The variant's pieces (loss, target network or not, Double or max) are picked here, outside
-    ``jit``. ``sample.weights`` scale each transition's loss (ones for uniform replay). ``metrics``
-    holds ``loss``, ``q_mean`` and ``td_error`` ``[batch]`` (for prioritized replay's update).
+    The variant's pieces (per-sample loss: TD or C51; target network or not; Double or max; the
+    augmentation) are picked here, outside ``jit``. ``key`` draws the noise of noisy networks (one
+    draw for the online network on obs and next_obs, another for the target network) and the
+    augmentation's shifts; configs with neither need none. ``sample.weights`` scale each transition's
+    loss (ones for uniform replay). ``metrics`` holds ``loss``, ``q_mean`` and ``td_error``
+    ``[batch]`` (the priority for prioritized replay: the TD error, or C51's cross-entropy).
     """
-    loss_fn = LOSSES[cfg.loss]
     use_target = cfg.target_update_period > 0
+    needs_key = cfg.noisy or cfg.augment != "none"
     tx = optimizer(cfg)
-    batched_td_error = jax.vmap(td_error)
+    batched_loss = jax.vmap(per_sample_loss(cfg))
+    augment = AUGMENTATIONS[cfg.augment]
 
-    def loss_and_td(params, target_params, network, sample: ReplaySample):
+    def loss_and_td(params, target_params, network, sample: ReplaySample, key: jax.Array):
         transition = sample.transition
-        q_tm1 = network.apply(params, transition.obs)  # (batch, num_actions)
-        q_t_online = network.apply(params, transition.next_obs)  # (batch, num_actions)
-        q_t_value = network.apply(target_params, transition.next_obs) if use_target else q_t_online
-        q_t_selector = q_t_online if cfg.double else q_t_value
+        online_key, target_key, obs_key, next_obs_key = jax.random.split(key, 4)
+        obs, next_obs = augment(obs_key, transition.obs), augment(next_obs_key, transition.next_obs)
+        out_tm1 = forward(network, params, obs, online_key)  # (batch, num_actions[, num_atoms])
+        out_t_online = forward(network, params, next_obs, online_key)
+        out_t_value = forward(network, target_params, next_obs, target_key) if use_target else out_t_online
+        q_t_selector = q_values(network, out_t_online if cfg.double else out_t_value)  # (batch, num_actions)
         discount_t = bootstrap_discount(transition, cfg.discount_factor)
-        td = batched_td_error(
-            q_tm1, transition.action, transition.reward, discount_t, q_t_value, q_t_selector
+        losses, td = batched_loss(
+            out_tm1, transition.action, transition.reward, discount_t, out_t_value, q_t_selector
         )
-        loss = jnp.mean(sample.weights * loss_fn(td))
-        return loss, (td, q_tm1)
+        loss = jnp.mean(sample.weights * losses)
+        return loss, (td, q_values(network, out_tm1))
 
-    def learn(state: DQNState, sample: ReplaySample) -> tuple[DQNState, dict]:
-        grads, (td, q_tm1) = jax.grad(loss_and_td, has_aux=True)(
-            state.params, state.target_params, state.network, sample
+    def learn(state: DQNState, sample: ReplaySample, key: jax.Array | None = None) -> tuple[DQNState, dict]:
+        if key is None:
+            if needs_key:
+                raise UsageError("noisy networks and augmentation draw random numbers: pass learn a key")
+            key = jax.random.key(0)  # unused
+        (loss, (td, q_tm1)), grads = jax.value_and_grad(loss_and_td, has_aux=True)(
+            state.params, state.target_params, state.network, sample, key
         )
         updates, opt_state = tx.update(grads, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)
@@ -459,11 +649,7 @@ def make_learn(cfg: DQNConfig) -> Callable[[DQNState, ReplaySample], tuple[DQNSt
             target_params = update_target(
                 target_params, params, step, cfg.target_update_period, cfg.target_update_tau
             )
-        metrics = {
-            "loss": jnp.mean(sample.weights * loss_fn(td)),
-            "q_mean": q_tm1.mean(),
-            "td_error": td,
-        }
+        metrics = {"loss": loss, "q_mean": q_tm1.mean(), "td_error": td}
         return state.replace(
             params=params, target_params=target_params, opt_state=opt_state, step=step
         ), metrics
@@ -476,9 +662,11 @@ def _cached_learn(cfg: DQNConfig) -> Callable:
     return jax.jit(make_learn(cfg))
 
 
-def learn(state: DQNState, sample: ReplaySample, cfg: DQNConfig) -> tuple[DQNState, dict]:
+def learn(
+    state: DQNState, sample: ReplaySample, cfg: DQNConfig, key: jax.Array | None = None
+) -> tuple[DQNState, dict]:
     """One learning step (``make_learn(cfg)``, jitted and cached per config)."""
-    return _cached_learn(cfg)(state, sample)
+    return _cached_learn(cfg)(state, sample, key)
 
 
 def epsilon_at(cfg: DQNConfig, progress: jax.Array) -> jax.Array:
@@ -537,7 +725,7 @@ def make_agent(spec: EnvSpec, cfg: DQNConfig) -> Agent:
         init=lambda key: init(key, jnp.zeros(spec.obs_shape, spec.obs_dtype), num_actions, cfg),
         act=act_epsilon_greedy,
         greedy_policy=greedy_policy,
-        learn=lambda state, sample, key: learn_step(state, sample),
+        learn=learn_step,
         experience=experience,
         total_steps=cfg.total_steps,
     )
@@ -588,7 +776,7 @@ def monitor_step(
     """One greedy step of every side env; record finished returns; freeze once every return in the
     ring reaches ``threshold``."""
     num = monitor.obs.shape[0]
-    action = jnp.argmax(agent.network.apply(agent.params, monitor.obs), axis=-1)
+    action = jnp.argmax(greedy_q(agent, monitor.obs), axis=-1)
     time_step, env_state = vmap_step(jax.random.split(key, num), monitor.env_state, action, params)
     running = monitor.running + time_step.reward
     done = time_step.done
@@ -708,9 +896,10 @@ def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None):
 
         def one(carry, _):
             agent, replay_state, key = carry
-            key, sample_key = jax.random.split(key)
+            # (threefry splits are prefix-stable: key and sample_key are those of a split in two)
+            key, sample_key, learn_key = jax.random.split(key, 3)
             sample = replay.sample(replay_state, sample_key, cfg.batch_size, beta)
-            agent, metrics = learn_step(agent, sample)
+            agent, metrics = learn_step(agent, sample, learn_key)
             replay_state = replay.update_priorities(replay_state, sample.indices, metrics["td_error"])
             return (agent, replay_state, key), (metrics["loss"], metrics["q_mean"])
 
