@@ -3,6 +3,11 @@ samples (TD(0), Q-learning, SARSA); prints V or the Q table and the greedy actio
 
 ``--plot out.png`` draws the lecture's comparison: the error to Q* of Q-value iteration against
 iterations beside that of Q-learning (or SARSA) against environment steps.
+
+The learners accept a discount factor of 1 on any MDP (the episode cap ends every episode); planning
+only where every policy terminates. Sutton & Barto's Example 6.6 (cliff walking)::
+
+    agentax solve --mdp cliffwalking --method sarsa --discount-factor 1 --epsilon 0.1 --learning-rate 0.5
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from agentax.errors import UsageError
 from agentax.tabular import (
     QLearningConfig,
     TDConfig,
+    episode_returns,
     greedy_policy,
     q_backup,
     q_learning,
@@ -50,6 +56,7 @@ MDPS: dict[str, Callable[[], MDP]] = {
     "chain": lambda: chain_mdp(10),
 }
 METHODS = ("value-iteration", "q-value-iteration", "td", "q-learning", "sarsa")
+PLANNING_METHODS = ("value-iteration", "q-value-iteration")
 MAX_TABLE_ROWS = 64
 
 
@@ -62,9 +69,14 @@ class SolveArgs:
     method: str = "q-value-iteration"
     """value-iteration, q-value-iteration, td (V of the random policy), q-learning or sarsa"""
     discount_factor: float = 0.9
-    """γ in [0, 1]; 1 only for MDPs where every policy terminates"""
+    """γ in [0, 1]; 1 for the learners on any MDP (the episode cap ends every episode), for
+    planning only where every policy terminates"""
     steps: int = 10_000
     """environment steps for td, q-learning and sarsa"""
+    epsilon: float | None = None
+    """a constant ε for q-learning and sarsa (default: the book's, 1 for q-learning, 1 → 0.05 for sarsa)"""
+    learning_rate: float | None = None
+    """a constant α for the learners (default: the book's decaying α_t = 0.05 / (1 + 0.005 t))"""
     seed: int = 0
     """random seed of the sampled transitions"""
     json: bool = False
@@ -78,21 +90,29 @@ def log_interval(steps: int) -> int:
     return next(d for d in range(steps // min(100, steps), 0, -1) if steps % d == 0)
 
 
+def learning_rate_fields(args: SolveArgs) -> dict:
+    if args.learning_rate is None:
+        return {}
+    return {"learning_rate": args.learning_rate, "learning_rate_decay": 0.0}
+
+
 def learner_config(method: str, args: SolveArgs) -> QLearningConfig:
-    """The book's settings; SARSA learns the Q of the policy it follows, so its ε decays 1 → 0.05."""
+    """The book's settings; SARSA learns the Q of the policy it follows, so its ε decays 1 → 0.05.
+    ``--epsilon`` and ``--learning-rate`` replace them by constants (Sutton & Barto's)."""
+    common = {
+        "discount_factor": args.discount_factor,
+        "algorithm": method,
+        "num_steps": args.steps,
+        "log_interval": log_interval(args.steps),
+        **learning_rate_fields(args),
+    }
+    if args.epsilon is not None:
+        return QLearningConfig(epsilon_start=args.epsilon, **common)
     if method == "sarsa":
         return QLearningConfig(
-            discount_factor=args.discount_factor,
-            algorithm="sarsa",
-            epsilon_schedule="linear",
-            epsilon_end=0.05,
-            epsilon_decay_steps=float(args.steps),
-            num_steps=args.steps,
-            log_interval=log_interval(args.steps),
+            epsilon_schedule="linear", epsilon_end=0.05, epsilon_decay_steps=float(args.steps), **common
         )
-    return QLearningConfig(
-        discount_factor=args.discount_factor, num_steps=args.steps, log_interval=log_interval(args.steps)
-    )
+    return QLearningConfig(**common)
 
 
 def to_json_table(values: np.ndarray) -> list:
@@ -119,8 +139,11 @@ def solve(mdp: MDP, args: SolveArgs) -> dict:
                 discount_factor=args.discount_factor,
                 num_steps=args.steps,
                 log_interval=log_interval(args.steps),
+                **learning_rate_fields(args),
             )
-            values, result["steps"] = td_learning(key, mdp, config).values, args.steps
+            learned = td_learning(key, mdp, config)
+            values, result["steps"] = learned.values, args.steps
+            result.update(online_returns(learned))
         result["V"] = np.asarray(values).tolist()
         # V alone picks no action: act greedily on the one-step lookahead through the model.
         result["policy"] = np.asarray(greedy_policy(q_backup(mdp, values, args.discount_factor))).tolist()
@@ -129,13 +152,24 @@ def solve(mdp: MDP, args: SolveArgs) -> dict:
         planned = q_value_iteration(mdp, args.discount_factor)
         q_values, result["iterations"] = planned.values, int(planned.num_iterations)
     else:
-        q_values, result["steps"] = (
-            q_learning(key, mdp, learner_config(args.method, args)).q_values,
-            args.steps,
-        )
+        learned = q_learning(key, mdp, learner_config(args.method, args))
+        q_values, result["steps"] = learned.q_values, args.steps
+        result.update(online_returns(learned))
     result["Q"] = to_json_table(np.asarray(q_values))
     result["policy"] = np.asarray(greedy_policy(q_values)).tolist()
     return result
+
+
+def online_returns(learned) -> dict:
+    """The episodes a learner completed and their mean undiscounted return, over all and the last 100."""
+    returns = episode_returns(learned.rewards, learned.episode_ends)
+    if len(returns) == 0:
+        return {"episodes": 0}
+    return {
+        "episodes": len(returns),
+        "mean_return": float(returns.mean()),
+        "mean_return_last_100": float(returns[-100:].mean()),
+    }
 
 
 def print_tables(mdp: MDP, result: dict) -> None:
@@ -162,6 +196,12 @@ def print_tables(mdp: MDP, result: dict) -> None:
     if len(rows) > MAX_TABLE_ROWS:
         console.print(f"({len(rows) - MAX_TABLE_ROWS} more states; --json prints them all)")
     console.print(f"optimal actions: {result['policy'] if len(rows) <= MAX_TABLE_ROWS else '(see --json)'}")
+    if result.get("episodes"):
+        console.print(
+            f"online return: {result['mean_return_last_100']:.2f} per episode over the last "
+            f"{min(100, result['episodes'])} of {result['episodes']} episodes "
+            f"({result['mean_return']:.2f} over all)"
+        )
 
 
 def plot(mdp: MDP, args: SolveArgs, path: str) -> None:
@@ -203,8 +243,23 @@ def main(argv: list[str]) -> int:
         raise UsageError(f"discount factor {args.discount_factor} is not a number in [0, 1]")
     if args.steps < 1:
         raise UsageError(f"--steps must be at least 1, not {args.steps}")
+    if args.epsilon is not None and not 0.0 <= args.epsilon <= 1.0:
+        raise UsageError(f"--epsilon must be in [0, 1], not {args.epsilon}")
+    if args.learning_rate is not None and not args.learning_rate > 0.0:
+        raise UsageError(f"--learning-rate must be positive, not {args.learning_rate}")
     mdp = MDPS[args.mdp]()
-    check_discount_factor(mdp, args.discount_factor)
+    if args.method in PLANNING_METHODS or args.plot:  # --plot plans too, for Q*
+        try:
+            check_discount_factor(mdp, args.discount_factor)
+        except UsageError as error:
+            if args.discount_factor != 1.0 or args.method in PLANNING_METHODS:
+                raise
+            raise UsageError(
+                f"{error} (--plot plans Q* by Q-value iteration; without it {args.method} "
+                "learns at discount factor 1)"
+            ) from None
+    elif not 0.0 <= args.discount_factor <= 1.0:
+        raise UsageError(f"discount factor {args.discount_factor} is outside [0, 1]")
     result = solve(mdp, args)
     if args.plot:
         plot(mdp, args, args.plot)

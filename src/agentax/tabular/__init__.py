@@ -18,7 +18,7 @@ from agentax.tabular.qlearning import (
     exploration_values,
     q_learning,
 )
-from agentax.tabular.td import TDConfig, TDResult, td_error, td_learning, uniform_policy
+from agentax.tabular.td import TDConfig, TDResult, episode_returns, td_error, td_learning, uniform_policy
 
 __all__ = [
     "ALGORITHMS",
@@ -27,6 +27,7 @@ __all__ = [
     "QLearningResult",
     "TDConfig",
     "TDResult",
+    "episode_returns",
     "epsilon_greedy_probabilities",
     "exploration_values",
     "greedy_policy",

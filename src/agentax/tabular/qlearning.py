@@ -24,10 +24,16 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from agentax.envs.mdp import MDP, MDPEnv, check_discount_factor
+from agentax.envs.mdp import MDP, MDPEnv
 from agentax.errors import UsageError
 from agentax.policies import constant_schedule, epsilon_greedy, exponential_schedule, linear_schedule
-from agentax.tabular.td import check_run_lengths, learning_rate_at, run_with_snapshots, td_error
+from agentax.tabular.td import (
+    check_run_lengths,
+    check_sampled_discount_factor,
+    learning_rate_at,
+    run_with_snapshots,
+    td_error,
+)
 
 Array = jax.Array
 ALGORITHMS = ("q-learning", "sarsa", "expected-sarsa", "double-q")
@@ -40,7 +46,7 @@ class QLearningConfig:
     """Tabular Q-learning and its variants; the defaults are the book's settings."""
 
     discount_factor: float = 0.9
-    """γ, in [0, 1] (1 only if every policy terminates)."""
+    """γ, in [0, 1] (1 too: the episode cap ends every episode)."""
     learning_rate: float = 0.05
     """α_0 in α_t = α_0 / (1 + t · learning_rate_decay)."""
     learning_rate_decay: float = 0.005
@@ -76,6 +82,7 @@ class QLearningResult:
     visit_counts: Array  # [S, A] int32 N(s, a)
     next_states: Array  # [num_steps] int32, the state each step reached
     rewards: Array  # [num_steps]
+    episode_ends: Array  # [num_steps] bool, the step ended an episode (terminated or truncated)
 
 
 @struct.dataclass
@@ -173,7 +180,7 @@ def _q_learning(key: Array, mdp: MDP, config: QLearningConfig) -> QLearningResul
         carry = _Carry(
             q_values, q_values_b, visit_counts, env_state, ts.obs, next_action, carry.step + 1, key
         )
-        return carry, (s_t, ts.reward)
+        return carry, (s_t, ts.reward, ts.done)
 
     def final_q(carry: _Carry) -> Array:
         return jnp.where(mask, acting_values(carry), -jnp.inf)
@@ -184,10 +191,10 @@ def _q_learning(key: Array, mdp: MDP, config: QLearningConfig) -> QLearningResul
     counts = jnp.zeros((mdp.num_states, mdp.num_actions), jnp.int32)
     action = act(action_key, zeros[obs], counts[obs], mask[obs], schedule(0))
     carry = _Carry(zeros, zeros, counts, env_state, obs, action, jnp.int32(0), key)
-    carry, history, (next_states, rewards) = run_with_snapshots(
+    carry, history, (next_states, rewards, ends) = run_with_snapshots(
         step, carry, config.num_steps, config.log_interval, final_q
     )
-    return QLearningResult(final_q(carry), history, carry.visit_counts, next_states, rewards)
+    return QLearningResult(final_q(carry), history, carry.visit_counts, next_states, rewards, ends)
 
 
 def check_config(mdp: MDP, config: QLearningConfig) -> None:
@@ -199,8 +206,7 @@ def check_config(mdp: MDP, config: QLearningConfig) -> None:
     ]:
         if value not in choices:
             raise UsageError(f"unknown {what} {value!r}; choose from {', '.join(choices)}")
-    if not isinstance(config.discount_factor, jax.core.Tracer):
-        check_discount_factor(mdp, config.discount_factor)
+    check_sampled_discount_factor(config.discount_factor)
     for name in ("epsilon_start", "epsilon_end"):
         value = getattr(config, name)
         if not isinstance(value, jax.core.Tracer) and not 0.0 <= float(value) <= 1.0:

@@ -5,6 +5,11 @@ Expected SARSA, Double Q): ``δ = r_t + discount_t · v_t − v_tm1``, where ``d
 a true termination and ``v_t`` is whatever the algorithm bootstraps from. A learner runs the MDP
 as an :class:`~agentax.envs.mdp.MDPEnv` inside one ``lax.scan``, so it jits, and ``jax.vmap`` over
 keys runs many seeds at once. A time-limit truncation bootstraps from the state reached.
+
+A learner accepts a discount factor of 1 on any MDP, unlike planning: every episode it samples ends,
+by termination or at the cap ``max_steps_in_episode``, so its returns are finite sums of rewards.
+(Sutton & Barto's episodic examples, e.g. cliff walking, are undiscounted.) Value iteration has no
+such cap, and needs every policy to terminate.
 """
 
 from __future__ import annotations
@@ -17,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from agentax.envs.mdp import MDP, MDPEnv, check_discount_factor
+from agentax.envs.mdp import MDP, MDPEnv
 from agentax.errors import UsageError
 
 Array = jax.Array
@@ -54,6 +59,35 @@ def run_with_snapshots(step: Callable, carry: Any, num_steps: int, log_interval:
     return carry, snapshots, outputs
 
 
+def check_sampled_discount_factor(discount_factor: float) -> None:
+    """Raise :class:`UsageError` unless ``0 <= discount_factor <= 1``: 1 included, for learning
+    from sampled episodes, which the episode cap ends (planning checks more, see
+    :func:`agentax.envs.mdp.check_discount_factor`)."""
+    if isinstance(discount_factor, jax.core.Tracer):
+        return
+    if not 0.0 <= float(discount_factor) <= 1.0:
+        raise UsageError(f"discount factor {discount_factor} is outside [0, 1]")
+
+
+def episode_returns(rewards: Any, episode_ends: Any) -> list[np.ndarray]:
+    """Host-side: the undiscounted return of every episode completed in a learner's step stream.
+
+    ``rewards`` and ``episode_ends`` are ``[..., num_steps]`` (a vmapped run gives one row per
+    seed); returns a list (one entry per row, or a single array for one stream) of the returns
+    ``[num_episodes]`` in order. The unfinished episode at the end is left out.
+    """
+    rewards, episode_ends = np.asarray(rewards, np.float64), np.asarray(episode_ends, bool)
+    if rewards.ndim == 1:
+        return episode_returns(rewards[None], episode_ends[None])[0]
+    out = []
+    num_steps = rewards.shape[-1]
+    for r, ends in zip(rewards.reshape(-1, num_steps), episode_ends.reshape(-1, num_steps), strict=True):
+        cumulative = np.concatenate([[0.0], np.cumsum(r)])
+        boundaries = np.concatenate([[0], np.flatnonzero(ends) + 1])
+        out.append(np.diff(cumulative[boundaries]))
+    return out
+
+
 def check_run_lengths(num_steps: int, log_interval: int, max_steps_in_episode: int) -> None:
     if num_steps < 1 or log_interval < 1 or num_steps % log_interval:
         raise UsageError(
@@ -68,7 +102,7 @@ class TDConfig:
     """TD(0) of state values under a fixed exploration policy."""
 
     discount_factor: float = 0.9
-    """γ, in [0, 1] (1 only if every policy terminates)."""
+    """γ, in [0, 1] (1 too: the episode cap ends every episode)."""
     learning_rate: float = 0.05
     """α_0 in α_t = α_0 / (1 + t · learning_rate_decay)."""
     learning_rate_decay: float = 0.005
@@ -87,6 +121,7 @@ class TDResult:
     value_history: Array  # [num_steps // log_interval, S] V after every log_interval steps
     next_states: Array  # [num_steps] int32, the state each step reached
     rewards: Array  # [num_steps]
+    episode_ends: Array  # [num_steps] bool, the step ended an episode (terminated or truncated)
 
 
 @struct.dataclass
@@ -114,13 +149,13 @@ def _td_learning(key: Array, mdp: MDP, config: TDConfig, policy: Array) -> TDRes
         alpha = learning_rate_at(config.learning_rate, config.learning_rate_decay, carry.step)
         values = carry.values.at[carry.obs].add(alpha * delta)
         carry = _TDCarry(values, env_state, ts.obs, carry.step + 1, key)
-        return carry, (ts.final_obs, ts.reward)
+        return carry, (ts.final_obs, ts.reward, ts.done)
 
     carry = _TDCarry(jnp.zeros(mdp.num_states, jnp.float32), env_state, obs, jnp.int32(0), key)
-    carry, history, (next_states, rewards) = run_with_snapshots(
+    carry, history, (next_states, rewards, ends) = run_with_snapshots(
         step, carry, config.num_steps, config.log_interval, lambda c: c.values
     )
-    return TDResult(carry.values, history, next_states, rewards)
+    return TDResult(carry.values, history, next_states, rewards, ends)
 
 
 def td_learning(
@@ -132,8 +167,7 @@ def td_learning(
     the possible actions); V converges to that policy's values. Vmap over ``key`` for many seeds.
     """
     config = TDConfig() if config is None else config
-    if not isinstance(config.discount_factor, jax.core.Tracer):
-        check_discount_factor(mdp, config.discount_factor)
+    check_sampled_discount_factor(config.discount_factor)
     check_run_lengths(config.num_steps, config.log_interval, config.max_steps_in_episode)
     policy = uniform_policy(mdp) if policy is None else jnp.asarray(policy, jnp.float32)
     if policy.shape != (mdp.num_states, mdp.num_actions):
