@@ -7,10 +7,13 @@ and ``agentax train --resume DIR`` work on any of them::
       config.json      the whole configuration; "algo" and "env" keys name the algorithm and env
       metrics.csv      a row per logging interval: env_steps, mean_return (pooled over seeds),
                        return_seed<k> per seed, and whatever else the trainer logs
-      tensorboard/     the same scalars as TensorBoard event files (tensorboardX)
+      tensorboard/     the same scalars as TensorBoard event files (tensorboardX), in groups:
+                       train/, eval/, loss/, perf/ (see tensorboard_tag)
       checkpoints/     ckpt-<updates>.msgpack (flax msgpack, never pickle), written to a temporary
                        name in the same folder and renamed, so a crash never leaves half a file
-      curve.png        episode return against env steps: mean and 95 % interval across seeds
+      curve.png        return against env steps: the training episodes' and the greedy evaluation's
+                       (the measure that stops a run), means over seeds with 95 % bootstrap
+                       intervals across seeds, and the env's solved threshold
       eval.json        the trained greedy policy on fresh evaluation seeds: mean_return,
                        std_return, min_return, max_return, episodes, pooled over seeds at the top
                        level and per seed under "per_seed"; with several seeds also iqm, median
@@ -29,6 +32,7 @@ import json
 import math
 import os
 import threading
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -49,6 +53,35 @@ SEARCH_MODULES: dict[str, str] = {
     "random": "agentax.search.random_search",
 }
 CHECKPOINT_PREFIX = "ckpt-"
+BOOTSTRAP_RESAMPLES = 2_000
+
+# TensorBoard groups, as CleanRL's charts/ and losses/: metrics.csv keeps the plain names.
+TENSORBOARD_GROUPS: dict[str, str] = {
+    "mean_return": "train",
+    "episodes": "train",
+    "epsilon": "train",
+    "updates": "train",
+    "learning_steps": "train",
+    "loss": "loss",
+    "q_mean": "loss",
+    "td_error": "loss",
+    "entropy": "loss",
+    "approx_kl": "loss",
+    "policy_lag": "perf",
+    "wall_seconds": "perf",
+}
+# Families of names, by prefix or suffix, after the exact names above.
+TENSORBOARD_PREFIXES = (("return_seed", "train"), ("eval_", "eval"), ("replay_", "perf"))
+TENSORBOARD_SUFFIXES = (("_loss", "loss"), ("_per_second", "perf"), ("_wait_fraction", "perf"))
+
+
+def tensorboard_tag(name: str) -> str:
+    """The grouped TensorBoard tag of a metrics.csv column: ``train/mean_return``, ``eval/eval_return``,
+    ``loss/value_loss``, ``perf/steps_per_second``; a name in no group is logged under ``other/``."""
+    group = TENSORBOARD_GROUPS.get(name)
+    group = group or next((g for prefix, g in TENSORBOARD_PREFIXES if name.startswith(prefix)), None)
+    group = group or next((g for suffix, g in TENSORBOARD_SUFFIXES if name.endswith(suffix)), None)
+    return f"{group or 'other'}/{name}"
 
 
 def default_run_dir(algo: str, env_id: str, root: str | Path = "runs") -> Path:
@@ -290,7 +323,7 @@ class Run:
         step = int(row.get("env_steps", 0))
         for name, value in row.items():
             if name != "env_steps" and value is not None and math.isfinite(float(value)):
-                self._writer.add_scalar(name, float(value), step)
+                self._writer.add_scalar(tensorboard_tag(name), float(value), step)
 
     def truncate_metrics(self, max_env_steps: float) -> None:
         """Drop the rows logged after ``max_env_steps`` (a resumed run logs them again)."""
@@ -384,43 +417,163 @@ def preload_plotting() -> None:
     threading.Thread(target=load, name="agentax-preload-plotting").start()
 
 
-def plot_curves(run_dirs: Sequence[str | Path], out: str | Path, labels: Sequence[str] | None = None) -> Path:
-    """Episode return against env steps for each run: the mean over seeds and its 95 % interval.
+def bootstrap_band(
+    per_seed: np.ndarray, confidence: float = 0.95, resamples: int = BOOTSTRAP_RESAMPLES, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Row by row, the percentile-bootstrap interval of the mean across seeds: ``(low, high)``.
 
-    The interval is ``mean ± 1.96 · std / sqrt(num_seeds)`` across the ``return_seed<k>`` columns
-    (none for a single seed). Several runs overlay in one figure.
+    ``per_seed`` is ``[rows, seeds]``, NaN where a seed has no value (yet). Every replicate draws
+    the seeds with replacement (one fixed set of draws, ``seed``, for all rows) and averages the
+    finite values drawn; rows with fewer than two finite seeds get NaN. Both ends are means of
+    observed values, so the band stays within the data's range: unlike ``mean ± 1.96 σ/√n``, it
+    never promises a CartPole return above 500.
+    """
+    per_seed = np.asarray(per_seed, np.float64)
+    rows, num_seeds = per_seed.shape
+    low, high = np.full(rows, np.nan), np.full(rows, np.nan)
+    enough = np.isfinite(per_seed).sum(1) >= 2
+    if num_seeds < 2 or not enough.any():
+        return low, high
+    draws = np.random.default_rng(seed).integers(0, num_seeds, size=(resamples, num_seeds))
+    tail = 100 * (1 - confidence) / 2
+    chunk = max(1, 2**22 // (resamples * num_seeds))  # rows at a time: ~32 MB of replicates
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # replicates that drew only NaN seeds
+        for start in range(0, rows, chunk):
+            means = np.nanmean(per_seed[start : start + chunk][:, draws], axis=-1)  # (chunk, resamples)
+            low[start : start + chunk], high[start : start + chunk] = np.nanpercentile(
+                means, [tail, 100 - tail], axis=-1
+            )
+    return np.where(enough, low, np.nan), np.where(enough, high, np.nan)
+
+
+@dataclasses.dataclass(frozen=True)
+class Curve:
+    """One measure of a run against env steps (only the rows where it was measured)."""
+
+    steps: np.ndarray  # (points,)
+    mean: np.ndarray  # (points,) the mean over seeds
+    low: np.ndarray | None  # (points,) the 95 % bootstrap interval across seeds; None for one seed
+    high: np.ndarray | None
+    num_seeds: int
+
+
+@dataclasses.dataclass(frozen=True)
+class RunCurves:
+    """What ``curve.png`` draws for one run."""
+
+    label: str
+    training: Curve | None  # the return of the training episodes (exploring policy)
+    evaluation: Curve | None  # the greedy policy's evaluation return, the measure that stops a run
+    solved: float | None  # the env's reward threshold
+
+
+def _curve(rows: list[dict[str, float]], prefix: str, mean_column: str) -> Curve | None:
+    steps = np.array([r.get("env_steps", i) for i, r in enumerate(rows)], np.float64)
+    columns = seed_columns(rows[0], prefix)
+    if columns:
+        per_seed = np.array([[r[c] for c in columns] for r in rows], np.float64)  # (rows, seeds)
+    elif mean_column in rows[0]:
+        per_seed = np.array([[r[mean_column]] for r in rows], np.float64)
+    else:
+        return None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # rows where no seed has a value
+        mean = np.nanmean(per_seed, axis=1)
+    measured = np.isfinite(mean)
+    if not measured.any():
+        return None
+    if per_seed.shape[1] < 2:
+        return Curve(steps[measured], mean[measured], None, None, 1)
+    low, high = bootstrap_band(per_seed[measured])
+    return Curve(steps[measured], mean[measured], low, high, per_seed.shape[1])
+
+
+def solved_threshold(env_id: str) -> float | None:
+    """The return at which ``env_id`` counts as solved: a JAX env's ``reward_threshold``,
+    Gymnasium's ``spec.reward_threshold``; None for Atari and envs without one."""
+    from agentax.envs import JAX_ENVS
+    from agentax.envs.atari import is_atari_id
+
+    if env_id in JAX_ENVS:
+        threshold = getattr(JAX_ENVS[env_id](), "reward_threshold", None)
+    elif is_atari_id(env_id):
+        return None
+    else:
+        import gymnasium
+
+        try:
+            threshold = gymnasium.spec(env_id).reward_threshold
+        except gymnasium.error.Error:
+            return None
+    return None if threshold is None else float(threshold)
+
+
+def run_curves(run_dir: str | Path, label: str | None = None) -> RunCurves:
+    """The series of ``curve.png`` for one run folder, from metrics.csv and config.json."""
+    rows = read_metrics(run_dir)
+    if not rows:
+        raise UsageError(f"{run_dir}/metrics.csv has no rows yet")
+    config = read_config(run_dir)
+    return RunCurves(
+        label=label or f"{config['algo']} {config['env']} ({Path(run_dir).name})",
+        training=_curve(rows, "return_seed", "mean_return"),
+        evaluation=_curve(rows, "eval_seed", "eval_return"),
+        solved=solved_threshold(str(config["env"])),
+    )
+
+
+def curve_figure(run_dirs: Sequence[str | Path], labels: Sequence[str] | None = None) -> Any:
+    """The matplotlib ``Figure`` of :func:`plot_curves` (returned, not saved, so tests can read it).
+
+    For each run: the training episodes' return (solid) and the greedy evaluation's (markers; the
+    measure ``--stop-at-return`` compares with the threshold), each the mean over seeds with its
+    95 % percentile-bootstrap interval across seeds as a band; the env's solved threshold dashed.
+    One run gets two colours (training, evaluation); several runs a colour each.
     """
     from matplotlib.figure import Figure
+    from matplotlib.patches import Patch
 
-    fig = Figure(figsize=(7, 4.2), dpi=110)  # no pyplot: no GUI backend, no global figure list
+    fig = Figure(figsize=(7.5, 4.5), dpi=110)  # no pyplot: no GUI backend, no global figure list
     ax = fig.subplots()
-    for i, run_dir in enumerate(run_dirs):
-        rows = read_metrics(run_dir)
-        if not rows:
-            raise UsageError(f"{run_dir}/metrics.csv has no rows yet")
-        config = read_config(run_dir)
-        label = labels[i] if labels else f"{config['algo']} {config['env']} ({Path(run_dir).name})"
-        steps = np.array([r["env_steps"] for r in rows])
-        columns = seed_columns(rows[0])
-        if columns:
-            per_seed = np.array([[r[c] for c in columns] for r in rows])  # (rows, seeds)
-            mean = np.nanmean(per_seed, axis=1)
-            count = np.sum(np.isfinite(per_seed), axis=1)
-            half = (
-                1.96 * np.nanstd(per_seed, axis=1, ddof=1) / np.sqrt(count) if per_seed.shape[1] > 1 else None
-            )
-        else:
-            mean, half = np.array([r["mean_return"] for r in rows]), None
-        (line,) = ax.plot(steps, mean, label=label)
-        if half is not None:
-            ax.fill_between(steps, mean - half, mean + half, color=line.get_color(), alpha=0.25, linewidth=0)
+    runs = [run_curves(d, labels[i] if labels else None) for i, d in enumerate(run_dirs)]
+    single = len(runs) == 1
+    band_seeds: set[int] = set()
+    for i, run in enumerate(runs):
+        prefix = "" if single else f"{run.label}: "
+        for curve, what, style in [
+            (run.training, "training episodes", {"linewidth": 1.3}),
+            (run.evaluation, "greedy evaluation", {"marker": "o", "markersize": 3.5, "linewidth": 1.6}),
+        ]:
+            if curve is None:
+                continue
+            color = f"C{2 * i if what.startswith('training') else 2 * i + 1}" if single else f"C{i}"
+            if not single and what.startswith("training"):
+                style = {**style, "alpha": 0.55}
+            ax.plot(curve.steps, curve.mean, color=color, label=prefix + what, **style)
+            if curve.low is not None:
+                ax.fill_between(curve.steps, curve.low, curve.high, color=color, alpha=0.2, linewidth=0)
+                band_seeds.add(curve.num_seeds)
+    for threshold in sorted({r.solved for r in runs if r.solved is not None}):
+        ax.axhline(threshold, color="0.35", linestyle="--", linewidth=1.0, label=f"solved ({threshold:g})")
+    handles, texts = ax.get_legend_handles_labels()
+    for num_seeds in sorted(band_seeds):  # one grey legend entry for the bands of every colour
+        handles.append(Patch(color="0.5", alpha=0.3, linewidth=0))
+        texts.append(f"band: 95 % bootstrap CI over {num_seeds} seeds")
+    if single:
+        ax.set_title(runs[0].label, fontsize=10)
     ax.set_xlabel("env steps")
     ax.set_ylabel("episode return")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(handles, texts, fontsize=8)
     fig.tight_layout()
+    return fig
+
+
+def plot_curves(run_dirs: Sequence[str | Path], out: str | Path, labels: Sequence[str] | None = None) -> Path:
+    """Write the learning curves of one or more runs to ``out`` (a PNG); see :func:`curve_figure`."""
     out = Path(out)
-    fig.savefig(out)
+    curve_figure(run_dirs, labels).savefig(out)
     return out
 
 

@@ -1,4 +1,9 @@
-"""``agentax plot DIR [DIR ...] --out curves.png``: overlay the learning curves of run folders."""
+"""``agentax plot DIR [DIR ...] --out curves.png``: overlay the learning curves of run folders.
+
+Each run draws its training episodes' return and its greedy evaluation's (the measure that stops a
+run), means over seeds with 95 % bootstrap intervals across seeds as bands, and the env's solved
+threshold as a dashed line (see :func:`agentax.runs.curve_figure`).
+"""
 
 from __future__ import annotations
 
