@@ -123,3 +123,17 @@ def test_policies_that_do_not_fit_are_caught_before_running():
         check_policy_fits(env, lambda obs, key: obs[0])  # a float is no discrete action
     with pytest.raises(UsageError, match="takes Box"):
         check_policy_fits(make("Pendulum-v1"), lambda obs, key: jnp.zeros((2,)))
+
+
+def test_with_random_actions_mixes_in_uniform_actions_at_rate_epsilon():
+    from agentax.policies import with_random_actions
+
+    always_two = lambda obs, key: jnp.int32(2)  # noqa: E731
+    keys = jax.random.split(jax.random.key(0), 4_000)
+    obs = jnp.zeros(3)
+    for epsilon in (0.0, 0.3):
+        policy = jax.vmap(with_random_actions(always_two, epsilon, num_actions=4), in_axes=(None, 0))
+        actions = np.asarray(policy(obs, keys))
+        # an action other than 2 comes only from the random draws: 3 of 4 of them
+        assert np.mean(actions != 2) == pytest.approx(0.75 * epsilon, abs=0.03)
+        assert set(actions.tolist()) <= {0, 1, 2, 3}

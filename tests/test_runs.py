@@ -58,8 +58,11 @@ def test_metrics_csv_rows_and_truncation(tmp_path):
     assert list((run.path / "tensorboard").glob("events.out.tfevents.*"))
     run.truncate_metrics(200)
     assert [r["env_steps"] for r in read_metrics(run.path)] == [100, 200]
-    with pytest.raises(ValueError, match="not columns"):
-        Run.open(run.path).log({"env_steps": 400, "surprise": 1.0})
+    # a metric that appears later (a loss once learning starts) becomes a column, blank before
+    Run.open(run.path).log({"env_steps": 400, "loss": 1.5})
+    rows = read_metrics(run.path)
+    assert [r["env_steps"] for r in rows] == [100, 200, 400]
+    assert np.isnan(rows[0]["loss"]) and rows[2]["loss"] == 1.5 and np.isnan(rows[2]["mean_return"])
 
 
 def test_checkpoint_round_trip_with_typed_keys_and_no_temporary_left(tmp_path):

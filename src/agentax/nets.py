@@ -45,16 +45,21 @@ class NatureCNN(nn.Module):
 
     @nn.compact
     def __call__(self, frames: jax.Array) -> jax.Array:
-        batch_shape = frames.shape[:-3]
-        x = frames.reshape(-1, *frames.shape[-3:]).astype(jnp.float32) / 255.0
-        x = jnp.transpose(x, (0, 2, 3, 1))  # [N, C, H, W] -> [N, H, W, C]
+        x = nature_convolutions(frames)
         init = nn.initializers.orthogonal(jnp.sqrt(2.0))
-        for features, size, stride in ((32, 8, 4), (64, 4, 2), (64, 3, 1)):
-            x = nn.relu(
-                nn.Conv(features, (size, size), (stride, stride), padding="VALID", kernel_init=init)(x)
-            )
-        x = nn.relu(nn.Dense(512, kernel_init=init)(x.reshape(x.shape[0], -1)))
-        return x.reshape(*batch_shape, 512)
+        return nn.relu(nn.Dense(512, kernel_init=init)(x))
+
+
+def nature_convolutions(frames: jax.Array) -> jax.Array:
+    """The Nature CNN's three convolutions, inside the calling module: uint8 ``[..., 4, 84, 84]``
+    → ``[..., 3136]`` features (the frames divided by 255 first)."""
+    batch_shape = frames.shape[:-3]
+    x = frames.reshape(-1, *frames.shape[-3:]).astype(jnp.float32) / 255.0
+    x = jnp.transpose(x, (0, 2, 3, 1))  # [N, C, H, W] -> [N, H, W, C]
+    init = nn.initializers.orthogonal(jnp.sqrt(2.0))
+    for features, size, stride in ((32, 8, 4), (64, 4, 2), (64, 3, 1)):
+        x = nn.relu(nn.Conv(features, (size, size), (stride, stride), padding="VALID", kernel_init=init)(x))
+    return x.reshape(*batch_shape, -1)
 
 
 def is_image(obs_shape: Sequence[int]) -> bool:
@@ -89,15 +94,7 @@ class NatureConvTorso(nn.Module):
 
     @nn.compact
     def __call__(self, frames: jax.Array) -> jax.Array:
-        batch_shape = frames.shape[:-3]
-        x = frames.reshape(-1, *frames.shape[-3:]).astype(jnp.float32) / 255.0
-        x = jnp.transpose(x, (0, 2, 3, 1))  # [N, C, H, W] -> [N, H, W, C]
-        init = nn.initializers.orthogonal(jnp.sqrt(2.0))
-        for features, size, stride in ((32, 8, 4), (64, 4, 2), (64, 3, 1)):
-            x = nn.relu(
-                nn.Conv(features, (size, size), (stride, stride), padding="VALID", kernel_init=init)(x)
-            )
-        return x.reshape(*batch_shape, -1)
+        return nature_convolutions(frames)
 
 
 def scaled_noise(x: jax.Array) -> jax.Array:

@@ -61,3 +61,16 @@ def exponential_schedule(start: float, end: float, decay: float) -> Callable[[ja
     return lambda t: (
         jnp.float32(end) + (start - end) * jnp.power(jnp.float32(decay), jnp.asarray(t, jnp.float32))
     )
+
+
+def with_random_actions(policy: Policy, epsilon: float, num_actions: int) -> Policy:
+    """``policy`` with probability 1 − ε, a uniformly random action with probability ε: how Atari agents
+    are evaluated (the Nature DQN with ε 0.05, Dopamine 0.001), so that a greedy policy that never
+    presses FIRE cannot stall a game until its frame cap."""
+
+    def act(obs: jax.Array, key: jax.Array) -> jax.Array:
+        explore_key, action_key, policy_key = jax.random.split(key, 3)
+        random_action = jax.random.randint(action_key, (), 0, num_actions)
+        return jnp.where(jax.random.uniform(explore_key) < epsilon, random_action, policy(obs, policy_key))
+
+    return act

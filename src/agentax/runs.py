@@ -28,6 +28,7 @@ import csv
 import dataclasses
 import datetime
 import importlib
+import io
 import json
 import math
 import os
@@ -305,15 +306,20 @@ class Run:
         return cls(Path(path), read_config(path))
 
     def log(self, row: dict[str, float]) -> None:
-        """Append a row to metrics.csv (columns fixed by the first row) and to TensorBoard."""
+        """Append a row to metrics.csv and to TensorBoard. A metric first seen in a later row (a loss
+        once learning starts) becomes a new column, blank in the earlier rows."""
         metrics = self.path / "metrics.csv"
         if self._columns is None:
             self._columns = list(row)
             with open(metrics, "w", newline="") as f:
                 csv.writer(f).writerow(self._columns)
-        extra = set(row) - set(self._columns)
+        extra = [name for name in row if name not in self._columns]
         if extra:
-            raise ValueError(f"metrics {sorted(extra)} are not columns of {metrics}")
+            with open(metrics, newline="") as f:
+                rows = list(csv.reader(f))
+            self._columns += extra
+            rows = [self._columns] + [r + [""] * len(extra) for r in rows[1:]]
+            write_atomic(metrics, _csv_bytes(rows))
         with open(metrics, "a", newline="") as f:
             csv.writer(f).writerow([_cell(row.get(c)) for c in self._columns])
         if self._writer is None:
@@ -376,6 +382,12 @@ class Run:
         if self._writer is not None:
             self._writer.close()
             self._writer = None
+
+
+def _csv_bytes(rows: list[list[str]]) -> bytes:
+    buffer = io.StringIO()
+    csv.writer(buffer).writerows(rows)
+    return buffer.getvalue().encode()
 
 
 def _cell(value: Any) -> str:

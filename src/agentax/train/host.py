@@ -33,7 +33,7 @@ from agentax.agents.protocol import Agent, Episodes, OffPolicy, OnPolicy
 from agentax.envs.gym import NAMESPACE, GymnasiumEnv
 from agentax.evaluate import host_episode_returns
 from agentax.nets import is_image
-from agentax.policies import Policy
+from agentax.policies import Policy, with_random_actions
 from agentax.replay import Transition, example_transition
 from agentax.replay.host import ReplayBuffer, restore_replay, save_replay
 from agentax.runs import Run, load_checkpoint
@@ -331,18 +331,27 @@ def collection_over(agent: Agent, env_steps: int, episodes: int, updates: int = 
     return env_steps >= agent.total_steps or bool(max_episodes and episodes >= max_episodes)
 
 
+ATARI_EVAL_EPSILON = 0.01
+"""Atari games are evaluated with 1 % random actions (``policies.with_random_actions``)."""
+
+
 class Evaluator:
-    """The greedy policy's mean return on a side env (for stop-at-return and the final evaluation)."""
+    """The greedy policy's returns on a side env (for stop-at-return and the final evaluation);
+    whole games with ``ATARI_EVAL_EPSILON`` random actions on Atari."""
 
     def __init__(self, agent: Agent, make_env: Callable[..., Any], episodes: int):
         self.agent, self.episodes = agent, episodes
         self.env = make_env(min(episodes, 8))
+        self.epsilon = ATARI_EVAL_EPSILON if hasattr(self.env, "drain_scores") else 0.0
         self.count = 0
 
     def __call__(self, state: Any, seed: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         if seed is None:
             seed, self.count = 10_000 + self.count, self.count + 1
-        return host_episode_returns(self.env, self.agent.greedy_policy(state), self.episodes, seed=seed)
+        policy = self.agent.greedy_policy(state)
+        if self.epsilon:
+            policy = with_random_actions(policy, self.epsilon, self.env.action_space().n)
+        return host_episode_returns(self.env, policy, self.episodes, seed=seed)
 
     def close(self) -> None:
         self.env.close()

@@ -43,6 +43,7 @@ from agentax.train.host import (
     Actor,
     Evaluator,
     HostResult,
+    HostRunnerConfig,
     OffPolicyLearner,
     ReplayCheckpoints,
     actor_seed,
@@ -62,33 +63,16 @@ POLL_SECONDS = 0.05  # how often a blocked thread looks whether the run has stop
 
 
 @dataclass(frozen=True)
-class ParallelRunnerConfig:
-    """How the parallel runner schedules one training; saved in config.json under "runner"."""
+class ParallelRunnerConfig(HostRunnerConfig):
+    """How the parallel runner schedules one training (the host runner's settings and these);
+    saved in config.json under "runner"."""
 
-    seed: int = 0
-    """seed of the agent and of the envs"""
     actors: int = 2
     """actor threads; the agent's envs are split evenly between them"""
     policy_lag: int = 1
     """on-policy: parameter versions between collecting a rollout and learning from it (0: sequential)"""
     publish_every: int = 1
     """off-policy: learning phases between parameter publishes"""
-    log_every_steps: int = 2_048
-    """write a metrics row every this many env steps"""
-    eval_episodes: int = 10
-    """episodes of the final evaluation (and of the stop-at-return checks)"""
-    stop_at_return: float | None = None
-    """stop once an evaluation (run at each row) reaches this mean return (None: train to the end)"""
-    checkpoint_every_seconds: float = 30.0
-    """write a checkpoint at most this often (and at the end)"""
-    env_backend: str = "auto"
-    """Atari only: envpool or ale (auto: envpool where it is installed)"""
-    sticky_actions: float = 0.25
-    """Atari only: the probability that the emulator repeats the last action (Gymnasium's v5: 0.25)"""
-    checkpoint_replay: bool = True
-    """off-policy: keep the replay buffer beside the checkpoints, so a resumed run has its experience"""
-    replay_checkpoint_every_seconds: float = 600.0
-    """off-policy: save the replay at most this often (it can hold gigabytes), and at the end"""
 
     def check(self, agent: Agent) -> None:
         """A ``UsageError`` for settings this agent cannot run with."""
