@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench lint docs lock clean
+.PHONY: demo test test-long bench lint docs lock clean
 
 $(STAMP): pyproject.toml requirements.lock
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -17,7 +17,11 @@ demo: $(STAMP)
 	$(VENV)/bin/agentax demo
 
 test: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadgroup
+	$(PY) -m pytest -q -n 2 --dist loadgroup -m "not long"
+
+# The checks too long for make test (the 100-game backend comparison, the ale-py training smoke run, ...).
+test-long: $(STAMP)
+	$(PY) -m pytest -q -n 2 --dist loadgroup -m long
 
 bench: $(STAMP)
 	$(PY) benchmarks/run.py

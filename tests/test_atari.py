@@ -213,6 +213,7 @@ def _play(backend: str, games: int, seed: int) -> np.ndarray:
     return np.asarray(finished[:games], np.float64)
 
 
+@pytest.mark.long
 @pytest.mark.timeout(180)
 def test_random_policy_scores_agree_between_backends():
     """100 random-policy Breakout games per backend (different seeds, sticky actions and no-ops on):

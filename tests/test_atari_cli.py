@@ -130,7 +130,7 @@ DQN_SMOKE = [
 # actions can swallow; its evaluation games would then run to the 108,000-frame cap.
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_a_parallel_atari_dqn_run_writes_its_run_folder(tmp_path, capsys):
     run_dir = tmp_path / "dqn"
     args = ["--runner", "parallel", "--actors", "2", "--total-steps", "2560", "--out", str(run_dir)]
@@ -145,7 +145,7 @@ def test_a_parallel_atari_dqn_run_writes_its_run_folder(tmp_path, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("backend", ["ale", "envpool"])
+@pytest.mark.parametrize("backend", [pytest.param("ale", marks=pytest.mark.long), "envpool"])
 def test_training_on_each_backend_writes_the_run_and_resume_finishes_it(
     tmp_path, monkeypatch, backend, capsys
 ):

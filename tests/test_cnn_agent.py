@@ -46,7 +46,7 @@ def spec():
         env.close()
 
 
-@pytest.mark.slow
+@pytest.mark.long
 @pytest.mark.timeout(240)
 def test_ppo_with_the_nature_cnn_learns_where_the_square_is():
     cfg = dataclasses.replace(
