@@ -8,11 +8,13 @@ replay buffer (off-policy, with ``as_dataset`` drawing batches ahead); then ``ag
 trains on it. :mod:`agentax.train.parallel` runs the same actors and learning steps in threads.
 
 Keys: the agent is initialised from ``key(seed)``'s first split, the learner's key chain from its
-second, actor ``i`` acts with ``fold_in(third, i)`` and seeds its envs ``seed + 1000 i``; so the
-host runner is the parallel runner's policy-lag-0 run with one actor, number for number.
+second, actor ``i`` acts with its key folded from the third and seeds its envs ``seed + 1000 i``
+(:func:`fold_actor_key`, :func:`actor_seed`); so the host runner is the parallel runner's
+policy-lag-0 run with one actor, number for number.
 
-Checkpoints hold the agent state and the learner's key; a resumed run restarts its envs (a
-Gymnasium env's state cannot be saved) and refills its replay buffer.
+Checkpoints hold the agent state and the learner's key, and beside them the replay buffer
+(:class:`ReplayCheckpoints`); a resumed run restarts its envs (a Gymnasium env's state cannot be
+saved) from seeds that depend on how far the run had come.
 """
 
 from __future__ import annotations
@@ -178,7 +180,6 @@ class Actor:
         self.by_episode = isinstance(experience, OffPolicy) and experience.by_episode
         self.progress = lambda: self.episodes.count if self.by_episode else self.steps.count
         self.time_step = first_time_step(self.env, seed)
-        self.valid: np.ndarray | None = None  # Episodes: the envs still in their first episode
 
     def finished_returns(self) -> list[float]:
         """The returns of the episodes finished since the last call: whole games' true scores where
