@@ -484,6 +484,7 @@ def train(
                 if env_steps < next_log and not finished:
                     continue
                 next_log += runner.log_every_steps
+                metrics = jax.device_get(metrics)  # waits for the last learning step: speeds count it
                 now = time.perf_counter()
                 solved = False
                 row = row_of(

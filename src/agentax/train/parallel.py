@@ -354,6 +354,7 @@ class _Rows:
         if env_steps < self.next_log and not final:
             return False
         self.next_log += self.runner.log_every_steps
+        metrics = jax.device_get(metrics)  # waits for the last learning step: speeds count it
         now = time.perf_counter()
         row = row_of(
             env_steps, updates, returns(), (env_steps - self.steps_at_log) / max(now - self.time_at_log, 1e-9)
