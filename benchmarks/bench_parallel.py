@@ -396,6 +396,7 @@ def run() -> dict:
     from agentax import _xla
 
     _xla.enable_compilation_cache()
+    _xla.let_xla_use_every_cpu()  # as the host and parallel runners do (this process makes no other kind)
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
 
     dqn = dqn_agent(DQN_STEPS)

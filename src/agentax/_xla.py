@@ -159,6 +159,26 @@ def _restore(saved: dict[int, set[int]], allowed: set[int]) -> None:
         _set_affinity(tid, mask)
 
 
+_one_cpu_client = True
+"""Read when jax creates its CPU client: on one CPU (the hang's cure), unless a runner that steps
+envs on the host asked for every CPU first (:func:`let_xla_use_every_cpu`)."""
+
+
+def let_xla_use_every_cpu() -> bool:
+    """Have jax create its CPU client for every CPU, if it has not created it yet; returns whether it
+    takes effect. With one CPU at creation XLA runs one program at a time, so a parallel runner's
+    actors would wait behind the learner's update (measured: parallel no faster than sequential). The
+    host and parallel runners ask for it; the hang was seen only with the compiled runner's
+    vmapped-over-seeds program, which keeps the one-CPU client."""
+    global _one_cpu_client
+    from jax._src import xla_bridge
+
+    if "cpu" in getattr(xla_bridge, "_backends", {}):
+        return False
+    _one_cpu_client = False
+    return True
+
+
 def create_cpu_client_on_one_cpu() -> bool:
     """Have jax create its CPU client, whenever it does, on one CPU: the cure for the XLA CPU hang.
 
@@ -182,7 +202,7 @@ def create_cpu_client_on_one_cpu() -> bool:
 
     def factory():
         allowed = os.sched_getaffinity(0)
-        if len(allowed) == 1:
+        if len(allowed) == 1 or not _one_cpu_client:
             return original()
         before = set(_threads())
         os.sched_setaffinity(0, {_choose_cpu(sorted(allowed))})  # the calling thread only

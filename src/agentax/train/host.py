@@ -31,6 +31,7 @@ import gymnasium
 import jax
 import numpy as np
 
+from agentax import _xla
 from agentax.agents.protocol import Agent, Episodes, OffPolicy, OnPolicy
 from agentax.envs.gym import NAMESPACE, GymnasiumEnv
 from agentax.evaluate import host_episode_returns
@@ -417,6 +418,7 @@ def train(
     progress: bool = False,
 ) -> HostResult:
     """Train ``agent`` on ``env_id`` (any Gymnasium id or agentax env), one step after the other."""
+    _xla.let_xla_use_every_cpu()
     init_key, learner_key, actors_key = agent_keys(runner.seed)
     meta: dict[str, Any] = {"env_steps": 0, "updates": 0, "episodes": 0, "elapsed": 0.0}
     if resume:

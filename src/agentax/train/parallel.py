@@ -34,6 +34,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from agentax import _xla
 from agentax.agents.protocol import Agent, Episodes, OffPolicy
 from agentax.errors import UsageError
 from agentax.nets import is_image
@@ -274,6 +275,7 @@ def train(
     progress: bool = False,
 ) -> HostResult:
     """Train ``agent`` on ``env_id`` with ``runner.actors`` actor threads and a learner."""
+    _xla.let_xla_use_every_cpu()  # XLA runs an actor's and the learner's programs side by side
     runner.check(agent)
     init_key, learner_key, actors_key = agent_keys(runner.seed)
     meta: dict[str, Any] = {"env_steps": 0, "updates": 0, "episodes": 0, "elapsed": 0.0}
