@@ -62,16 +62,14 @@ import math
 import os
 import threading
 import zipfile
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import jax
 import numpy as np
 
 from agentax.errors import UsageError
 from agentax.replay.core import ReplaySample, Transition
-from agentax.replay.host import _Prefetch, find_prefix_sum, set_leaves
+from agentax.replay.host import Dataset, find_prefix_sum, set_leaves
 from agentax.replay.prioritized import tree_size
 
 FRAME_SLACK = 1 / 20
@@ -141,7 +139,7 @@ def available_memory() -> int | None:
     return available
 
 
-class FrameReplayBuffer:
+class FrameReplayBuffer(Dataset):
     """Stacked-frame replay (see the module docstring) with :class:`agentax.replay.host.ReplayBuffer`'s
     interface: ``add_batch`` one-step transitions ``[num_envs]`` (env ``e``'s calls are consecutive
     steps of its stream), ``sample``, ``update_priorities``, ``size``, ``as_dataset``; one lock around
@@ -429,19 +427,6 @@ class FrameReplayBuffer:
             if len(priority):
                 set_leaves(self.tree, self.leaves(indices)[valid], priority**self.priority_exponent)
                 self.max_priority = max(self.max_priority, float(priority.max()))
-
-    def as_dataset(
-        self, sample_batch_size: int, num_batches: int = 1, prefetch: int = 2
-    ) -> Iterator[ReplaySample]:
-        """Endless uniform batches, each leaf ``[num_batches, sample_batch_size, ...]``, drawn ``prefetch``
-        ahead by a daemon thread (uniform replay only: prioritized batches depend on the last update)."""
-        if self.prioritized:
-            raise ValueError("as_dataset draws ahead, so it serves uniform replay only; sample() instead")
-        return _Prefetch(lambda: self._stacked(sample_batch_size, num_batches), prefetch)
-
-    def _stacked(self, batch_size: int, num_batches: int) -> ReplaySample:
-        batch = self.sample(batch_size * num_batches)
-        return jax.tree.map(lambda x: x.reshape(num_batches, batch_size, *x.shape[1:]), batch)
 
     # ------------------------------------------------------------------ checkpoints
 

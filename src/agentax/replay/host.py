@@ -144,7 +144,24 @@ def update_priorities(
     return state
 
 
-class ReplayBuffer:
+class Dataset:
+    """TF-Agents' ``as_dataset`` for a buffer with ``sample(batch_size)`` and ``prioritized``."""
+
+    def as_dataset(
+        self, sample_batch_size: int, num_batches: int = 1, prefetch: int = 2
+    ) -> Iterator[ReplaySample]:
+        """Endless uniform batches, each leaf ``[num_batches, sample_batch_size, ...]``, drawn ``prefetch``
+        ahead by a daemon thread (uniform replay only: prioritized batches depend on the last update)."""
+        if self.prioritized:
+            raise ValueError("as_dataset draws ahead, so it serves uniform replay only; sample() instead")
+        return _Prefetch(lambda: self._stacked(sample_batch_size, num_batches), prefetch)
+
+    def _stacked(self, batch_size: int, num_batches: int) -> ReplaySample:
+        batch = self.sample(batch_size * num_batches)
+        return jax.tree.map(lambda x: x.reshape(num_batches, batch_size, *x.shape[1:]), batch)
+
+
+class ReplayBuffer(Dataset):
     """A host replay buffer (uniform or prioritized) that actor and learner threads can share.
 
     TF-Agents' vocabulary: ``add_batch`` (an observer of the Driver adds through it), ``sample``,
@@ -232,19 +249,6 @@ class ReplayBuffer:
         if self.prioritized:
             with self.lock:
                 update_priorities(self.state, indices, td_error)
-
-    def as_dataset(
-        self, sample_batch_size: int, num_batches: int = 1, prefetch: int = 2
-    ) -> Iterator[ReplaySample]:
-        """Endless uniform batches, each leaf ``[num_batches, sample_batch_size, ...]``, drawn ``prefetch``
-        ahead by a daemon thread (uniform replay only: prioritized batches depend on the last update)."""
-        if self.prioritized:
-            raise ValueError("as_dataset draws ahead, so it serves uniform replay only; sample() instead")
-        return _Prefetch(lambda: self._stacked(sample_batch_size, num_batches), prefetch)
-
-    def _stacked(self, batch_size: int, num_batches: int) -> ReplaySample:
-        batch = self.sample(batch_size * num_batches)
-        return jax.tree.map(lambda x: x.reshape(num_batches, batch_size, *x.shape[1:]), batch)
 
 
 class _Prefetch:
