@@ -127,7 +127,7 @@ class EpisodeAverage:
     finished episodes (NaN before the first)."""
 
     quantity: Callable[[Transition], np.ndarray]
-    buffer_size: int = 10
+    buffer_size: int | None = 10  # None: every episode
     running: np.ndarray | None = None
     finished: collections.deque = field(default_factory=collections.deque)
 
@@ -202,21 +202,13 @@ class TrajectoryObserver:
         return trajectory
 
 
-@dataclass
-class FinishedReturns:
+class FinishedReturns(EpisodeAverage):
     """The returns of the episodes finished since the last ``drain()`` (for a runner's log rows)."""
 
-    running: np.ndarray | None = None
-    finished: list[float] = field(default_factory=list)
-
-    def __call__(self, transition: Transition) -> None:
-        if self.running is None:
-            self.running = np.zeros(len(transition.reward))
-        self.running += transition.reward
-        done = transition.terminated | transition.truncated
-        self.finished.extend(self.running[done].tolist())
-        self.running[done] = 0.0
+    def __init__(self):
+        super().__init__(quantity=lambda transition: transition.reward, buffer_size=None)
 
     def drain(self) -> list[float]:
-        finished, self.finished = self.finished, []
+        finished = list(self.finished)
+        self.finished.clear()
         return finished
