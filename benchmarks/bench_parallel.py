@@ -121,7 +121,7 @@ def collect_alone_off_policy(agent):
 
     experience = agent.experience
     actor, state = _actor(agent, experience.num_envs)
-    replay = host.replay_for(agent, actor.env, 0)
+    replay = host.replay_for(agent, actor.obs_shape, 0)
     observer = ReplayObserver(replay, experience.n_step, experience.discount_factor)
     with Clock() as clock:
         while actor.steps.count < agent.total_steps:

@@ -168,6 +168,10 @@ class Actor:
     def __init__(self, agent: Agent, env: Any, seed: int, key: jax.Array, done_steps: int = 0):
         self.agent = agent
         self.env = env
+        self.num_envs = env.num_envs
+        self.obs_shape = tuple(env.observation_space().shape)
+        self.keeps_scores = hasattr(env, "drain_scores")
+        """whether the env keeps the true scores of whole games (Atari), which the rows then report"""
         self.seed = seed
         self.key = key
         self.act = jax.jit(act_and_split(agent.act))
@@ -185,7 +189,7 @@ class Actor:
     def finished_returns(self) -> list[float]:
         """The returns of the episodes finished since the last call: whole games' true scores where
         the env keeps them (Atari), else the episodes' summed rewards."""
-        if hasattr(self.env, "drain_scores"):
+        if self.keeps_scores:
             return [score for score, _ in self.env.drain_scores()]
         return self.returns.drain()
 
@@ -239,11 +243,11 @@ class Actor:
         self.env.close()
 
 
-def replay_for(agent: Agent, env: Any, seed: int) -> Any:
-    """An empty host replay buffer for ``agent``'s transitions in ``env``: for stacked frames the
-    frame-deduplicated one (each frame stored once, n-step returns at sampling), else a plain one."""
+def replay_for(agent: Agent, obs_shape: tuple[int, ...], seed: int) -> Any:
+    """An empty host replay buffer for ``agent``'s transitions of observations ``obs_shape``: for
+    stacked frames the frame-deduplicated one (each frame stored once, n-step returns at sampling),
+    else a plain one."""
     experience = agent.experience
-    obs_shape = tuple(env.observation_space().shape)
     if is_image(obs_shape):
         from agentax.replay.frames import FrameReplayBuffer
 
@@ -439,9 +443,9 @@ def train(
     experience = agent.experience
     learn = jax.jit(agent.learn)
     if isinstance(experience, OffPolicy):
-        replay = replay_for(agent, actor.env, runner.seed)
+        replay = replay_for(agent, actor.obs_shape, runner.seed)
         observer = ReplayObserver(replay, experience.n_step, experience.discount_factor)
-        learner = OffPolicyLearner(agent, replay, unroll=is_image(actor.env.observation_space().shape))
+        learner = OffPolicyLearner(agent, replay, unroll=is_image(actor.obs_shape))
         replay_checkpoints = ReplayCheckpoints(
             run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
         )
@@ -460,7 +464,7 @@ def train(
     # the returns of each row: from what was learned (on-policy, so a parallel run with lag 0 logs
     # the same), else from the actor (off-policy, or whole Atari games, which only the env knows)
     learned_returns = FinishedReturns()
-    from_actor = isinstance(experience, OffPolicy) or hasattr(actor.env, "drain_scores")
+    from_actor = isinstance(experience, OffPolicy) or actor.keeps_scores
     drain_returns = actor.finished_returns if from_actor else learned_returns.drain
     next_log = done_steps + runner.log_every_steps
     steps_at_log, time_at_log = done_steps, time.perf_counter()

@@ -120,17 +120,33 @@ class Coordinator:
         return time.perf_counter() - start
 
 
-class ParameterChannel:
-    """Published agent states by version; keeps the ``keep`` newest so an actor can ask for one exactly."""
+def in_memory(version: int, state: Any) -> Any:
+    """How actor threads receive a published state: the state itself (they share the learner's memory)."""
+    return state
 
-    def __init__(self, coordinator: Coordinator, version: int, state: Any, keep: int):
-        self.coordinator, self.keep = coordinator, keep
-        self.versions = {version: state}
+
+class ParameterChannel:
+    """Published agent states by version; keeps the ``keep`` newest so an actor can ask for one exactly.
+
+    ``share(version, state)`` is what is kept for the actors: the state itself for threads
+    (:func:`in_memory`), a reference into Ray's object store for actor processes (``train.ray``)."""
+
+    def __init__(
+        self,
+        coordinator: Coordinator,
+        version: int,
+        state: Any,
+        keep: int,
+        share: Callable[[int, Any], Any] = in_memory,
+    ):
+        self.coordinator, self.keep, self.share = coordinator, keep, share
+        self.versions = {version: share(version, state)}
         self.condition = threading.Condition()
 
     def publish(self, version: int, state: Any) -> None:
+        shared = self.share(version, state)  # outside the lock: actors may read older versions meanwhile
         with self.condition:
-            self.versions[version] = state
+            self.versions[version] = shared
             for old in [v for v in self.versions if v <= version - self.keep]:
                 del self.versions[old]
             self.condition.notify_all()
@@ -238,8 +254,8 @@ def take(items: queue.Queue, coordinator: Coordinator) -> tuple[Any, float]:
 class Meter:
     """Speeds, wait fractions and the mean policy lag between two rows."""
 
-    def __init__(self, threads: list[ActorThread]):
-        self.threads = threads
+    def __init__(self, threads: list[ActorThread], extra: Callable[[], dict[str, float]] | None = None):
+        self.threads, self.extra = threads, extra
         self.time = time.perf_counter()
         self.collected = self.learned = 0
         self.actor_wait = self.learner_wait = 0.0
@@ -258,11 +274,56 @@ class Meter:
             "actor_wait_fraction": (actor_wait - self.actor_wait) / (seconds * len(self.threads)),
             "learner_wait_fraction": (learner_wait - self.learner_wait) / seconds,
             "policy_lag": float(self.lag),
+            **(self.extra() if self.extra else {}),
         }
         self.time, self.collected, self.learned = now, collected, learned
         self.actor_wait, self.learner_wait = actor_wait, learner_wait
         self.lag_sum, self.lag_count = lag_sum, lag_count
         return figures
+
+
+@dataclass
+class Fleet:
+    """A parallel training's actors and how they are reached.
+
+    ``actors`` have the host runner's :class:`Actor` interface (``rollout``, ``collect``, ...);
+    ``share`` turns a published state into what the actors receive (:class:`ParameterChannel`);
+    ``figures()`` adds columns to each row; ``close()`` ends the actors."""
+
+    actors: list[Any]
+    description: str
+    share: Callable[[int, Any], Any] = in_memory
+    figures: Callable[[], dict[str, float]] | None = None
+
+    def close(self) -> None:
+        for actor in self.actors:
+            actor.close()
+
+
+MakeFleet = Callable[[Coordinator, int, int, jax.Array], Fleet]
+"""``make(coordinator, updates, done_steps, actors_key) -> Fleet``: a run's actors, (re)started
+after ``updates`` learning steps and ``done_steps`` env steps."""
+
+
+def thread_fleet(agent: Agent, env_id: str, runner: ParallelRunnerConfig) -> MakeFleet:
+    """Actors in this process, each with its own vector env, run by actor threads."""
+    make_env = env_factory(env_id, runner)
+    envs_per_actor = agent.experience.num_envs // runner.actors
+
+    def make(coordinator: Coordinator, updates: int, done_steps: int, actors_key: jax.Array) -> Fleet:
+        actors = [
+            Actor(
+                agent,
+                make_env(envs_per_actor, training=True),
+                actor_seed(runner.seed, i, updates),
+                fold_actor_key(actors_key, i, updates),
+                done_steps // runner.actors,
+            )
+            for i in range(runner.actors)
+        ]
+        return Fleet(actors, f"{runner.actors} actor{'s' if runner.actors > 1 else ''}")
+
+    return make
 
 
 def train(
@@ -273,8 +334,10 @@ def train(
     *,
     resume: bool = False,
     progress: bool = False,
+    fleet: MakeFleet | None = None,
 ) -> HostResult:
-    """Train ``agent`` on ``env_id`` with ``runner.actors`` actor threads and a learner."""
+    """Train ``agent`` on ``env_id`` with ``runner.actors`` actors and a learner; the actors are
+    threads of this process (:func:`thread_fleet`) unless ``fleet`` makes them elsewhere."""
     _xla.let_xla_use_every_cpu()  # XLA runs an actor's and the learner's programs side by side
     runner.check(agent)
     init_key, learner_key, actors_key = agent_keys(runner.seed)
@@ -283,54 +346,34 @@ def train(
     if resume:
         state, learner_key, meta = restore(agent, run)
     updates, done_steps = int(meta["updates"]), int(meta["env_steps"])
-    experience = agent.experience
-    envs_per_actor = experience.num_envs // runner.actors
-    make_env = env_factory(env_id, runner)
-    actors = [
-        Actor(
-            agent,
-            make_env(envs_per_actor, training=True),
-            actor_seed(runner.seed, i, updates),
-            fold_actor_key(actors_key, i, updates),
-            done_steps // runner.actors,
-        )
-        for i in range(runner.actors)
-    ]
-    evaluator = Evaluator(agent, make_env, runner.eval_episodes)
-    logger = RunLogger(
-        run,
-        agent.total_steps,
-        done_steps=done_steps,
-        progress=progress,
-        description=f"{agent.name} {env_id} ({runner.actors} actors)",
-        checkpoint_every_seconds=runner.checkpoint_every_seconds,
-        elapsed_before=float(meta["elapsed"]),
-    )
     coordinator = Coordinator()
-    loop = _off_policy if isinstance(experience, OffPolicy) else _on_policy
+    make_fleet = fleet or thread_fleet(agent, env_id, runner)
     threads: list[ActorThread] = []
-    rows = _Rows(runner, logger, evaluator, done_steps)
+    evaluator = Evaluator(agent, env_factory(env_id, runner), runner.eval_episodes)
+    fleet = None
     try:
+        fleet = make_fleet(coordinator, updates, done_steps, actors_key)
+        logger = RunLogger(
+            run,
+            agent.total_steps,
+            done_steps=done_steps,
+            progress=progress,
+            description=f"{agent.name} {env_id} ({fleet.description})",
+            checkpoint_every_seconds=runner.checkpoint_every_seconds,
+            elapsed_before=float(meta["elapsed"]),
+        )
+        loop = _off_policy if isinstance(agent.experience, OffPolicy) else _on_policy
+        rows = _Rows(runner, logger, evaluator, done_steps)
         with logger:
             state, updates, env_steps = loop(
-                agent,
-                env_id,
-                runner,
-                actors,
-                threads,
-                coordinator,
-                rows,
-                state,
-                learner_key,
-                updates,
-                done_steps,
+                agent, runner, fleet, threads, coordinator, rows, state, learner_key, updates, done_steps
             )
     finally:
         coordinator.stop.set()
         for thread in threads:
             thread.join(timeout=10)
-        for actor in actors:
-            actor.close()
+        if fleet is not None:
+            fleet.close()
     returns, lengths = evaluator(state, seed=runner.seed + 123_457)
     evaluator.close()
     evaluation = logger.finish(returns[None], lengths[None], env_steps=env_steps, updates=updates)
@@ -382,13 +425,11 @@ class _Rows:
         return solved
 
 
-def _on_policy(
-    agent, env_id, runner, actors, threads, coordinator, rows, state, learner_key, updates, done_steps
-):
+def _on_policy(agent, runner, fleet, threads, coordinator, rows, state, learner_key, updates, done_steps):
     """Rollout ``k`` from every actor, collected with parameter version ``k - policy_lag``; learn."""
-    experience = agent.experience
+    experience, actors = agent.experience, fleet.actors
     last_update = num_updates(agent)
-    channel = ParameterChannel(coordinator, updates, state, keep=runner.policy_lag + 2)
+    channel = ParameterChannel(coordinator, updates, state, keep=runner.policy_lag + 2, share=fleet.share)
     queues = [queue.Queue(maxsize=1) for _ in actors]
     first_update = updates  # the learner's loop below moves ``updates`` on; the actors count from here
 
@@ -404,11 +445,11 @@ def _on_policy(
 
     for i, actor in enumerate(actors):
         threads.append(ActorThread(actor, lambda thread, i=i: collect(thread, i), coordinator, i))
-    rows.meter = Meter(threads)
+    rows.meter = Meter(threads, fleet.figures)
     learn = jax.jit(agent.learn)
     returns = FinishedReturns()
     drain = returns.drain  # from what was learned, so runs repeat; whole Atari games from the envs
-    if hasattr(actors[0].env, "drain_scores"):
+    if actors[0].keeps_scores:
 
         def drain() -> list[float]:
             return [r for actor in actors for r in actor.finished_returns()]
@@ -438,12 +479,11 @@ def _on_policy(
     return state, updates, env_steps
 
 
-def _off_policy(
-    agent, env_id, runner, actors, threads, coordinator, rows, state, learner_key, updates, done_steps
-):
+def _off_policy(agent, runner, fleet, threads, coordinator, rows, state, learner_key, updates, done_steps):
     """Actors fill the shared replay as the rate limiter allows; the learner learns as it allows."""
     experience: OffPolicy = agent.experience
-    replay = replay_for(agent, actors[0].env, runner.seed)
+    actors = fleet.actors
+    replay = replay_for(agent, actors[0].obs_shape, runner.seed)
     rows.replay = replay
     rows.replay_checkpoints = ReplayCheckpoints(
         rows.logger.run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
@@ -459,11 +499,11 @@ def _off_policy(
     )
     limiter.inserted = done_steps
     limiter.learned = updates
-    channel = ParameterChannel(coordinator, 0, state, keep=2)
+    channel = ParameterChannel(coordinator, 0, state, keep=2, share=fleet.share)
     total = agent.total_steps
 
     def collect(thread: ActorThread, index: int) -> None:
-        envs = slice(index * thread.actor.env.num_envs, (index + 1) * thread.actor.env.num_envs)
+        envs = slice(index * thread.actor.num_envs, (index + 1) * thread.actor.num_envs)
         observer = ReplayObserver(replay, experience.n_step, experience.discount_factor, envs)
         thread.actor.progress = lambda: limiter.inserted  # ε follows the whole run's env steps
         while True:
@@ -480,8 +520,8 @@ def _off_policy(
 
     for i, actor in enumerate(actors):
         threads.append(ActorThread(actor, lambda thread, i=i: collect(thread, i), coordinator, i))
-    rows.meter = Meter(threads)
-    learner = OffPolicyLearner(agent, replay, unroll=is_image(actors[0].env.observation_space().shape))
+    rows.meter = Meter(threads, fleet.figures)
+    learner = OffPolicyLearner(agent, replay, unroll=is_image(actors[0].obs_shape))
 
     def drain() -> list[float]:
         return [r for actor in actors for r in actor.finished_returns()]
