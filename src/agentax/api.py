@@ -26,6 +26,7 @@ and ``agentax.train("ppo", ...)`` work side by side.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import sys
 import time
 from dataclasses import dataclass
@@ -63,13 +64,19 @@ class RunArgs:
     """show a progress bar"""
     runner: str = "auto"
     """compiled (JAX envs, seeds vmapped), host (any env, one step after the other), parallel (actor
-    threads beside a learner); auto: compiled for agentax's JAX envs, else host"""
+    threads beside a learner), ray (the parallel runner's actors as Ray actor processes, on any node
+    of a cluster); auto: compiled for agentax's JAX envs, else host"""
     actors: int = 2
-    """parallel runner: actor threads (the envs are split evenly between them)"""
+    """parallel and ray runners: actors (the envs are split evenly between them)"""
     envs_per_actor: int | None = None
-    """parallel runner: envs per actor (sets the algorithm's number of envs to actors × this)"""
+    """parallel and ray runners: envs per actor (sets the algorithm's number of envs to actors × this)"""
     policy_lag: int = 1
     """parallel runner, on-policy: parameter versions between collecting and learning (0: sequential)"""
+    ray_address: str | None = None
+    """ray runner: the Ray cluster to join ('auto', or HOST:PORT of `ray start --head`); default: a
+    local Ray for this run, shut down after it"""
+    cpus_per_actor: float = 1.0
+    """ray runner: CPUs Ray reserves for each actor process"""
     env_backend: str = "auto"
     """Atari: envpool or ale (ale-py with Gymnasium's wrappers); auto: envpool where it is installed"""
     checkpoint_replay: bool = True
@@ -301,7 +308,7 @@ def _start_host(
         raise UsageError(
             f"the {kind} runner trains one seed per process (--seeds 1); --seeds N is compiled-only"
         )
-    if kind == "parallel" and run_args.envs_per_actor is not None:
+    if kind in ("parallel", "ray") and run_args.envs_per_actor is not None:
         envs = "num_envs" if hasattr(cfg, "num_envs") else "episodes_per_update"
         cfg = dataclasses.replace(cfg, **{envs: run_args.actors * run_args.envs_per_actor}).validate()
     atari = {"env_backend": run_args.env_backend, "sticky_actions": run_args.sticky_actions}
@@ -319,10 +326,17 @@ def _start_host(
         "checkpoint_replay": run_args.checkpoint_replay,
         **atari,
     }
-    if kind == "parallel":
-        runner = ParallelRunnerConfig(**common, actors=run_args.actors, policy_lag=run_args.policy_lag)
+    if kind in ("parallel", "ray"):
+        parallel = {"actors": run_args.actors, "policy_lag": run_args.policy_lag}
+        if kind == "ray":
+            from agentax.train.ray import RayRunnerConfig
+
+            ray = {"ray_address": run_args.ray_address, "cpus_per_actor": run_args.cpus_per_actor}
+            runner = RayRunnerConfig(**common, **parallel, **ray)
+        else:
+            runner = ParallelRunnerConfig(**common, **parallel)
         runner.check(agent)
-        where = f"{runner.actors} actor{'s' if runner.actors > 1 else ''}"
+        where = f"{runner.actors} {'Ray ' if kind == 'ray' else ''}actor{'s' if runner.actors > 1 else ''}"
         if not isinstance(agent.experience, OffPolicy):
             where += f", policy lag {runner.policy_lag}"
     else:
@@ -331,15 +345,25 @@ def _start_host(
         out, run_config(algo, run_args.env, run_args.preset, kind, runner, module.config_to_dict(cfg))
     )
     _announce(f"training {algo} on {run_args.env} ({where}) into {out}", quiet)
-    return _train_host(agent, kind, runner, run, resume=False, progress=run_args.progress)
+    remake = functools.partial(module.make_agent, spec, cfg)
+    return _train_host(agent, remake, kind, runner, run, resume=False, progress=run_args.progress)
 
 
-def _train_host(agent: Any, kind: str, runner: Any, run: Any, *, resume: bool, progress: bool) -> Run:
+def _train_host(
+    agent: Any, remake: Any, kind: str, runner: Any, run: Any, *, resume: bool, progress: bool
+) -> Run:
+    """The host, parallel or ray runner; ``remake()`` builds ``agent`` again (in Ray's actor processes)."""
     from agentax.train import host, parallel
 
     start_time = time.perf_counter()
-    train = parallel.train if kind == "parallel" else host.train
-    result = train(agent, run.config["env"], runner, run, resume=resume, progress=progress)
+    options = {"resume": resume, "progress": progress}
+    if kind == "ray":
+        from agentax.train import ray
+
+        result = ray.train(agent, run.config["env"], runner, run, make_agent=remake, **options)
+    else:
+        train = parallel.train if kind == "parallel" else host.train
+        result = train(agent, run.config["env"], runner, run, **options)
     seconds = time.perf_counter() - start_time
     return Run(run.path, run.config, result, seconds, greedy=agent.greedy_policy(result.state))
 
@@ -385,19 +409,22 @@ def resume(run_dir: str | Path, progress: bool = True, *, quiet: bool = False) -
     kind = config.get("runner_kind", "compiled")
     _announce(f"resuming {algo} on {config['env']} ({kind} runner) from {run_dir}", quiet)
     try:
-        if kind in ("host", "parallel"):
+        if kind in ("host", "parallel", "ray"):
             from agentax.agents.protocol import EnvSpec
             from agentax.train.host import HostRunnerConfig, make_host_env
             from agentax.train.parallel import ParallelRunnerConfig
+            from agentax.train.ray import RayRunnerConfig
 
-            runner = (ParallelRunnerConfig if kind == "parallel" else HostRunnerConfig)(**config["runner"])
+            configs = {"host": HostRunnerConfig, "parallel": ParallelRunnerConfig, "ray": RayRunnerConfig}
+            runner = configs[kind](**config["runner"])
             probe = make_host_env(
                 config["env"], 1, backend=runner.env_backend, sticky_actions=runner.sticky_actions
             )
             spec = EnvSpec.of(probe)
             probe.close()
-            agent = module.make_agent(spec, cfg)
-            return _train_host(agent, kind, runner, RunFolder.open(run_dir), resume=True, progress=progress)
+            remake = functools.partial(module.make_agent, spec, cfg)
+            run = RunFolder.open(run_dir)
+            return _train_host(remake(), remake, kind, runner, run, resume=True, progress=progress)
         from agentax.envs import make_jax
         from agentax.train.compiled import RunnerConfig
 

@@ -130,6 +130,17 @@ class Agent:
     """what the env receives for a sampled action (PPO clips continuous actions to the bounds)"""
 
 
+ACTING_UNUSED = ("opt_state", "target_params")
+"""Fields of an agent state that ``act`` never reads (every agent's ``act`` reads ``params`` and
+static fields only; ``tests/test_architecture.py`` checks it)."""
+
+
+def acting_view(state: AgentState) -> AgentState:
+    """What actors in other processes need of an agent state: ``state`` without its optimizer state
+    and target parameters (a Nature-CNN DQN's state shrinks 4x, to its parameters)."""
+    return state.replace(**{name: None for name in ACTING_UNUSED if hasattr(state, name)})
+
+
 # ---------------------------------------------------------------- the compiled runner's contract
 
 TrainState = Any

@@ -1,10 +1,11 @@
-"""``agentax train ALGO --env ID [--runner compiled|host|parallel] [--preset NAME] [--seeds N] ...``.
+"""``agentax train ALGO --env ID [--runner compiled|host|parallel|ray] [--preset NAME] [--seeds N] ...``.
 
 Also ``agentax train --resume DIR`` (continue an interrupted run from its newest good checkpoint).
 The algorithm's config dataclass becomes flags (``--learning-rate``, ``--num-envs``, ...), its
 defaults taken from the preset. ``--runner auto`` trains agentax's JAX envs on the compiled runner
-(all seeds in one vmapped program) and other ids on the host runner; ``host`` and ``parallel``
-(``--actors N --envs-per-actor M --policy-lag L``) take any env id, agentax's own stepped on the host.
+(all seeds in one vmapped program) and other ids on the host runner; ``host``, ``parallel``
+(``--actors N --envs-per-actor M --policy-lag L``) and ``ray`` (the same, ``--ray-address A``) take
+any env id, agentax's own stepped on the host.
 
 The algorithms are those of ``agentax.agents.ALGORITHMS``; each follows
 ``agentax.agents.protocol``. A config's ``validate()`` raises UsageError on bad values (not
@@ -73,7 +74,8 @@ def main(argv: list[str]) -> int:
         print("usage: agentax train ALGO [--env ID] [--preset NAME] [--seed S] [--seeds N] [--total-steps N]")
         print("                         [--stop-at-return R|none] [--out DIR] [algorithm flags...]")
         print("       agentax train --resume DIR")
-        print("                         [--runner compiled|host|parallel] [--actors N] [--policy-lag L]")
+        print("                         [--runner compiled|host|parallel|ray] [--actors N] [--policy-lag L]")
+        print("                         [--ray-address auto|HOST:PORT] [--cpus-per-actor C]")
         print(f"algorithms: {', '.join(ALGORITHMS)} (agentax train ALGO --help for its flags and presets)")
         return 0
     if argv[0] == "--resume" or argv[0].startswith("--resume="):

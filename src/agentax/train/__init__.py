@@ -2,7 +2,8 @@
 
 ``compiled`` trains JAX envs inside one jitted, vmapped-over-seeds program; ``host`` steps any env
 on the host with a Driver, one step after the other; ``parallel`` runs the host runner's actors in
-threads beside a learner. :func:`load_policy` rebuilds the greedy policy of a run of any of them.
+threads beside a learner, ``ray`` in Ray actor processes on any node of a cluster.
+:func:`load_policy` rebuilds the greedy policy of a run of any of them.
 
 This module is also callable: ``agentax.train("ppo", env=..., ...)`` is :func:`agentax.api.train`.
 Python sets the attribute ``agentax.train`` to this subpackage whenever it is first imported
@@ -22,7 +23,7 @@ from typing import Any
 
 from agentax.policies import Policy
 
-RUNNERS = ("compiled", "host", "parallel")
+RUNNERS = ("compiled", "host", "parallel", "ray")
 
 
 class _CallableModule(ModuleType):

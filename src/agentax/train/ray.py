@@ -1,0 +1,312 @@
+"""Actors on a Ray cluster: the parallel runner with its actors in Ray actor processes, on any node.
+
+``--runner ray`` is :mod:`agentax.train.parallel` unchanged — its learner, rate limiter, parameter
+channel, policy-lag rules, rows and checkpoints — with a different :class:`~parallel.Fleet`: each
+actor is a :class:`Collector`, a Ray actor process holding the host runner's
+:class:`~agentax.train.host.Actor` (its own vector env, EnvPool or Gymnasium, and the jitted collect
+policy), and the parallel runner's actor thread for it drives a :class:`RemoteActor`, which calls
+it and waits. So
+
+- **parameters** go out through Ray's object store: one ``ray.put`` per publish of the agent state's
+  :func:`~agentax.agents.protocol.acting_view` (no optimizer state), which every actor of a node
+  reads from shared memory; a collector converts a version to JAX arrays once;
+- **experience** comes back as NumPy batches ``[T, E]`` with the scores of the games that ended, and
+  joins the learner's rollout queue or replay buffer exactly as a thread actor's would; with the
+  same seed an on-policy run gives the thread actors' numbers;
+- **faults**: a collector process that dies (killed, out of memory, its node lost) is replaced by a
+  new one (fresh env seeds) and the call it had in flight is made again: the run loses that batch
+  and goes on; ``actor_restarts`` counts them. An error raised *inside* a collector (a bug, a broken
+  env) ends the run with that error, and so does a learner error; the actors are then killed.
+
+Where it runs: ``ray_address`` joins an existing cluster (``auto``, or ``HOST:PORT`` of ``ray start
+--head``); without it the run starts a local Ray (no dashboard, loopback only, as many CPUs as the
+machine has) and shuts it down at the end, also after Ctrl-C or an error. A process that is already
+connected to Ray (``ray.init`` before the call, as the tests do) keeps its connection. Every node
+needs agentax installed (the same version); the learner stays in this process.
+"""
+
+from __future__ import annotations
+
+import collections
+import functools
+import logging
+import os
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import numpy as np
+
+from agentax.agents.protocol import Agent, acting_view
+from agentax.errors import UsageError
+from agentax.replay import Transition
+from agentax.runs import Run
+from agentax.train.driver import EnvironmentSteps, TrajectoryObserver
+from agentax.train.host import Actor, HostResult, actor_seed, fold_actor_key, make_host_env
+from agentax.train.parallel import POLL_SECONDS, Coordinator, Fleet, ParallelRunnerConfig
+from agentax.train.parallel import train as train_parallel
+
+RESTART_SEED_STRIDE = 104_729
+"""a restarted collector's envs are seeded ``actor_seed + stride × restarts``"""
+
+
+@dataclass(frozen=True)
+class RayRunnerConfig(ParallelRunnerConfig):
+    """The parallel runner's settings and where its actors run; saved in config.json under "runner"."""
+
+    ray_address: str | None = None
+    """an existing Ray cluster to join ('auto' or HOST:PORT); None: a local Ray for this run"""
+    cpus_per_actor: float = 1.0
+    """CPUs Ray reserves for each actor process (it places the actors by them)"""
+    max_actor_restarts: int = 100
+    """collector processes replaced over the whole run before it gives up"""
+
+
+def import_ray() -> Any:
+    try:
+        import ray
+    except ImportError:
+        raise UsageError("--runner ray needs Ray: pip install 'agentax[ray]'") from None
+    return ray
+
+
+@contextmanager
+def ray_session(address: str | None) -> Iterator[Any]:
+    """Connected to Ray for the length of the block: the cluster at ``address``, else a local Ray
+    started here and shut down after (its processes end with it). A connection made before is kept."""
+    ray = import_ray()
+    if ray.is_initialized():
+        yield ray
+        return
+    quiet = {"logging_level": logging.ERROR, "log_to_driver": False, "include_dashboard": False}
+    try:
+        if address:
+            ray.init(address=address, **quiet)
+        else:
+            ray.init(num_cpus=os.cpu_count(), _node_ip_address="127.0.0.1", **quiet)
+    except ConnectionError as error:
+        raise UsageError(f"cannot join the Ray cluster at {address!r}: {error}") from None
+    try:
+        yield ray
+    finally:
+        ray.shutdown()
+
+
+# ---------------------------------------------------------------- the actor process
+
+
+class Collector:
+    """One actor in its own process (a Ray actor): a host :class:`Actor` and the newest parameters.
+
+    Each call gets the published ``(version, ref)`` inside a list, so Ray hands over the reference
+    and the collector fetches and converts the state only when the version is new."""
+
+    def __init__(self, make_agent: Callable[[], Agent], env_id: str, runner: Any, num_envs: int, seed, key):
+        from agentax import _xla
+
+        _xla.enable_compilation_cache()  # a restarted collector skips compiling its policy
+        agent = make_agent()
+        env = make_host_env(
+            env_id, num_envs, training=True, backend=runner.env_backend, sticky_actions=runner.sticky_actions
+        )
+        self.actor = Actor(agent, env, seed, jax.random.wrap_key_data(key))
+        self.version: int | None = None
+
+    def describe(self) -> dict[str, Any]:
+        import ray
+
+        actor = self.actor
+        return {
+            "num_envs": actor.num_envs,
+            "obs_shape": actor.obs_shape,
+            "keeps_scores": actor.keeps_scores,
+            "node": ray.get_runtime_context().get_node_id(),
+            "pid": os.getpid(),
+        }
+
+    def _state(self, published: list) -> Any:
+        import ray
+
+        version, ref = published[0]
+        if version != self.version:
+            self.state, self.version = jax.device_put(ray.get(ref)), version
+        return self.state
+
+    def _result(self, trajectory: Transition, steps_before: int) -> tuple[Transition, list[float], int]:
+        return trajectory, self.actor.finished_returns(), self.actor.steps.count - steps_before
+
+    def rollout(self, published: list, num_steps: int):
+        before = self.actor.steps.count
+        return self._result(self.actor.rollout(self._state(published), num_steps), before)
+
+    def episodes_from_reset(self, published: list, max_steps: int):
+        before = self.actor.steps.count
+        return self._result(self.actor.episodes_from_reset(self._state(published), max_steps), before)
+
+    def collect(self, published: list, amount: int, progress: int):
+        before, trajectory = self.actor.steps.count, TrajectoryObserver()
+        self.actor.progress = lambda: progress
+        self.actor.collect(self._state(published), trajectory, amount)
+        return self._result(trajectory.trajectory(), before)
+
+
+# ---------------------------------------------------------------- the learner's end of it
+
+
+class RemoteActor:
+    """The learner process's handle on one :class:`Collector`, with the host Actor's interface (for
+    the parallel runner's actor threads): each call goes to the collector process and waits for its
+    batch, checking for the run's end; a collector that died is replaced and the call made again."""
+
+    def __init__(
+        self, spawn: Callable[[int], Any], coordinator: Coordinator, done_steps: int, max_restarts: int
+    ):
+        self.spawn, self.coordinator, self.max_restarts = spawn, coordinator, max_restarts
+        self.restarts = 0
+        self.handle = spawn(0)
+        self.steps = EnvironmentSteps(done_steps)
+        self.scores: collections.deque[float] = collections.deque(maxlen=100_000)
+        self.progress: Callable[[], int] = lambda: self.steps.count
+        self.info: dict[str, Any] = {}
+
+    def started(self, info: dict[str, Any]) -> None:
+        self.info = info
+        self.num_envs, self.obs_shape = info["num_envs"], tuple(info["obs_shape"])
+        self.keeps_scores = info["keeps_scores"]
+
+    def _wait(self, ref: Any) -> Any:
+        import ray
+
+        while not ray.wait([ref], timeout=POLL_SECONDS)[0]:
+            self.coordinator.check()
+        return ray.get(ref)
+
+    def _call(self, method: str, *args: Any) -> Transition:
+        import ray
+        from ray.exceptions import RayActorError, WorkerCrashedError
+
+        while True:
+            try:
+                trajectory, scores, steps = self._wait(getattr(self.handle, method).remote(*args))
+                break
+            except (RayActorError, WorkerCrashedError) as error:
+                self.coordinator.check()  # the run is ending: its actors are being killed
+                self.restarts += 1
+                if self.restarts > self.max_restarts:
+                    raise RuntimeError(
+                        f"Ray actor processes died {self.restarts} times; giving up"
+                    ) from error
+                print(
+                    f"warning: a Ray actor process died ({type(error).__name__}); restarting it",
+                    file=sys.stderr,
+                )
+                ray.kill(self.handle, no_restart=True)
+                self.handle = self.spawn(self.restarts)
+                self.started(self._wait(self.handle.describe.remote()))
+        self.steps.count += steps
+        self.scores.extend(scores)
+        return trajectory
+
+    def rollout(self, published: Any, num_steps: int) -> Transition:
+        return self._call("rollout", [published], num_steps)
+
+    def episodes_from_reset(self, published: Any, max_steps: int) -> Transition:
+        return self._call("episodes_from_reset", [published], max_steps)
+
+    def collect(self, published: Any, observer: Callable[[Transition], None], amount: int) -> None:
+        trajectory = self._call("collect", [published], amount, int(self.progress()))
+        for t in range(len(trajectory.reward)):
+            observer(jax.tree.map(lambda x, t=t: x[t], trajectory))
+
+    def finished_returns(self) -> list[float]:
+        return [self.scores.popleft() for _ in range(len(self.scores))]
+
+    def close(self) -> None:
+        import ray
+
+        ray.kill(self.handle, no_restart=True)
+
+
+def ray_fleet(agent: Agent, make_agent: Callable[[], Agent], env_id: str, runner: RayRunnerConfig, ray: Any):
+    """A :data:`~agentax.train.parallel.MakeFleet` of :class:`Collector` processes, spread over the
+    cluster's nodes, each with the thread actor's env share, seeds and key."""
+    envs_per_actor = agent.experience.num_envs // runner.actors
+    collector = ray.remote(Collector)
+
+    def share(version: int, state: Any) -> tuple[int, Any]:
+        return version, ray.put(jax.device_get(acting_view(state)))
+
+    def make(coordinator: Coordinator, updates: int, done_steps: int, actors_key: jax.Array) -> Fleet:
+        check_resources(ray, runner)
+
+        def spawn(index: int, restarts: int) -> Any:
+            seed = actor_seed(runner.seed, index, updates) + RESTART_SEED_STRIDE * restarts
+            key = fold_actor_key(actors_key, index, updates)
+            if restarts:
+                key = jax.random.fold_in(key, restarts)
+            options = {"num_cpus": runner.cpus_per_actor, "scheduling_strategy": "SPREAD", "max_restarts": 0}
+            return collector.options(**options).remote(
+                make_agent, env_id, runner, envs_per_actor, seed, np.asarray(jax.random.key_data(key))
+            )
+
+        actors = [
+            RemoteActor(
+                functools.partial(spawn, i),
+                coordinator,
+                done_steps // runner.actors,
+                runner.max_actor_restarts,
+            )
+            for i in range(runner.actors)
+        ]
+        try:
+            infos = [actor.handle.describe.remote() for actor in actors]  # they start side by side
+            for actor, info in zip(actors, infos, strict=True):
+                actor.started(actor._wait(info))
+        except BaseException:
+            for actor in actors:
+                actor.close()
+            raise
+
+        def figures() -> dict[str, float]:
+            return {
+                "actor_restarts": sum(a.restarts for a in actors),
+                "actor_nodes": len({a.info["node"] for a in actors}),
+            }
+
+        nodes = figures()["actor_nodes"]
+        where = f"{runner.actors} Ray actors on {nodes} node{'s' if nodes > 1 else ''}"
+        return Fleet(actors, where, share, figures)
+
+    return make
+
+
+def check_resources(ray: Any, runner: RayRunnerConfig) -> None:
+    """A ``UsageError`` when the cluster has fewer CPUs than the actors reserve (they would wait forever)."""
+    cpus = ray.cluster_resources().get("CPU", 0)
+    wanted = runner.actors * runner.cpus_per_actor
+    if wanted > cpus:
+        raise UsageError(
+            f"{runner.actors} actors × {runner.cpus_per_actor:g} CPU need {wanted:g} CPUs, the Ray cluster "
+            f"has {cpus:g}: join more nodes, or set --cpus-per-actor {cpus / runner.actors:.2g}"
+        )
+
+
+def train(
+    agent: Agent,
+    env_id: str,
+    runner: RayRunnerConfig,
+    run: Run | None = None,
+    *,
+    make_agent: Callable[[], Agent],
+    resume: bool = False,
+    progress: bool = False,
+) -> HostResult:
+    """Train ``agent`` on ``env_id`` with ``runner.actors`` Ray actors and a learner in this process.
+    ``make_agent()`` builds the same agent in each actor process (a picklable callable, such as
+    ``functools.partial(ppo.make_agent, spec, cfg)``)."""
+    with ray_session(runner.ray_address) as ray:
+        fleet = ray_fleet(agent, make_agent, env_id, runner, ray)
+        return train_parallel(agent, env_id, runner, run, resume=resume, progress=progress, fleet=fleet)
