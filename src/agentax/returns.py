@@ -66,6 +66,14 @@ def discounted_returns(rewards: jax.Array, discounts: jax.Array, bootstrap: jax.
     return returns
 
 
+def masked_mean(x: jax.Array, mask: jax.Array | None = None) -> jax.Array:
+    """The mean of ``x`` over the entries where ``mask`` holds (all if None; 0 if none holds)."""
+    if mask is None:
+        return x.mean()
+    mask = mask.astype(x.dtype)
+    return (x * mask).sum() / jnp.maximum(mask.sum(), 1.0)
+
+
 def normalize(x: jax.Array, mask: jax.Array | None = None, eps: float = 1e-8) -> jax.Array:
     """``(x - mean) / (std + eps)`` over the entries where ``mask`` holds (all if None)."""
     if mask is None:

@@ -12,6 +12,11 @@ with the learning rate (and optionally ε) annealed linearly to 0 and gradients 
 norm. Discrete actions use a categorical policy, continuous ones a diagonal Gaussian (actions
 clipped to the space's bounds when stepping the env, the unclipped sample kept for the ratio).
 
+A runner may mark steps that are no transitions of the game in ``info["valid"]`` (bool ``[T, E]``:
+EnvPool's reset step, see :mod:`agentax.envs.envpool_xla`): every mean above, and the advantages'
+normalisation, then runs over the valid steps only; the runner marks the step before such a step
+done, so GAE does not cross it.
+
 Pure functions: ``init``, ``act`` and ``learn`` serve every runner — ``make_train`` wraps them for
 the compiled runner (JAX envs, vmapped over seeds), ``make_agent`` for the host and parallel ones.
 """
@@ -42,7 +47,7 @@ from agentax.nets import (
 )
 from agentax.policies import Policy
 from agentax.replay import Transition
-from agentax.returns import EpisodeStats, gae, normalize
+from agentax.returns import EpisodeStats, gae, masked_mean, normalize
 
 
 @dataclass(frozen=True)
@@ -276,24 +281,33 @@ def greedy_policy(params: Any, spec: EnvSpec, cfg: PPOConfig) -> Policy:
 
 
 def clipped_surrogate_loss(
-    log_prob_t: jax.Array, old_log_prob_t: jax.Array, advantage_t: jax.Array, clip_eps: float | jax.Array
+    log_prob_t: jax.Array,
+    old_log_prob_t: jax.Array,
+    advantage_t: jax.Array,
+    clip_eps: float | jax.Array,
+    valid_t: jax.Array | None = None,
 ) -> jax.Array:
-    """PPO's clipped policy loss ``−mean(min(ρ·A, clip(ρ, 1−ε, 1+ε)·A))``, ``ρ = exp(log π − log π_old)``."""
+    """PPO's clipped policy loss ``−mean(min(ρ·A, clip(ρ, 1−ε, 1+ε)·A))``, ``ρ = exp(log π − log π_old)``;
+    the mean over the ``valid_t`` entries only, if given."""
     ratio = jnp.exp(log_prob_t - old_log_prob_t)
     clipped = jnp.clip(ratio, 1.0 - clip_eps, 1.0 + clip_eps)
-    return -jnp.minimum(ratio * advantage_t, clipped * advantage_t).mean()
+    return -masked_mean(jnp.minimum(ratio * advantage_t, clipped * advantage_t), valid_t)
 
 
 def loss_fn(params: Any, batch: dict[str, jax.Array], clip_eps: jax.Array, spec: EnvSpec, cfg: PPOConfig):
-    """The PPO loss of one minibatch (flat ``[B, ...]`` arrays); returns ``(loss, metrics)``."""
+    """The PPO loss of one minibatch (flat ``[B, ...]`` arrays); returns ``(loss, metrics)``.
+
+    With ``batch["valid"]`` (bool ``[B]``) every mean runs over the valid entries only."""
+    valid = batch.get("valid")
     actor_out, value = network(cfg, spec).apply(params, batch["obs"])
     new_log_prob, entropies = _log_prob_entropy(actor_out, batch["action"], is_continuous(spec))
-    advantage = normalize(batch["advantage"]) if cfg.normalize_advantages else batch["advantage"]
-    policy_loss = clipped_surrogate_loss(new_log_prob, batch["log_prob"], advantage, clip_eps)
-    value_loss = 0.5 * ((value - batch["target"]) ** 2).mean()
-    mean_entropy = entropies.mean()
+    advantage = normalize(batch["advantage"], valid) if cfg.normalize_advantages else batch["advantage"]
+    policy_loss = clipped_surrogate_loss(new_log_prob, batch["log_prob"], advantage, clip_eps, valid)
+    value_loss = 0.5 * masked_mean((value - batch["target"]) ** 2, valid)
+    mean_entropy = masked_mean(entropies, valid)
     loss = policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * mean_entropy
-    approx_kl = ((jnp.exp(new_log_prob - batch["log_prob"]) - 1) - (new_log_prob - batch["log_prob"])).mean()
+    log_ratio = new_log_prob - batch["log_prob"]
+    approx_kl = masked_mean((jnp.exp(log_ratio) - 1) - log_ratio, valid)
     return loss, {
         "policy_loss": policy_loss,
         "value_loss": value_loss,
@@ -306,7 +320,8 @@ def learn(
     agent: PPOAgent, rollout: Transition, key: jax.Array, spec: EnvSpec, cfg: PPOConfig
 ) -> tuple[PPOAgent, dict[str, jax.Array]]:
     """One PPO iteration on a rollout ``[T, E, ...]`` (``info["log_prob"]`` from :func:`act`, the
-    behaviour policy's): GAE, then epochs of minibatch SGD."""
+    behaviour policy's; ``info["valid"]``, if there, the steps to learn from): GAE, then epochs of
+    minibatch SGD."""
     net, tx = network(cfg, spec), optimizer(cfg)
     # Both values from the learner's parameters: a rollout collected with older ones (a parallel
     # runner's policy lag) would otherwise feed each change of V into the targets again.
@@ -329,6 +344,8 @@ def learn(
         "advantage": advantages,
         "target": targets,
     }
+    if "valid" in rollout.info:
+        flat["valid"] = rollout.info["valid"]
     flat = jax.tree.map(lambda x: x.reshape(batch_size, *x.shape[2:]), flat)
     progress = agent.updates.astype(jnp.float32) / cfg.num_updates
     clip_eps = cfg.clip_eps * (1.0 - progress) if cfg.anneal_clip else jnp.float32(cfg.clip_eps)

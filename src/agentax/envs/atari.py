@@ -87,7 +87,7 @@ def is_atari_id(env_id: str) -> bool:
     return match is not None and match.group(1) in atari_games()
 
 
-def _game_of(env_id: str) -> tuple[str, str]:
+def game_of(env_id: str) -> tuple[str, str]:
     """(game name, ROM id) for an Atari id; a ``UsageError`` naming the closest ids otherwise."""
     games = atari_games()
     match = _ID.match(env_id)
@@ -252,34 +252,61 @@ class _AleBackend:
             game.env.close()
 
 
+def envpool_kwargs(
+    game: str, num_envs: int, sticky_actions: float, noop_max: int, max_steps: int, seed: int
+) -> dict[str, Any]:
+    """``envpool.make``'s arguments for ``num_envs`` games of ``game`` with agentax's preprocessing
+    (module docstring), shared by the host backend and the in-program pool
+    (:mod:`agentax.envs.envpool_xla`). Always ``episodic_life`` (EnvPool then does the no-ops and
+    FIRE after a lost life; whether a life ends an episode is the caller's choice) and raw rewards
+    (the caller clips them for learning)."""
+    return dict(
+        task_id=f"{game}-v5",
+        env_type="gymnasium",
+        num_envs=num_envs,
+        batch_size=num_envs,
+        num_threads=min(num_envs, os.cpu_count() or 1),
+        seed=seed,
+        episodic_life=True,
+        reward_clip=False,
+        use_fire_reset=True,
+        repeat_action_probability=sticky_actions,
+        noop_max=max(noop_max, 1),  # EnvPool draws 1..noop_max frames, FIRE counting as one
+        max_episode_steps=max_steps,
+        stack_num=STACK,
+        frame_skip=FRAME_SKIP,
+        img_height=SCREEN,
+        img_width=SCREEN,
+        gray_scale=True,
+        full_action_space=False,
+    )
+
+
+def envpool_ends(terminated: Any, truncated: Any, game_over: Any) -> tuple[Any, Any, Any]:
+    """``(life lost, game over, truncated)``, disjoint, from an ``episodic_life`` pool's step: its
+    ``terminated`` (a lost life or a game over), ``truncated`` (the frame limit) and
+    ``info["terminated"]`` (the emulator's game over). A game over wins over the frame limit,
+    the frame limit over a lost life. NumPy or JAX boolean arrays ``[num_envs]``."""
+    ended = terminated | truncated
+    return ended & ~game_over & ~truncated, game_over, truncated & ~game_over
+
+
+def import_envpool() -> Any:
+    """The ``envpool`` module, or a ``UsageError`` saying how to install it."""
+    try:
+        import envpool
+    except ImportError:
+        raise UsageError(f"the envpool backend needs EnvPool (Linux only): {_INSTALL}") from None
+    return envpool
+
+
 class _EnvPoolBackend:
-    """EnvPool's Atari pool, always with ``episodic_life`` (so it does the no-ops and FIRE after a
-    lost life; whether a life ends an episode is ``AtariEnv``'s choice) and raw rewards."""
+    """EnvPool's Atari pool made with :func:`envpool_kwargs` (raw rewards, ``episodic_life``)."""
 
     def __init__(self, game: str, num_envs: int, sticky_actions: float, noop_max: int, max_steps: int):
-        try:
-            import envpool
-        except ImportError:
-            raise UsageError(f"the envpool backend needs EnvPool (Linux only): {_INSTALL}") from None
+        envpool = import_envpool()
         self._make = lambda seed: envpool.make(
-            f"{game}-v5",
-            env_type="gymnasium",
-            num_envs=num_envs,
-            batch_size=num_envs,
-            num_threads=min(num_envs, os.cpu_count() or 1),
-            seed=seed,
-            episodic_life=True,
-            reward_clip=False,
-            use_fire_reset=True,
-            repeat_action_probability=sticky_actions,
-            noop_max=max(noop_max, 1),  # EnvPool draws 1..noop_max frames, FIRE counting as one
-            max_episode_steps=max_steps,
-            stack_num=STACK,
-            frame_skip=FRAME_SKIP,
-            img_height=SCREEN,
-            img_width=SCREEN,
-            gray_scale=True,
-            full_action_space=False,
+            **envpool_kwargs(game, num_envs, sticky_actions, noop_max, max_steps, seed),
             render_mode="rgb_array",
         )
         self.pool = self._make(0)
@@ -298,14 +325,14 @@ class _EnvPoolBackend:
         obs, terminated, truncated = obs[order], terminated[order], truncated[order]
         reward = info["reward"][order].astype(np.float32)  # raw, whatever reward_clip says
         over = info["terminated"][order].astype(bool)  # the emulator's game over
-        ended = terminated | truncated  # a game over, a lost life or the frame limit
+        life_lost, over, truncated = envpool_ends(terminated, truncated, over)
         final = obs.copy()
-        ids = np.flatnonzero(ended)
+        ids = np.flatnonzero(life_lost | over | truncated)
         if ids.size:  # step now the ended envs alone: EnvPool's auto-reset, which ignores the action
             ids = ids.astype(np.int32)
             first, *_, info_reset = self.pool.step(np.zeros_like(ids), env_id=ids)
             obs[info_reset["env_id"]] = first
-        return obs, final, reward, ended & ~over & ~truncated, over, truncated & ~over
+        return obs, final, reward, life_lost, over, truncated
 
     def render_rgb(self) -> np.ndarray:
         return self.pool.render(env_ids=0)[0]
@@ -348,7 +375,7 @@ class AtariEnv:
             raise UsageError(f"sticky actions is a probability in [0, 1], got {sticky_actions}")
         if noop_max < 0 or max_frames < FRAME_SKIP:
             raise UsageError(f"need noop_max >= 0 and max_frames >= {FRAME_SKIP}")
-        game, _ = _game_of(env_id)
+        game, _ = game_of(env_id)
         if backend == "auto":
             backend = "envpool" if _envpool_available() else "ale"
         make_backend = _EnvPoolBackend if backend == "envpool" else _AleBackend

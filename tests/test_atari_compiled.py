@@ -1,0 +1,263 @@
+"""The compiled Atari runner: EnvPool stepped inside the program, its reset step left out of learning.
+
+Checked: the reset-step bookkeeping by hand (:func:`agentax.envs.envpool_xla.track`); that PPO
+learns nothing from masked steps; on a real pool, that every reset step follows a done step; the
+in-program pool against the host adapter on the same seed and actions (frames, learning view, whole
+games' scores and lengths); and a short run's folder, loaded back by the host runner's
+``restore_policy`` and resumed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from agentax.agents import ppo
+from agentax.agents.protocol import EnvSpec
+from agentax.envs.core import Discrete
+from agentax.envs.envpool_xla import EpisodeTracker, PoolStep, XlaAtari, track
+from agentax.errors import UsageError
+from agentax.replay import Transition
+from agentax.runs import Run, read_metrics, run_config
+
+pytest.importorskip("envpool")
+
+BREAKOUT = "ALE/Breakout-v5"
+
+
+def _pool_step(reward, life_lost=(0, 0), game_over=(0, 0), truncated=(0, 0)) -> PoolStep:
+    return PoolStep(
+        obs=jnp.zeros((2, 4, 84, 84), jnp.uint8),
+        reward=jnp.asarray(reward, jnp.float32),
+        life_lost=jnp.asarray(life_lost, bool),
+        game_over=jnp.asarray(game_over, bool),
+        truncated=jnp.asarray(truncated, bool),
+    )
+
+
+@pytest.mark.timeout(30)
+def test_track_masks_the_reset_step_and_keeps_whole_game_scores():
+    """Two envs, four steps, worked by hand. Env 0: +4, loses a life (episode ends, game goes on),
+    reset step (EnvPool pays 0, masked), +1 then game over: one game of score 5 over 3 valid steps.
+    Env 1: +2 then the frame limit (truncated: a game ends), reset step, +7."""
+    steps = [
+        _pool_step([4, 2], truncated=(0, 1)),
+        _pool_step([0, 0], life_lost=(1, 0)),  # env 1: its reset step (its reward, 0, is not counted)
+        _pool_step([0, 7]),  # env 0: its reset step
+        _pool_step([1, 0], game_over=(1, 0)),
+    ]
+    tracker = EpisodeTracker.create(2)
+    valid, finished, scores, lengths = [], [], [], []
+    for step in steps:
+        tracker, tracked = jax.jit(track)(tracker, step)
+        valid.append(np.asarray(tracked.valid))
+        finished.append(np.asarray(tracked.game_finished))
+        scores.append(np.asarray(tracked.game_score))
+        lengths.append(np.asarray(tracked.game_length))
+    np.testing.assert_array_equal(valid, [[1, 1], [1, 0], [0, 1], [1, 1]])
+    np.testing.assert_array_equal(finished, [[0, 1], [0, 0], [0, 0], [1, 0]])
+    assert scores[0][1] == 2 and lengths[0][1] == 1  # env 1: 2 points in 1 step, cut by the frame limit
+    assert scores[3][0] == 4 + 0 + 1 and lengths[3][0] == 3  # env 0: steps 0, 1, 3; step 2 was the reset
+    np.testing.assert_array_equal(tracker.score, [0, 7])  # env 1's next game has its 7 points
+    np.testing.assert_array_equal(tracker.length, [0, 2])  # (steps 2 and 3; step 1 was the reset)
+    np.testing.assert_array_equal(tracker.reset_next, [True, False])  # env 0 resets on its next step
+    # the learning view: the step before each reset step ends an episode
+    ended = np.array([np.asarray(s.ended) for s in steps])
+    np.testing.assert_array_equal(ended[:-1], ~np.array(valid[1:], bool))
+
+
+def _mlp_rollout(seed: int, valid: np.ndarray) -> tuple[Transition, dict]:
+    """A random rollout ``[T=6, E=2]`` for an MLP PPO on 3-dim observations and 2 actions."""
+    rng = np.random.default_rng(seed)
+    t, e = valid.shape
+    terminated = np.zeros((t, e), bool)
+    terminated[:-1] = ~valid[1:]  # the step before a masked one ends an episode, as the runner marks it
+    return Transition(
+        obs=rng.normal(size=(t, e, 3)).astype(np.float32),
+        action=rng.integers(2, size=(t, e)).astype(np.int32),
+        reward=rng.normal(size=(t, e)).astype(np.float32),
+        next_obs=rng.normal(size=(t, e, 3)).astype(np.float32),
+        terminated=terminated,
+        truncated=np.zeros((t, e), bool),
+        num_steps=np.ones((t, e), np.int32),
+        info={"log_prob": np.log(rng.uniform(0.2, 0.8, size=(t, e))).astype(np.float32), "valid": valid},
+    )
+
+
+@pytest.mark.timeout(60)
+def test_ppo_learns_nothing_from_masked_steps():
+    """Changing everything of the masked steps (observation, action, reward, log-probability, next
+    observation) leaves PPO's update unchanged; changing a valid step changes it."""
+    cfg = ppo.PPOConfig(num_envs=2, num_steps=6, num_minibatches=2, update_epochs=2, hidden=(8,))
+    spec = EnvSpec((3,), Discrete(2))
+    agent = ppo.init(jax.random.key(0), spec, cfg)
+    valid = np.ones((6, 2), bool)
+    valid[2, 0] = valid[5, 1] = valid[0, 1] = False  # reset steps: mid-rollout, last, first
+    base = _mlp_rollout(1, valid)
+    other = _mlp_rollout(2, valid)  # different numbers everywhere
+    masked = jax.tree.map(lambda a, b: np.where(_broadcast(valid, a), a, b), base, other)
+    touched_valid = jax.tree.map(lambda a: a.copy(), base)
+    touched_valid.reward[3, 0] += 1.0
+    learn = jax.jit(lambda state, rollout: ppo.learn(state, rollout, jax.random.key(3), spec, cfg))
+    params = [jax.tree.leaves(learn(agent, r)[0].params) for r in (base, masked, touched_valid)]
+    for a, b in zip(params[0], params[1], strict=True):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-7)
+    assert any(not np.allclose(a, b, atol=1e-6) for a, b in zip(params[0], params[2], strict=True))
+    unmasked = masked.replace(info={"log_prob": masked.info["log_prob"]})
+    params_unmasked = jax.tree.leaves(learn(agent, unmasked)[0].params)
+    assert any(not np.allclose(a, b, atol=1e-6) for a, b in zip(params[0], params_unmasked, strict=True))
+
+
+def _broadcast(valid: np.ndarray, leaf: np.ndarray) -> np.ndarray:
+    return valid.reshape(valid.shape + (1,) * (leaf.ndim - valid.ndim))
+
+
+def _ppo_agent(env, **overrides):
+    cfg = dataclasses.replace(ppo.PRESETS["atari"].config, **overrides).validate()
+    return ppo.make_agent(EnvSpec.of(env), cfg)
+
+
+@pytest.mark.timeout(60)
+def test_rollout_on_a_real_pool_masks_reset_steps_after_done_steps():
+    """A 128-step rollout of 8 Breakout envs with an untrained CNN policy: each masked step comes
+    right after a done step (or is the first, after one carried in), pays nothing, starts from the
+    observation the done step reached."""
+    from agentax.train.compiled_atari import make_rollout, start_collector
+
+    env = XlaAtari(BREAKOUT, 8, seed=3, sticky_actions=0.25)
+    agent = _ppo_agent(env)
+    state = agent.init(jax.random.key(0))
+    rollout = jax.jit(make_rollout(agent, env))
+    collector = start_collector(env, jax.random.key(1), 0)
+    masked = ends = 0
+    for _ in range(2):  # the second rollout starts with the resets the first one's last steps left
+        carried_in = int(collector.tracker.reset_next.sum())
+        collector, trajectory, games = rollout(state, collector)
+        traj = jax.device_get(trajectory)
+        valid, done = traj.info["valid"], traj.terminated | traj.truncated
+        np.testing.assert_array_equal(~valid[1:], done[:-1])
+        assert not (done & ~valid).any() and (traj.reward[~valid] == 0).all()
+        np.testing.assert_array_equal(traj.obs[1:], traj.next_obs[:-1])  # one stream of observations
+        masked += int((~valid).sum()) - carried_in
+        ends += int(done[:-1].sum())
+        assert set(np.unique(traj.reward)) <= {-1.0, 0.0, 1.0}
+    env.close()
+    assert ends >= 5 and masked == ends
+
+
+def _host_env(training: bool, seed: int):
+    from agentax.envs.atari import make_atari
+
+    env = make_atari(BREAKOUT, 8, backend="envpool", sticky_actions=0.25, training=training)
+    env.reset(seed=seed)
+    return env
+
+
+@pytest.mark.timeout(90)
+def test_in_program_pool_plays_the_host_adapters_games():
+    """Same seed, same actions (the in-program pool gets an extra, different action on each reset
+    step, which EnvPool ignores): frame for frame the same games, the same learning view (clipped
+    rewards, a lost life ends an episode) and the same whole games (true score, length) per env as
+    the host adapter's ``drain_scores``."""
+    seed, num_steps = 11, 600
+    actions = np.random.default_rng(0).integers(4, size=(num_steps, 8))
+    train_env, eval_env = _host_env(True, seed), _host_env(False, seed)
+    host_games: list[list[tuple[float, int]]] = [[] for _ in range(8)]
+    host_steps = []
+    for action in actions:
+        ts, evaluation = train_env.step(action), eval_env.step(action)
+        drained = eval_env.drain_scores()
+        for i, game in zip(
+            np.flatnonzero(evaluation.terminated | evaluation.truncated), drained, strict=True
+        ):
+            host_games[i].append(game)
+        host_steps.append(ts)
+    train_env.close()
+    eval_env.close()
+
+    env = XlaAtari(BREAKOUT, 8, seed=seed, sticky_actions=0.25)
+    step_and_track = jax.jit(lambda handle, tracker, a: _step_and_track(env, handle, tracker, a))
+    handle, obs = env.reset()
+    tracker = EpisodeTracker.create(8)
+    played = np.zeros(8, int)  # valid steps per env: the host adapter's step index
+    games: list[list[tuple[float, int]]] = [[] for _ in range(8)]
+    ignored = np.random.default_rng(1).integers(1, 4, size=8)  # never the host adapter's 0
+    while played.min() < num_steps:
+        reset_step = np.asarray(tracker.reset_next)
+        index = np.minimum(played, num_steps - 1)
+        action = np.where(reset_step, ignored, actions[index, np.arange(8)])
+        handle, tracker, step, tracked = step_and_track(handle, tracker, jnp.asarray(action))
+        valid = np.asarray(tracked.valid) & (played < num_steps)
+        for i in np.flatnonzero(valid):
+            host = host_steps[played[i]]
+            np.testing.assert_array_equal(np.asarray(step.obs[i]), host.final_obs[i])
+            assert np.sign(float(step.reward[i])) == host.reward[i]
+            assert bool(step.terminated[i]) == host.terminated[i]
+            assert bool(step.truncated[i]) == host.truncated[i]
+            if tracked.game_finished[i]:
+                games[i].append((float(tracked.game_score[i]), int(tracked.game_length[i])))
+        played += valid
+    env.close()
+    assert games == host_games
+    assert sum(map(len, games)) >= 8 and any(score > 0 for g in games for score, _ in g)
+
+
+def _step_and_track(env, handle, tracker, action):
+    handle, step = env.step(handle, action)
+    tracker, tracked = track(tracker, step)
+    return handle, tracker, step, tracked
+
+
+@pytest.mark.timeout(30)
+def test_refuses_what_it_cannot_run():
+    from agentax.train.compiled_atari import check
+    from agentax.train.host import HostRunnerConfig
+
+    agent = ppo.make_agent(EnvSpec((4, 84, 84), Discrete(4), jnp.uint8), ppo.PRESETS["atari"].config)
+    with pytest.raises(UsageError, match="cannot be vmapped over seeds"):
+        check(agent, BREAKOUT, HostRunnerConfig(), num_seeds=2)
+    with pytest.raises(UsageError, match="--env-backend ale"):
+        check(agent, BREAKOUT, HostRunnerConfig(env_backend="ale"))
+    with pytest.raises(UsageError, match="Atari games"):
+        check(agent, "CartPole-v1", HostRunnerConfig())
+
+
+@pytest.mark.timeout(150)
+def test_short_run_writes_the_run_folder_loads_and_resumes(tmp_path):
+    """Two iterations of 2 envs x 32 steps: metrics rows, a checkpoint that the host runner's
+    ``restore_policy`` loads into the trained greedy policy, eval.json and curve.png; resumed with a
+    longer budget it continues from iteration 2."""
+    from agentax.train import compiled_atari, host
+
+    probe = XlaAtari(BREAKOUT, 1, sticky_actions=0.0)
+    overrides = dict(num_envs=2, num_steps=32, num_minibatches=2, update_epochs=1)
+    agent = _ppo_agent(probe, total_steps=128, **overrides)
+    probe.close()
+    runner = host.HostRunnerConfig(log_every_steps=64, eval_episodes=1, sticky_actions=0.0)
+    config = run_config("ppo", BREAKOUT, "atari", compiled_atari.RUNNER_KIND, runner, {})
+    run = Run.create(tmp_path / "run", config)
+    result = compiled_atari.train(agent, BREAKOUT, runner, run)
+    assert result.updates == 2 and result.env_steps == 128
+    rows = read_metrics(tmp_path / "run")
+    assert [r["env_steps"] for r in rows] == [64, 128] and [r["frames"] for r in rows] == [256, 512]
+    for column in ("mean_return", "steps_per_second", "policy_loss", "masked_fraction"):
+        assert column in rows[0]
+    evaluation = json.loads((tmp_path / "run" / "eval.json").read_text())
+    assert evaluation["episodes"] == 1 and evaluation["mean_return"] >= 0
+    assert (tmp_path / "run" / "curve.png").is_file()
+
+    policy = host.restore_policy(tmp_path / "run", agent)
+    obs = jnp.asarray(np.random.default_rng(0).integers(0, 256, (5, 4, 84, 84)), jnp.uint8)
+    np.testing.assert_array_equal(
+        policy(obs, jax.random.key(0)), agent.greedy_policy(result.state)(obs, None)
+    )
+
+    longer = _ppo_agent(probe, total_steps=256, **overrides)
+    resumed = compiled_atari.train(longer, BREAKOUT, runner, Run.open(tmp_path / "run"), resume=True)
+    assert resumed.updates == 4
+    assert [r["env_steps"] for r in read_metrics(tmp_path / "run")] == [64, 128, 192, 256]
