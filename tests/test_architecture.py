@@ -9,11 +9,12 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+import jax
 import pytest
 
 import agentax
 from agentax.agents import ALGORITHMS, algorithm
-from agentax.agents.protocol import Agent, EnvSpec
+from agentax.agents.protocol import ACTING_UNUSED, Agent, EnvSpec, acting_view
 from agentax.cli import main
 
 PACKAGE_ROOT = Path(agentax.__file__).resolve().parent
@@ -171,6 +172,19 @@ def test_every_registered_algorithm_follows_the_protocol(name):
     agent = module.make_agent(EnvSpec.of(env), module.PRESETS["default"].config)
     env.close()
     assert isinstance(agent, Agent) and agent.name == name
+    # act reads only what acting_view keeps (the ray runner sends actors that and nothing more)
+    state = agent.init(jax.random.key(0))
+    view = acting_view(state)
+    dropped = [n for n in ACTING_UNUSED if hasattr(state, n)]
+    assert dropped and all(getattr(view, n) is None for n in dropped), dropped
+    obs = jax.random.uniform(jax.random.key(1), (3, 4))
+    for progress in (0, 10_000):
+        full = agent.act(state, obs, jax.random.key(2), progress)
+        assert jax.tree.all(
+            jax.tree.map(
+                lambda a, b: bool((a == b).all()), full, agent.act(view, obs, jax.random.key(2), progress)
+            )
+        )
 
 
 def test_train_help_lists_exactly_the_registered_algorithms(capsys):

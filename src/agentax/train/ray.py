@@ -86,7 +86,7 @@ def ray_session(address: str | None) -> Iterator[Any]:
         if address:
             ray.init(address=address, **quiet)
         else:
-            ray.init(num_cpus=os.cpu_count(), _node_ip_address="127.0.0.1", **quiet)
+            ray.init(num_cpus=os.cpu_count(), **quiet)
     except ConnectionError as error:
         raise UsageError(f"cannot join the Ray cluster at {address!r}: {error}") from None
     try:

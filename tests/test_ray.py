@@ -1,0 +1,292 @@
+"""The ray runner: PPO and DQN learn on Ray actors, spread over a 2-node cluster; PPO gives the thread
+actors' numbers; a killed actor process is replaced; a learner error, Ctrl-C or the end of a run
+leave no Ray process behind; ``--ray-address auto`` joins a cluster started by ``ray start``.
+
+One 2-node cluster (``ray.cluster_utils.Cluster``, one CPU each) serves the tests of this process;
+the tests that need a Ray of their own (the CLI's local Ray, ``ray start``) run ``agentax`` in a
+subprocess with a ``RAY_TMPDIR`` of their own, by which its processes are found afterwards."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+ray = pytest.importorskip("ray")
+psutil = pytest.importorskip("psutil")
+
+from agentax.agents import dqn, ppo  # noqa: E402
+from agentax.agents.protocol import EnvSpec  # noqa: E402
+from agentax.errors import TrainingDiverged  # noqa: E402
+from agentax.runs import Run  # noqa: E402
+from agentax.train import parallel  # noqa: E402
+from agentax.train import ray as ray_runner  # noqa: E402
+from agentax.train.host import make_host_env  # noqa: E402
+from agentax.train.parallel import ParallelRunnerConfig  # noqa: E402
+from agentax.train.ray import RayRunnerConfig  # noqa: E402
+
+pytestmark = pytest.mark.xdist_group("ray")  # one worker, one cluster
+AGENTAX = [str(Path(sys.executable).parent / "agentax")]
+CONFIG = {"algo": "any", "env": "CartPole-v1"}
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    from ray.cluster_utils import Cluster
+
+    node = {"num_cpus": 1, "object_store_memory": 150 * 2**20}
+    cluster = Cluster(initialize_head=True, head_node_args={**node, "include_dashboard": False})
+    cluster.add_node(**node)
+    ray.init(address=cluster.address, logging_level=logging.ERROR, log_to_driver=False)
+    yield cluster
+    ray.shutdown()
+    cluster.shutdown()
+
+
+def make(module, cfg):
+    env = make_host_env("CartPole-v1", 1)
+    spec = EnvSpec.of(env)
+    env.close()
+    return module.make_agent(spec, cfg), lambda: module.make_agent(spec, cfg)
+
+
+def collector_pids() -> list[int]:
+    """The Ray actor processes of ``train.ray``'s collectors (Ray titles them ``ray::Collector...``)."""
+    found = []
+    for process in psutil.process_iter(["pid", "cmdline"]):
+        cmdline = process.info["cmdline"] or []
+        if cmdline and cmdline[0].startswith("ray::Collector"):
+            found.append(process.info["pid"])
+    return found
+
+
+def processes_with(marker: str) -> list[psutil.Process]:
+    """Live processes started with ``RAY_TMPDIR=marker`` in their environment (a run's Ray)."""
+    found = []
+    for process in psutil.process_iter(["pid"]):
+        try:
+            if process.environ().get("RAY_TMPDIR") == marker and process.status() != psutil.STATUS_ZOMBIE:
+                found.append(process)
+        except (psutil.AccessDenied, psutil.NoSuchProcess, psutil.ZombieProcess):
+            continue
+    return found
+
+
+def assert_none_left(marker: str, seconds: float = 15.0) -> None:
+    deadline = time.monotonic() + seconds
+    while (left := processes_with(marker)) and time.monotonic() < deadline:
+        time.sleep(0.25)
+    assert not left, [" ".join(p.cmdline()) for p in left]
+
+
+@pytest.fixture
+def own_ray_tmpdir():
+    """A short, fresh RAY_TMPDIR (Ray's socket paths must stay under 108 bytes); kills what is left."""
+    marker = tempfile.mkdtemp(prefix="axr", dir="/tmp")
+    yield marker
+    for process in processes_with(marker):
+        process.kill()
+
+
+# ---------------------------------------------------------------- learning, same numbers, same folder
+
+
+@pytest.mark.timeout(180)
+def test_ppo_on_ray_actors_learns_and_gives_the_thread_actors_numbers(cluster, tmp_path):
+    cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=16_384)
+    agent, remake = make(ppo, cfg)
+    settings = {"seed": 2, "actors": 2, "policy_lag": 1, "eval_episodes": 10}
+    on_ray = ray_runner.train(
+        agent,
+        "CartPole-v1",
+        RayRunnerConfig(**settings),
+        Run.create(tmp_path / "ray", CONFIG),
+        make_agent=remake,
+    )
+    in_threads = parallel.train(
+        agent, "CartPole-v1", ParallelRunnerConfig(**settings), Run.create(tmp_path / "threads", CONFIG)
+    )
+    assert len(on_ray.rows) == len(in_threads.rows) == 8
+    for row_ray, row_threads in zip(on_ray.rows, in_threads.rows, strict=True):
+        for name in ("env_steps", "updates", "mean_return", "policy_loss", "value_loss", "policy_lag"):
+            assert row_ray[name] == row_threads[name], (name, row_ray[name], row_threads[name])
+    assert on_ray.eval["mean_return"] == in_threads.eval["mean_return"]
+    first, last = on_ray.rows[0]["mean_return"], on_ray.eval["mean_return"]
+    assert first < 40 and last >= 150, (first, last)  # it learns: ~22 at first
+    assert on_ray.rows[-1]["actor_nodes"] == 2  # the actors were spread over both nodes
+    assert on_ray.rows[-1]["actor_restarts"] == 0
+    files = {p.relative_to(tmp_path / "ray").as_posix() for p in (tmp_path / "ray").rglob("*") if p.is_file()}
+    thread_files = {
+        p.relative_to(tmp_path / "threads").as_posix()
+        for p in (tmp_path / "threads").rglob("*")
+        if p.is_file()
+    }
+    assert {f for f in files if "tfevents" not in f} == {f for f in thread_files if "tfevents" not in f}
+
+
+@pytest.mark.timeout(180)
+def test_dqn_on_ray_actors_learns_and_resumes_with_its_replay(cluster, tmp_path):
+    cfg = dataclasses.replace(dqn.PRESETS["default"].config, total_steps=30_000)
+    agent, remake = make(dqn, cfg)
+    runner = RayRunnerConfig(seed=0, actors=2, eval_episodes=10)
+    run = Run.create(tmp_path, CONFIG)
+    result = ray_runner.train(agent, "CartPole-v1", runner, run, make_agent=remake)
+    assert result.env_steps >= 30_000
+    assert result.rows[0]["mean_return"] < 40 and result.eval["mean_return"] >= 75, result.eval  # ~22 random
+    assert result.rows[-1]["actor_nodes"] == 2
+    saved = sorted(p.name for p in (tmp_path / "checkpoints").iterdir())
+    assert any(name.startswith("replay-") for name in saved), saved
+    # a longer run resumed from the folder: the learner's state and replay come back, actors restart
+    longer = dataclasses.replace(cfg, total_steps=34_000)
+    agent, remake = make(dqn, longer)
+    resumed = ray_runner.train(
+        agent, "CartPole-v1", runner, Run.open(tmp_path), make_agent=remake, resume=True
+    )
+    assert resumed.rows[0]["env_steps"] > result.env_steps
+    assert resumed.rows[0]["replay_size"] > 4_096  # restored: a fresh buffer holds ~2,048 at this row
+
+
+# ---------------------------------------------------------------- faults
+
+
+@pytest.mark.timeout(180)
+def test_a_killed_actor_process_is_replaced_and_the_run_finishes(cluster, tmp_path):
+    cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=32_768)
+    agent, remake = make(ppo, cfg)
+    run = Run.create(tmp_path, CONFIG)
+    killed: list[int] = []
+
+    def kill_one_collector_after_the_first_row():
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not killed:
+            rows = (
+                (tmp_path / "metrics.csv").read_text().count("\n")
+                if (tmp_path / "metrics.csv").exists()
+                else 0
+            )
+            pids = collector_pids()
+            if rows >= 2 and pids:  # the header and a row
+                os.kill(pids[0], signal.SIGKILL)
+                killed.append(pids[0])
+            time.sleep(0.05)
+
+    killer = threading.Thread(target=kill_one_collector_after_the_first_row, daemon=True)
+    killer.start()
+    result = ray_runner.train(agent, "CartPole-v1", RayRunnerConfig(seed=0, actors=2), run, make_agent=remake)
+    killer.join()
+    assert killed, "no collector process was found to kill"
+    assert result.updates == cfg.num_updates  # the run went on to its end
+    assert result.rows[-1]["actor_restarts"] == 1
+    assert (tmp_path / "eval.json").is_file()
+    assert wait_for_no_collectors(), collector_pids()
+
+
+def wait_for_no_collectors(seconds: float = 10.0) -> bool:
+    deadline = time.monotonic() + seconds
+    while collector_pids() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return not collector_pids()
+
+
+@pytest.mark.timeout(120)
+def test_a_learner_error_ends_the_run_and_its_actor_processes(cluster, tmp_path):
+    cfg = dataclasses.replace(dqn.PRESETS["default"].config, learning_rate=1e30, total_steps=20_000)
+    agent, remake = make(dqn, cfg)
+    with pytest.raises(TrainingDiverged, match="non-finite"):
+        ray_runner.train(
+            agent, "CartPole-v1", RayRunnerConfig(actors=2), Run.create(tmp_path, CONFIG), make_agent=remake
+        )
+    assert wait_for_no_collectors(), collector_pids()
+
+
+@pytest.mark.timeout(60)
+def test_more_actors_than_the_cluster_has_cpus_is_refused(cluster):
+    from agentax.errors import UsageError
+
+    agent, remake = make(ppo, ppo.PRESETS["cartpole-fast"].config)
+    with pytest.raises(UsageError, match="need 8 CPUs, the Ray cluster has 2"):
+        ray_runner.train(agent, "CartPole-v1", RayRunnerConfig(actors=8), make_agent=remake)
+
+
+# ---------------------------------------------------------------- a Ray of the run's own (subprocesses)
+
+
+def agentax_env(marker: str) -> dict[str, str]:
+    return {**os.environ, "RAY_TMPDIR": marker, "PYTHONUNBUFFERED": "1"}
+
+
+@pytest.mark.timeout(180)
+def test_the_cli_starts_and_stops_its_own_ray_also_on_ctrl_c_and_on_errors(own_ray_tmpdir, tmp_path):
+    env = agentax_env(own_ray_tmpdir)
+    train = [*AGENTAX, "train", "ppo", "--env", "CartPole-v1", "--runner", "ray", "--no-progress"]
+    done = subprocess.run(
+        [*train, "--total-steps", "4096", "--out", str(tmp_path / "done")],
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "2 Ray actors" in done.stderr and "evaluation: mean return" in done.stdout
+    assert json.loads((tmp_path / "done" / "config.json").read_text())["runner_kind"] == "ray"
+    assert_none_left(own_ray_tmpdir)
+
+    refused = subprocess.run(
+        [*train, "--actors", "64", "--out", str(tmp_path / "big")], env=env, text=True, capture_output=True
+    )
+    assert refused.returncode == 2 and "64 actors" in refused.stderr, refused.stderr
+    assert_none_left(own_ray_tmpdir)
+
+    interrupted = subprocess.Popen(
+        [*train, "--total-steps", "500000", "--out", str(tmp_path / "ctrl-c")],
+        env=env,
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    metrics = tmp_path / "ctrl-c" / "metrics.csv"
+    deadline = time.monotonic() + 90
+    while time.monotonic() < deadline and not (metrics.exists() and metrics.read_text().count("\n") >= 2):
+        time.sleep(0.2)
+    assert len(processes_with(own_ray_tmpdir)) >= 4  # the check can see the run's Ray: gcs, raylet, actors
+    interrupted.send_signal(signal.SIGINT)
+    _, stderr = interrupted.communicate(timeout=60)
+    assert interrupted.returncode == 130, stderr
+    assert "--resume" in stderr
+    assert_none_left(own_ray_tmpdir)
+
+
+@pytest.mark.timeout(180)
+def test_ray_address_auto_joins_a_cluster_started_by_ray_start(own_ray_tmpdir, tmp_path):
+    env = agentax_env(own_ray_tmpdir)
+    ray_cli = str(Path(sys.executable).parent / "ray")
+    head = ["--head", "--port=0", "--num-cpus=2", "--include-dashboard=false", "--disable-usage-stats"]
+    started = subprocess.run([ray_cli, "start", *head], env=env, capture_output=True, text=True)
+    assert started.returncode == 0, started.stderr
+    cluster_processes = {p.pid for p in processes_with(own_ray_tmpdir)}
+    assert cluster_processes
+    train = [*AGENTAX, "train", "dqn", "--env", "CartPole-v1", "--runner", "ray", "--ray-address", "auto"]
+    done = subprocess.run(
+        [*train, "--total-steps", "3000", "--no-progress", "--out", str(tmp_path)],
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    assert json.loads((tmp_path / "config.json").read_text())["runner"]["ray_address"] == "auto"
+    # the cluster outlives the run (it was not the run's to stop); the run's actors do not
+    time.sleep(1)
+    alive = {p.pid for p in processes_with(own_ray_tmpdir)}
+    assert cluster_processes <= alive
+    assert not [
+        p for p in processes_with(own_ray_tmpdir) if (p.cmdline() or [""])[0].startswith("ray::Collector")
+    ]
