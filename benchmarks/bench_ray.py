@@ -123,6 +123,8 @@ BATCHES = {
     "CartPole rollout [32, 4]": ((32, 4, 2 * 4 + 4), "float32"),
     # an Atari rollout of one actor: [128, 4] transitions of uint8 [4, 84, 84] obs and next_obs
     "Atari rollout [128, 4]": ((128, 4, 2, 4, 84, 84), "uint8"),
+    # the same with each frame sent once (train.ray.PackedFrames: the new frames, 8 whole stacks)
+    "Atari rollout [128, 4], frames once": ((128 * 4 + 16, 84, 84), "uint8"),
 }
 
 
@@ -213,12 +215,13 @@ def atari_actor_row(ray) -> tuple[list, dict]:
     published = [(0, ray.put(jax.device_get(acting_view(make_agent().init(jax.random.key(0))))))]
     ray.get(actor.rollout.remote(published, cfg.num_steps))
     start = time.perf_counter()
-    trajectory, _, steps = ray.get(actor.rollout.remote(published, cfg.num_steps))
+    packed, _, steps = ray.get(actor.rollout.remote(published, cfg.num_steps))
     seconds = time.perf_counter() - start
     ray.kill(actor)
-    size = sum(np.asarray(x).nbytes for x in jax.tree.leaves(trajectory))
+    size = sum(x.nbytes for x in (packed.new_frames, packed.fresh_stacks, packed.end_stacks))
+    size += sum(np.asarray(x).nbytes for x in jax.tree.leaves(packed.rest))
     rate = steps / seconds
-    row = ["Atari actor: PPO atari on Breakout, 4 envs × 128 steps", f"{size / 2**20:.1f} MB a batch"]
+    row = ["Atari actor: PPO atari on Breakout, 4 envs × 128 steps", f"{size / 2**20:.1f} MB a batch sent"]
     return [*row, "", round(rate), "", "", "", ""], {"steps_per_second": rate, "batch_bytes": size}
 
 
@@ -277,6 +280,6 @@ def _notes(runs: dict, batches: dict, publishes: dict, atari: dict) -> str:
         f"round trip; a Nature-CNN publish ({cnn['bytes'] / 2**20:.1f} MB) costs {cnn['put_ms']:.1f} ms "
         f"to put and {cnn['fetch_ms']:.1f} ms to fetch per actor process. One Ray actor process "
         f"collecting PPO Breakout rollouts (4 envs, the CNN policy on the CPU) makes "
-        f"{atari['steps_per_second']:.0f} agent steps/s, a {atari['batch_bytes'] / 2**20:.1f} MB batch "
-        "every 512 steps. MB here are MiB."
+        f"{atari['steps_per_second']:.0f} agent steps/s and sends a {atari['batch_bytes'] / 2**20:.1f} MB "
+        "batch every 512 steps (each frame once). MB here are MiB."
     )

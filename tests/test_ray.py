@@ -20,6 +20,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ray = pytest.importorskip("ray")
@@ -96,6 +97,91 @@ def own_ray_tmpdir():
     yield marker
     for process in processes_with(marker):
         process.kill()
+
+
+# ---------------------------------------------------------------- the wire format
+
+
+def stacked_trajectory(num_steps: int, num_envs: int, done_at: dict, seed: int = 0):
+    """Stacks of 4 random 6×5 frames, shifted a frame a step; an env restarts after ``done_at``
+    steps (``{(t, e), ...}``) with a new stack, and ``next_obs`` there is a final observation of its own."""
+    from agentax.replay import Transition
+
+    rng = np.random.default_rng(seed)
+    stacks = rng.integers(0, 255, (num_envs, 4, 6, 5), dtype=np.uint8)
+    obs, next_obs, done = [], [], np.zeros((num_steps, num_envs), bool)
+    for t in range(num_steps):
+        obs.append(stacks.copy())
+        following = np.concatenate(
+            [stacks[:, 1:], rng.integers(0, 255, (num_envs, 1, 6, 5), dtype=np.uint8)], 1
+        )
+        final = following.copy()
+        for e in range(num_envs):
+            if (t, e) in done_at:
+                done[t, e] = True
+                following[e] = rng.integers(0, 255, (4, 6, 5), dtype=np.uint8)
+        next_obs.append(final)
+        stacks = following
+    zeros = np.zeros((num_steps, num_envs))
+    return Transition(
+        obs=np.stack(obs),
+        action=zeros.astype(np.int32),
+        reward=rng.normal(size=(num_steps, num_envs)).astype(np.float32),
+        next_obs=np.stack(next_obs),
+        terminated=done,
+        truncated=np.zeros_like(done),
+        num_steps=np.ones((num_steps, num_envs), np.int32),
+        info={"log_prob": rng.normal(size=(num_steps, num_envs)).astype(np.float32)},
+    )
+
+
+def assert_same_transitions(a, b):
+    import jax
+
+    assert jax.tree.structure(a) == jax.tree.structure(b)
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.timeout(60)
+def test_stacked_frames_travel_once_and_come_back_exactly():
+    from agentax.train.ray import PackedFrames, pack_frames, unpack_frames
+
+    trajectory = stacked_trajectory(12, 3, done_at={(2, 0), (5, 1), (5, 2), (11, 0)})
+    trajectory.obs[7, 2, 0] = 0  # a stack that is not its predecessor shifted: sent whole
+    packed = pack_frames(trajectory)
+    assert isinstance(packed, PackedFrames)
+    assert packed.fresh.sum() == 3 + 3 + 1  # t = 0, after the 3 ends before the last step, the odd stack
+    assert (
+        packed.ends.sum() == 3 + 3 + 1
+    )  # the last step, the ends before t = 11, the odd stack's predecessor
+    assert_same_transitions(unpack_frames(packed), trajectory)
+    sent = sum(x.nbytes for x in (packed.new_frames, packed.fresh_stacks, packed.end_stacks))
+    assert sent < (trajectory.obs.nbytes + trajectory.next_obs.nbytes) / 3
+    flat = stacked_trajectory(4, 2, {}).replace(obs=np.zeros((4, 2, 3)), next_obs=np.zeros((4, 2, 3)))
+    assert pack_frames(flat) is flat and unpack_frames(flat) is flat  # not frames: sent as they are
+
+
+@pytest.mark.timeout(120)
+def test_a_breakout_rollout_packs_over_sixfold_and_unpacks_exactly():
+    import jax
+
+    from agentax.agents import ppo
+    from agentax.train.host import Actor
+    from agentax.train.ray import pack_frames, unpack_frames
+
+    env = make_host_env("ALE/Breakout-v5", 2, training=True, backend="ale", sticky_actions=0.0)
+    agent = ppo.make_agent(EnvSpec.of(env), dataclasses.replace(ppo.PRESETS["atari"].config, num_envs=2))
+    actor = Actor(agent, env, seed=3, key=jax.random.key(0))
+    trajectory = actor.rollout(agent.init(jax.random.key(1)), 200)  # a lost life or two in 200 steps
+    actor.close()
+    assert trajectory.terminated.any()
+    packed = pack_frames(trajectory)
+    assert_same_transitions(unpack_frames(packed), trajectory)
+    sent = sum(x.nbytes for x in (packed.new_frames, packed.fresh_stacks, packed.end_stacks))
+    # 8x at most (4 frames a stack, obs and next_obs); each lost life (every ~24 steps of random
+    # play) sends two whole stacks: 6.6x here
+    assert (trajectory.obs.nbytes + trajectory.next_obs.nbytes) / sent > 6
 
 
 # ---------------------------------------------------------------- learning, same numbers, same folder

@@ -10,7 +10,8 @@ it and waits. So
 - **parameters** go out through Ray's object store: one ``ray.put`` per publish of the agent state's
   :func:`~agentax.agents.protocol.acting_view` (no optimizer state), which every actor of a node
   reads from shared memory; a collector converts a version to JAX arrays once;
-- **experience** comes back as NumPy batches ``[T, E]`` with the scores of the games that ended, and
+- **experience** comes back as NumPy batches ``[T, E]`` (stacked frames with each frame sent once,
+  :class:`PackedFrames`) with the scores of the games that ended, and
   joins the learner's rollout queue or replay buffer exactly as a thread actor's would; with the
   same seed an on-policy run gives the thread actors' numbers;
 - **faults**: a collector process that dies (killed, out of memory, its node lost) is replaced by a
@@ -95,6 +96,62 @@ def ray_session(address: str | None) -> Iterator[Any]:
         ray.shutdown()
 
 
+# ---------------------------------------------------------------- the wire format of stacked frames
+
+
+@dataclass
+class PackedFrames:
+    """A trajectory ``[T, E]`` of stacked frames ``[C, H, W]`` with each frame sent once.
+
+    ``obs[t]`` is ``obs[t - 1]`` shifted by one frame plus ``new_frames[t]``, except where that
+    does not hold (``t = 0``, a new episode's first stack), whose whole stacks are in
+    ``fresh_stacks`` at ``fresh``; ``next_obs[t]`` is ``obs[t + 1]``, except at ``ends`` (the last
+    step, an episode's final observation) whose stacks are in ``end_stacks``. Both are found by
+    comparing the frames, so packing is exact whatever the env does. A rollout shrinks up to 8x
+    (4 frames a stack, in obs and next_obs); each episode end costs two whole stacks."""
+
+    new_frames: np.ndarray  # [T, E, H, W]
+    fresh: np.ndarray  # bool [T, E]
+    fresh_stacks: np.ndarray  # [K, C, H, W]
+    ends: np.ndarray  # bool [T, E]
+    end_stacks: np.ndarray  # [M, C, H, W]
+    rest: Transition  # the trajectory without obs and next_obs (None there)
+
+
+def pack_frames(trajectory: Transition) -> Transition | PackedFrames:
+    """``trajectory`` with each frame once when its observations are stacked frames, else itself."""
+    obs, next_obs = trajectory.obs, trajectory.next_obs
+    if obs.ndim != 5:
+        return trajectory
+    fresh = np.ones(obs.shape[:2], bool)
+    fresh[1:] = ~(obs[1:, :, :-1] == obs[:-1, :, 1:]).all(axis=(2, 3, 4))
+    ends = np.ones(obs.shape[:2], bool)
+    ends[:-1] = ~(next_obs[:-1] == obs[1:]).all(axis=(2, 3, 4))
+    return PackedFrames(
+        obs[:, :, -1], fresh, obs[fresh], ends, next_obs[ends], trajectory.replace(obs=None, next_obs=None)
+    )
+
+
+def unpack_frames(packed: Transition | PackedFrames) -> Transition:
+    """The trajectory :func:`pack_frames` packed, exactly."""
+    if not isinstance(packed, PackedFrames):
+        return packed
+    num_steps, num_envs, height, width = packed.new_frames.shape
+    obs = np.empty(
+        (num_steps, num_envs, packed.fresh_stacks.shape[1], height, width), packed.new_frames.dtype
+    )
+    obs[0] = packed.fresh_stacks[:num_envs]  # every stack starts afresh at t = 0
+    fresh_index = np.cumsum(packed.fresh.ravel()).reshape(packed.fresh.shape) - 1
+    for t in range(1, num_steps):
+        obs[t, :, :-1], obs[t, :, -1] = obs[t - 1, :, 1:], packed.new_frames[t]
+        restart = packed.fresh[t]
+        obs[t, restart] = packed.fresh_stacks[fresh_index[t, restart]]
+    next_obs = np.empty_like(obs)
+    next_obs[:-1] = obs[1:]
+    next_obs[packed.ends] = packed.end_stacks
+    return packed.rest.replace(obs=obs, next_obs=next_obs)
+
+
 # ---------------------------------------------------------------- the actor process
 
 
@@ -135,8 +192,9 @@ class Collector:
             self.state, self.version = jax.device_put(ray.get(ref)), version
         return self.state
 
-    def _result(self, trajectory: Transition, steps_before: int) -> tuple[Transition, list[float], int]:
-        return trajectory, self.actor.finished_returns(), self.actor.steps.count - steps_before
+    def _result(self, trajectory: Transition, steps_before: int):
+        """What goes back: the trajectory (each frame once), finished games' scores, env steps taken."""
+        return pack_frames(trajectory), self.actor.finished_returns(), self.actor.steps.count - steps_before
 
     def rollout(self, published: list, num_steps: int):
         before = self.actor.steps.count
@@ -208,7 +266,7 @@ class RemoteActor:
                 self.started(self._wait(self.handle.describe.remote()))
         self.steps.count += steps
         self.scores.extend(scores)
-        return trajectory
+        return unpack_frames(trajectory)
 
     def rollout(self, published: Any, num_steps: int) -> Transition:
         return self._call("rollout", [published], num_steps)
