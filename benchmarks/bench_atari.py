@@ -16,8 +16,10 @@ Rows, all measured in this run, one after the other:
 - **DQN against Stable-Baselines3**: agent steps per second of a whole training process after
   learning starts, SB3's DQN (``.bench-venv``: torch on the CPU, its Atari wrappers) and
   ``agentax train dqn`` (host runner, parallel runner with one actor) at the same settings;
-- **PPO**: agent steps per second of PPO's ``atari`` preset on the host runner and on the parallel
-  runner (policy lag 1), after its first update (which compiles).
+- **PPO**: agent steps per second of PPO's ``atari`` preset on the host runner, the parallel
+  runner (policy lag 1) and the compiled Atari runner (EnvPool stepped inside the jitted rollout),
+  after the first update (which compiles). ``python benchmarks/bench_atari.py ppo`` measures these
+  rows alone and prints them.
 
 ``AGENTAX_BENCH_QUICK=1`` shortens every run (the notes say so).
 """
@@ -102,7 +104,7 @@ def _load() -> str:
 
 def env_rates() -> list[tuple[str, float]]:
     """Agent steps/s of 8 Breakout envs, random actions: bare EnvPool, AtariEnv on envpool and ale."""
-    from agentax.envs.atari import FRAME_SKIP, SCREEN, STACK, make_atari
+    from agentax.envs.atari import FRAME_SKIP, envpool_kwargs, make_atari
 
     rng = np.random.default_rng(0)
     actions = rng.integers(0, 4, size=(4_096, NUM_ENVS))
@@ -112,24 +114,7 @@ def env_rates() -> list[tuple[str, float]]:
     except ImportError:
         envpool = None
     if envpool is not None:
-        pool = envpool.make(
-            "Breakout-v5",
-            env_type="gymnasium",
-            num_envs=NUM_ENVS,
-            batch_size=NUM_ENVS,
-            num_threads=min(NUM_ENVS, os.cpu_count() or 1),
-            seed=0,
-            episodic_life=True,
-            reward_clip=False,
-            use_fire_reset=True,
-            repeat_action_probability=0.0,
-            noop_max=30,
-            stack_num=STACK,
-            frame_skip=FRAME_SKIP,
-            img_height=SCREEN,
-            img_width=SCREEN,
-            gray_scale=True,
-        )
+        pool = envpool.make(**envpool_kwargs("Breakout", NUM_ENVS, 0.0, 30, 108_000 // FRAME_SKIP, 0))
         pool.reset()
         i = iter(range(10**9))
         calls, seconds = _timed_loop(
@@ -425,11 +410,19 @@ def agentax_dqn(runner: str, cache: str) -> dict:
 # ---------------------------------------------------------------- PPO
 
 
-def ppo_rate(parallel: bool) -> dict:
-    """PPO's atari preset, 8 envs x 128 steps per update: agent steps/s after the first update."""
+PPO_RUNNERS = {
+    "host": "host runner",
+    "parallel": "parallel runner (1 actor, policy lag 1)",
+    "compiled": "compiled Atari runner (EnvPool inside the program)",
+}
+
+
+def ppo_rate(runner: str) -> dict:
+    """PPO's atari preset, 8 envs x 128 steps per update, on ``runner`` (a key of ``PPO_RUNNERS``):
+    agent steps/s after the first update."""
     from agentax.agents import ppo
     from agentax.agents.protocol import EnvSpec
-    from agentax.train import host
+    from agentax.train import compiled_atari, host
     from agentax.train import parallel as parallel_runner
 
     cfg = dataclasses.replace(ppo.PRESETS["atari"].config, total_steps=1_024 * (PPO_UPDATES + 1))
@@ -438,9 +431,11 @@ def ppo_rate(parallel: bool) -> dict:
     env.close()
     options = dict(log_every_steps=1_024, eval_episodes=1, sticky_actions=0.0)
     start = time.perf_counter()
-    if parallel:
+    if runner == "parallel":
         config = parallel_runner.ParallelRunnerConfig(actors=1, policy_lag=1, **options)
         result = parallel_runner.train(agent, ENV_ID, config)
+    elif runner == "compiled":
+        result = compiled_atari.train(agent, ENV_ID, host.HostRunnerConfig(**options))
     else:
         result = host.train(agent, ENV_ID, host.HostRunnerConfig(**options))
     total = time.perf_counter() - start
@@ -451,7 +446,29 @@ def ppo_rate(parallel: bool) -> dict:
         "first_update_seconds": first["wall_seconds"],
         "total_seconds": total,
         "updates": len(result.rows),
+        "masked_fraction": float(np.mean([row.get("masked_fraction", 0.0) for row in result.rows])),
     }
+
+
+def ppo_rows() -> tuple[list[list], dict[str, dict]]:
+    """The PPO rows (host, parallel, compiled runner, one after the other in this process) and the
+    runs' figures by runner."""
+    rows, runs = [], {}
+    for runner, label in PPO_RUNNERS.items():
+        runs[runner] = result = ppo_rate(runner)
+        ratio = result["steps_per_second"] / runs["host"]["steps_per_second"]
+        rows.append(
+            [
+                "PPO atari preset on Breakout",
+                label,
+                result["steps_per_second"],
+                "agent steps/s",
+                ratio,
+                round(result["first_update_seconds"], 1),
+                None,
+            ]
+        )
+    return rows, runs
 
 
 # ---------------------------------------------------------------- the section
@@ -554,22 +571,8 @@ def run() -> dict:
                 ]
             )
 
-    ppo_runs = {}
-    for parallel in (False, True):
-        ppo_runs[parallel] = result = ppo_rate(parallel)
-        label = "parallel runner (1 actor, policy lag 1)" if parallel else "host runner"
-        ratio = result["steps_per_second"] / ppo_runs[False]["steps_per_second"]
-        rows.append(
-            [
-                "PPO atari preset on Breakout",
-                label,
-                result["steps_per_second"],
-                "agent steps/s",
-                ratio,
-                round(result["first_update_seconds"], 1),
-                None,
-            ]
-        )
+    more_rows, ppo_runs = ppo_rows()
+    rows += more_rows
 
     notes = _notes(sb3, dqn_runs, ppo_runs, load_before, notes_extra)
     return {
@@ -637,13 +640,7 @@ def _notes(sb3, dqn_runs, ppo_runs, load_before, extra) -> str:
             f"{SB3_TARGET} × SB3: host {host_ratio:.2f} ×, parallel {par_ratio:.2f} × ({met})."
         )
     parts.append(dqn_part)
-    parts.append(
-        "**PPO**: the `atari` preset (8 envs × 128 steps, 4 epochs × 4 minibatches, Nature CNN), "
-        f"{PPO_UPDATES + 1} updates of 1,024 agent steps through `host.train` and `parallel.train` "
-        "(1 actor, policy lag 1) in this process, EnvPool, a metrics row per update; agent steps/s "
-        "from the first row (its update compiles; 'compile / warm-up s' is the seconds to it) to the "
-        "last."
-    )
+    parts.append(_ppo_notes(ppo_runs))
     parts.append(f"Machine load at the start of this section: {load_before}; at its end: {_load()}.")
     parts += extra
     if QUICK:
@@ -654,6 +651,20 @@ def _notes(sb3, dqn_runs, ppo_runs, load_before, extra) -> str:
     return "\n\n".join(parts)
 
 
+def _ppo_notes(ppo_runs: dict[str, dict]) -> str:
+    masked = ppo_runs.get("compiled", {}).get("masked_fraction", float("nan"))
+    return (
+        "**PPO**: the `atari` preset (8 envs × 128 steps, 4 epochs × 4 minibatches, Nature CNN), "
+        f"{PPO_UPDATES + 1} updates of 1,024 agent steps through `host.train`, `parallel.train` (1 "
+        "actor, policy lag 1) and `compiled_atari.train` (one jitted call per update: the 128-step "
+        "rollout with EnvPool's XLA step inside a `lax.scan`, then the learning step) in this "
+        "process, one after the other, EnvPool, a metrics row per update; agent steps/s from the first "
+        "row (its update compiles; 'compile / warm-up s' is the seconds to it) to the last. The "
+        "compiled runner counts EnvPool's reset steps (the step after each lost life or game, masked "
+        f"out of learning) as agent steps: {masked:.1%} of its steps here."
+    )
+
+
 def _sb3_version() -> str:
     python = BENCH_VENV / "bin" / "python"
     done = subprocess.run(
@@ -662,3 +673,13 @@ def _sb3_version() -> str:
         text=True,
     )
     return done.stdout.strip() or "?"
+
+
+if __name__ == "__main__":
+    if sys.argv[1:] != ["ppo"]:
+        sys.exit("usage: python benchmarks/bench_atari.py ppo  (the whole section: benchmarks/run.py atari)")
+    ppo_table, ppo_figures = ppo_rows()
+    for row in ppo_table:
+        print(f"{row[1]:<55} {row[2]:8.1f} agent steps/s  x{row[4]:.2f}  first update {row[5]} s")
+    print(_ppo_notes(ppo_figures))
+    print(_load())

@@ -34,6 +34,10 @@ envs whose episode (or, internally, life) just ended are stepped again at once, 
 first observation in ``obs`` and the real last one in ``final_obs``, as everywhere in agentax.
 (Not ``reset(env_id=ended)``: in EnvPool 1.2.5 an explicit reset restarts the whole game, lives
 and all, even with ``episodic_life``.)
+
+:mod:`agentax.envs.envpool_xla` steps a pool made with the same arguments (:func:`envpool_kwargs`)
+inside a jitted program, for the compiled Atari runner; there the reset step stays in the rollout,
+marked so that learning leaves it out.
 """
 
 from __future__ import annotations
