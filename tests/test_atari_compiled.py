@@ -164,7 +164,7 @@ def test_in_program_pool_plays_the_host_adapters_games():
     step, which EnvPool ignores): frame for frame the same games, the same learning view (clipped
     rewards, a lost life ends an episode) and the same whole games (true score, length) per env as
     the host adapter's ``drain_scores``."""
-    seed, num_steps = 11, 600
+    seed, num_steps = 11, 450
     actions = np.random.default_rng(0).integers(4, size=(num_steps, 8))
     train_env, eval_env = _host_env(True, seed), _host_env(False, seed)
     host_games: list[list[tuple[float, int]]] = [[] for _ in range(8)]
