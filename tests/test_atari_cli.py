@@ -189,3 +189,21 @@ def test_a_long_game_keeps_at_most_the_gif_cap_of_evenly_spaced_frames(tmp_path)
     assert frames.shape == (13, 8, 12, 3)
     assert frames[:, 0, 0, 0].tolist() == list(range(0, 100, 8))
     assert abs(sum(durations) - 13 * 8 * 1000 / 15) <= 10
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize(
+    "flags, says",
+    [
+        (["ppo", "--seeds", "2"], "one seed per process"),
+        (["ppo", "--env-backend", "ale"], "--env-backend ale cannot run there"),
+        (["dqn"], "trains on-policy agents (ppo); dqn needs --runner host"),
+    ],
+)
+def test_the_compiled_runner_refuses_what_it_cannot_train_on_atari(flags, says, tmp_path, capsys):
+    out = tmp_path / "run"
+    algo, rest = flags[0], flags[1:]
+    args = ["train", algo, "--env", BREAKOUT, "--runner", "compiled", "--out", str(out), *rest]
+    assert main(args) == 2
+    assert says in capsys.readouterr().err
+    assert not out.exists()  # refused before anything was written

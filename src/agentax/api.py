@@ -63,7 +63,8 @@ class RunArgs:
     progress: bool = True
     """show a progress bar"""
     runner: str = "auto"
-    """compiled (JAX envs, seeds vmapped), host (any env, one step after the other), parallel (actor
+    """compiled (JAX envs, seeds vmapped; Atari: PPO with EnvPool's step inside the program), host
+    (any env, one step after the other), parallel (actor
     threads beside a learner), ray (the parallel runner's actors as Ray actor processes, on any node
     of a cluster); auto: compiled for agentax's JAX envs, else host"""
     actors: int = 2
@@ -237,6 +238,12 @@ def _jax_env_ids() -> list[str]:
     return list(JAX_ENVS)
 
 
+def _is_atari(env_id: str) -> bool:
+    from agentax.envs.atari import is_atari_id
+
+    return is_atari_id(env_id)
+
+
 def runner_kind(run_args: RunArgs) -> str:
     """The runner a training uses: ``--runner``, or compiled for a JAX env and host for others."""
     if run_args.runner == "auto":
@@ -245,6 +252,10 @@ def runner_kind(run_args: RunArgs) -> str:
 
     if run_args.runner not in RUNNERS:
         raise UsageError(f"unknown runner {run_args.runner!r}; choose from {', '.join(RUNNERS)}")
+    if run_args.runner == "compiled" and _is_atari(run_args.env):
+        from agentax.train.compiled_atari import RUNNER_KIND
+
+        return RUNNER_KIND  # PPO's rollout and EnvPool's step in one program, one seed per process
     if run_args.runner == "compiled" and not _is_jax_env(run_args.env):
         raise UsageError(
             f"the compiled runner needs one of agentax's JAX envs ({', '.join(_jax_env_ids())}); "
@@ -297,14 +308,15 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Preset, *, quiet: bool
 def _start_host(
     algo: str, module: Any, run_args: RunArgs, cfg: Any, preset: Preset, kind: str, out: Path, quiet: bool
 ) -> Run:
-    """The host or parallel runner: one seed per process, any env id."""
+    """The host, parallel, ray or compiled Atari runner: one seed per process."""
     from agentax.agents.protocol import EnvSpec, OffPolicy
     from agentax.runs import Run as RunFolder
     from agentax.runs import run_config
+    from agentax.train import compiled_atari
     from agentax.train.host import HostRunnerConfig, make_host_env
     from agentax.train.parallel import ParallelRunnerConfig
 
-    if run_args.seeds != 1:
+    if run_args.seeds != 1 and kind != compiled_atari.RUNNER_KIND:  # which says why below
         raise UsageError(
             f"the {kind} runner trains one seed per process (--seeds 1); --seeds N is compiled-only"
         )
@@ -341,6 +353,9 @@ def _start_host(
             where += f", policy lag {runner.policy_lag}"
     else:
         runner, where = HostRunnerConfig(**common), "host"
+        if kind == compiled_atari.RUNNER_KIND:
+            compiled_atari.check(agent, run_args.env, runner, run_args.seeds)
+            where = "compiled, EnvPool inside the program"
     run = RunFolder.create(
         out, run_config(algo, run_args.env, run_args.preset, kind, runner, module.config_to_dict(cfg))
     )
@@ -362,8 +377,10 @@ def _train_host(
 
         result = ray.train(agent, run.config["env"], runner, run, make_agent=remake, **options)
     else:
-        train = parallel.train if kind == "parallel" else host.train
-        result = train(agent, run.config["env"], runner, run, **options)
+        from agentax.train import compiled_atari
+
+        trains = {"parallel": parallel.train, compiled_atari.RUNNER_KIND: compiled_atari.train}
+        result = trains.get(kind, host.train)(agent, run.config["env"], runner, run, **options)
     seconds = time.perf_counter() - start_time
     return Run(run.path, run.config, result, seconds, greedy=agent.greedy_policy(result.state))
 
@@ -409,14 +426,14 @@ def resume(run_dir: str | Path, progress: bool = True, *, quiet: bool = False) -
     kind = config.get("runner_kind", "compiled")
     _announce(f"resuming {algo} on {config['env']} ({kind} runner) from {run_dir}", quiet)
     try:
-        if kind in ("host", "parallel", "ray"):
+        if kind in ("host", "parallel", "ray", "compiled-atari"):
             from agentax.agents.protocol import EnvSpec
             from agentax.train.host import HostRunnerConfig, make_host_env
             from agentax.train.parallel import ParallelRunnerConfig
             from agentax.train.ray import RayRunnerConfig
 
-            configs = {"host": HostRunnerConfig, "parallel": ParallelRunnerConfig, "ray": RayRunnerConfig}
-            runner = configs[kind](**config["runner"])
+            configs = {"parallel": ParallelRunnerConfig, "ray": RayRunnerConfig}
+            runner = configs.get(kind, HostRunnerConfig)(**config["runner"])
             probe = make_host_env(
                 config["env"], 1, backend=runner.env_backend, sticky_actions=runner.sticky_actions
             )
