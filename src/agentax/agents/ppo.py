@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from agentax import agents
+from agentax import _xla, agents
 from agentax.agents import Preset
 from agentax.agents.protocol import Agent, CompiledAlgorithm, EnvSpec, OnPolicy
 from agentax.envs.core import Box, Discrete, Environment
@@ -350,9 +350,9 @@ def learn(
     progress = agent.updates.astype(jnp.float32) / cfg.num_updates
     clip_eps = cfg.clip_eps * (1.0 - progress) if cfg.anneal_clip else jnp.float32(cfg.clip_eps)
     grad_fn = jax.grad(loss_fn, has_aux=True)
-    # XLA's CPU backend runs convolutions ~30x slower inside a loop (measured: 4 Nature-CNN gradient
-    # steps of batch 256 took 51 s in a lax.scan, 1.6 s unrolled), so a CNN's SGD steps are unrolled.
-    unroll = is_image(spec.obs_shape)
+    # XLA's CPU backend runs convolutions many times slower inside a loop body (measured: 4 Nature-CNN
+    # gradient steps of batch 256 took 51 s in a lax.scan), so a CNN's SGD steps are written out.
+    python_loop = is_image(spec.obs_shape)
 
     def sgd_step(carry, minibatch):
         params, opt_state = carry
@@ -368,10 +368,13 @@ def learn(
             minibatches = jax.tree.map(
                 lambda x: x[order].reshape(cfg.num_minibatches, -1, *x.shape[1:]), flat
             )
-        return jax.lax.scan(sgd_step, carry, minibatches, unroll=unroll)
+        return _xla.scan(sgd_step, carry, minibatches, python_loop=python_loop)
 
-    (params, opt_state), metrics = jax.lax.scan(
-        epoch, (agent.params, agent.opt_state), jax.random.split(key, cfg.update_epochs), unroll=unroll
+    (params, opt_state), metrics = _xla.scan(
+        epoch,
+        (agent.params, agent.opt_state),
+        jax.random.split(key, cfg.update_epochs),
+        python_loop=python_loop,
     )
     agent = PPOAgent(params, opt_state, agent.updates + 1)
     return agent, jax.tree.map(jnp.mean, metrics)

@@ -280,7 +280,7 @@ class OffPolicyLearner:
     uniform replay (a ``lax.scan`` over batches drawn ahead by ``as_dataset``), step by step for
     prioritized replay (each batch depends on the priorities the last one set)."""
 
-    def __init__(self, agent: Agent, replay: Any, unroll: bool = False):
+    def __init__(self, agent: Agent, replay: Any, python_loop: bool = False):
         self.experience: OffPolicy = agent.experience
         self.replay = replay
         self.learn = jax.jit(agent.learn)
@@ -291,7 +291,7 @@ class OffPolicyLearner:
                 return state, {"loss": metrics["loss"], "q_mean": metrics.get("q_mean", metrics["loss"])}
 
             keys = jax.random.split(key, self.experience.gradient_steps)
-            state, metrics = jax.lax.scan(one, state, (samples, keys), unroll=unroll)
+            state, metrics = _xla.scan(one, state, (samples, keys), python_loop=python_loop)
             return state, jax.tree.map(lambda m: m.mean(), metrics)
 
         self.learn_many = jax.jit(learn_many)
@@ -445,7 +445,7 @@ def train(
     if isinstance(experience, OffPolicy):
         replay = replay_for(agent, actor.obs_shape, runner.seed)
         observer = ReplayObserver(replay, experience.n_step, experience.discount_factor)
-        learner = OffPolicyLearner(agent, replay, unroll=is_image(actor.obs_shape))
+        learner = OffPolicyLearner(agent, replay, python_loop=is_image(actor.obs_shape))
         replay_checkpoints = ReplayCheckpoints(
             run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
         )

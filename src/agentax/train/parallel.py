@@ -521,7 +521,7 @@ def _off_policy(agent, runner, fleet, threads, coordinator, rows, state, learner
     for i, actor in enumerate(actors):
         threads.append(ActorThread(actor, lambda thread, i=i: collect(thread, i), coordinator, i))
     rows.meter = Meter(threads, fleet.figures)
-    learner = OffPolicyLearner(agent, replay, unroll=is_image(actors[0].obs_shape))
+    learner = OffPolicyLearner(agent, replay, python_loop=is_image(actors[0].obs_shape))
 
     def drain() -> list[float]:
         return [r for actor in actors for r in actor.finished_returns()]
@@ -545,6 +545,8 @@ def _off_policy(agent, runner, fleet, threads, coordinator, rows, state, learner
                 channel.publish(phases, state)
         env_steps = limiter.inserted
         final = not ready and collection_over(agent, env_steps, 0)
+        if env_steps >= total and not final:
+            continue  # collected all: the last row waits for the learner to catch up
         if rows.maybe_log(
             state, learner_key, env_steps, env_steps, updates, learner_wait, drain, metrics, final
         ):
