@@ -122,6 +122,8 @@ def env_rates() -> list[tuple[str, float]]:
         )
         pool.close()
         results.append(("EnvPool host API (`envpool.make`, 8 envs)", calls * NUM_ENVS / seconds))
+    if envpool is not None:
+        results.append(("EnvPool XLA (`XlaAtari.step` in a jitted 128-step `lax.scan`)", xla_rate(actions)))
     for backend in ("envpool", "ale"):
         if backend == "envpool" and envpool is None:
             continue
@@ -134,6 +136,34 @@ def env_rates() -> list[tuple[str, float]]:
         env.close()
         results.append((f"agentax `AtariEnv`, backend {backend}", calls * NUM_ENVS / seconds))
     return results
+
+
+def xla_rate(actions: np.ndarray) -> float:
+    """Agent steps/s of 8 Breakout envs stepped by EnvPool's XLA interface inside one jitted program
+    (``agentax.envs.envpool_xla``, as the compiled Atari runner steps them), 128 steps a call."""
+    import jax
+    import jax.numpy as jnp
+
+    from agentax.envs.envpool_xla import XlaAtari
+
+    env = XlaAtari(ENV_ID, NUM_ENVS, sticky_actions=0.0)
+    handle, _ = env.reset()
+    steps = jnp.asarray(actions[:128], jnp.int32)
+
+    @jax.jit
+    def rollout(handle):
+        def step(handle, action):
+            handle, result = env.step(handle, action)
+            return handle, result.reward.sum()
+
+        return jax.lax.scan(step, handle, steps)[0]
+
+    box = {"handle": jax.block_until_ready(rollout(handle))}
+    calls, seconds = _timed_loop(
+        lambda: box.update(handle=jax.block_until_ready(rollout(box["handle"]))), ENV_SECONDS
+    )
+    env.close()
+    return calls * len(steps) * NUM_ENVS / seconds
 
 
 # ---------------------------------------------------------------- the learning step
