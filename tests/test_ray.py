@@ -333,7 +333,7 @@ def test_the_cli_starts_and_stops_its_own_ray_also_on_ctrl_c_and_on_errors(own_r
     assert_none_left(own_ray_tmpdir)
 
     interrupted = subprocess.Popen(
-        [*train, "--total-steps", "500000", "--out", str(tmp_path / "ctrl-c")],
+        [*train, "--total-steps", "500000", "--stop-at-return", "none", "--out", str(tmp_path / "ctrl-c")],
         env=env,
         text=True,
         stdout=subprocess.PIPE,
