@@ -25,9 +25,11 @@ the last row).
 from __future__ import annotations
 
 import queue
+import signal
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -114,10 +116,32 @@ class Coordinator:
     def wait_until(self, condition: threading.Condition, ready: Callable[[], bool]) -> float:
         """Wait on ``condition`` (held) until ``ready()``; returns the seconds waited."""
         start = time.perf_counter()
+        self.check()  # also when never waiting: a busy learner still ends with the run
         while not ready():
-            self.check()
             condition.wait(POLL_SECONDS)
+            self.check()
         return time.perf_counter() - start
+
+
+@contextmanager
+def interrupted_at_a_safe_point(coordinator: Coordinator) -> Iterator[None]:
+    """Ctrl-C ends the run where the learner next checks the coordinator (between learning steps,
+    with no call to XLA or Ray cut in half: a Ray call interrupted inside left ``ray.shutdown``
+    hanging); a second Ctrl-C interrupts at once. In the main thread only (where signals land)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.getsignal(signal.SIGINT)
+
+    def interrupt(signum, frame):
+        signal.signal(signal.SIGINT, previous)
+        coordinator.fail(KeyboardInterrupt())
+
+    signal.signal(signal.SIGINT, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def in_memory(version: int, state: Any) -> Any:
@@ -364,7 +388,7 @@ def train(
         )
         loop = _off_policy if isinstance(agent.experience, OffPolicy) else _on_policy
         rows = _Rows(runner, logger, evaluator, done_steps)
-        with logger:
+        with logger, interrupted_at_a_safe_point(coordinator):
             state, updates, env_steps = loop(
                 agent, runner, fleet, threads, coordinator, rows, state, learner_key, updates, done_steps
             )
