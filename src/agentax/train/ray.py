@@ -20,8 +20,9 @@ it and waits. So
   env) ends the run with that error, and so does a learner error; the actors are then killed.
 
 Where it runs: ``ray_address`` joins an existing cluster (``auto``, or ``HOST:PORT`` of ``ray start
---head``); without it the run starts a local Ray (no dashboard, loopback only, as many CPUs as the
-machine has) and shuts it down at the end, also after Ctrl-C or an error. A process that is already
+--head``); without it the run starts a local Ray (no dashboard, Ray's token authentication, as many
+CPUs as the machine has; Ray 2.60 listens on the machine's address, it cannot be held to loopback)
+and shuts it down at the end, also after Ctrl-C (at the learner's next safe point) or an error. A process that is already
 connected to Ray (``ray.init`` before the call, as the tests do) keeps its connection. Every node
 needs agentax installed (the same version); the learner stays in this process.
 """
@@ -181,7 +182,6 @@ class Collector:
             "obs_shape": actor.obs_shape,
             "keeps_scores": actor.keeps_scores,
             "node": ray.get_runtime_context().get_node_id(),
-            "pid": os.getpid(),
         }
 
     def _state(self, published: list) -> Any:
@@ -235,7 +235,8 @@ class RemoteActor:
         self.num_envs, self.obs_shape = info["num_envs"], tuple(info["obs_shape"])
         self.keeps_scores = info["keeps_scores"]
 
-    def _wait(self, ref: Any) -> Any:
+    def wait(self, ref: Any) -> Any:
+        """The value of ``ref``, waiting for it while the run goes on."""
         import ray
 
         while not ray.wait([ref], timeout=POLL_SECONDS)[0]:
@@ -248,22 +249,20 @@ class RemoteActor:
 
         while True:
             try:
-                trajectory, scores, steps = self._wait(getattr(self.handle, method).remote(*args))
+                if self.handle is None:  # a replacement for a collector that died
+                    self.handle = self.spawn(self.restarts)
+                    self.started(self.wait(self.handle.describe.remote()))
+                trajectory, scores, steps = self.wait(getattr(self.handle, method).remote(*args))
                 break
             except (RayActorError, WorkerCrashedError) as error:
                 self.coordinator.check()  # the run is ending: its actors are being killed
                 self.restarts += 1
                 if self.restarts > self.max_restarts:
-                    raise RuntimeError(
-                        f"Ray actor processes died {self.restarts} times; giving up"
-                    ) from error
-                print(
-                    f"warning: a Ray actor process died ({type(error).__name__}); restarting it",
-                    file=sys.stderr,
-                )
+                    raise RuntimeError(f"Ray actor processes died {self.restarts} times") from error
+                died = type(error).__name__
+                print(f"warning: a Ray actor process died ({died}); restarting it", file=sys.stderr)
                 ray.kill(self.handle, no_restart=True)
-                self.handle = self.spawn(self.restarts)
-                self.started(self._wait(self.handle.describe.remote()))
+                self.handle = None
         self.steps.count += steps
         self.scores.extend(scores)
         return unpack_frames(trajectory)
@@ -285,7 +284,8 @@ class RemoteActor:
     def close(self) -> None:
         import ray
 
-        ray.kill(self.handle, no_restart=True)
+        if self.handle is not None:
+            ray.kill(self.handle, no_restart=True)
 
 
 def ray_fleet(agent: Agent, make_agent: Callable[[], Agent], env_id: str, runner: RayRunnerConfig, ray: Any):
@@ -322,7 +322,7 @@ def ray_fleet(agent: Agent, make_agent: Callable[[], Agent], env_id: str, runner
         try:
             infos = [actor.handle.describe.remote() for actor in actors]  # they start side by side
             for actor, info in zip(actors, infos, strict=True):
-                actor.started(actor._wait(info))
+                actor.started(actor.wait(info))
         except BaseException:
             for actor in actors:
                 actor.close()
