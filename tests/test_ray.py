@@ -325,6 +325,11 @@ def test_the_cli_starts_and_stops_its_own_ray_also_on_ctrl_c_and_on_errors(own_r
     assert "2 Ray actors" in done.stderr and "evaluation: mean return" in done.stdout
     assert json.loads((tmp_path / "done" / "config.json").read_text())["runner_kind"] == "ray"
     assert_none_left(own_ray_tmpdir)
+    from agentax.cli import main  # evaluate and play read a ray run as any other
+
+    assert main(["evaluate", "--policy", str(tmp_path / "done"), "--episodes", "3", "--json"]) == 0
+    assert main(["play", "--policy", str(tmp_path / "done"), "--video", str(tmp_path / "one.gif")]) == 0
+    assert (tmp_path / "one.gif").stat().st_size > 0
 
     refused = subprocess.run(
         [*train, "--actors", "64", "--out", str(tmp_path / "big")], env=env, text=True, capture_output=True
