@@ -282,3 +282,31 @@ def test_a_slow_learner_shows_as_actors_waiting():
         assert 0.5 < row["actor_wait_fraction"] <= 1.0, row
         assert 0.0 <= row["learner_wait_fraction"] < 0.5, row
         assert row["learner_updates_per_second"] < 5.5  # at most one update per 0.2 s
+
+
+@pytest.mark.timeout(120)
+def test_ctrl_c_ends_a_parallel_run_with_no_thread_and_no_handler_left(tmp_path):
+    import os
+    import signal
+
+    from agentax.errors import TrainingInterrupted
+    from agentax.runs import Run
+
+    cfg = dataclasses.replace(dqn.PRESETS["default"].config, total_steps=200_000)
+    agent = make(dqn, cfg)
+    metrics = tmp_path / "metrics.csv"
+
+    def press_ctrl_c_after_the_first_row():
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not (metrics.exists() and metrics.read_text().count("\n") >= 2):
+            time.sleep(0.05)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    threading.Thread(target=press_ctrl_c_after_the_first_row, daemon=True).start()
+    previous = signal.getsignal(signal.SIGINT)
+    run = Run.create(tmp_path, {"algo": "dqn", "env": "CartPole-v1"})
+    with pytest.raises(TrainingInterrupted):
+        parallel.train(agent, "CartPole-v1", ParallelRunnerConfig(actors=2), run)
+    assert signal.getsignal(signal.SIGINT) is previous  # the run's handler is gone with it
+    assert not actor_threads()
+    assert 2 <= metrics.read_text().count("\n") < 20  # it stopped soon after the signal
