@@ -34,7 +34,6 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from flax import struct
 
 from agentax import _xla
@@ -216,10 +215,7 @@ def train(
                 )
                 row["frames"] = FRAME_SKIP * env_steps
                 scores = []
-                solved = False
-                if runner.stop_at_return is not None:
-                    row["eval_return"] = float(np.mean(evaluator(state)[0]))
-                    solved = row["eval_return"] >= runner.stop_at_return
+                solved = host.evaluated_if_stopping(row, runner, evaluator, state)
                 logger.log(row, jax.device_get(metrics))
                 steps_at_log, time_at_log = env_steps, time.perf_counter()
                 meta = {

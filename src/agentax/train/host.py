@@ -492,7 +492,6 @@ def train(
                 next_log += runner.log_every_steps
                 metrics = jax.device_get(metrics)  # waits for the last learning step: speeds count it
                 now = time.perf_counter()
-                solved = False
                 row = row_of(
                     env_steps,
                     updates,
@@ -501,9 +500,7 @@ def train(
                 )
                 if isinstance(experience, OffPolicy):
                     row.update(replay_size=replay.size, replay_bytes=replay.nbytes)
-                if runner.stop_at_return is not None:
-                    row["eval_return"] = float(np.mean(evaluator(state)[0]))
-                    solved = row["eval_return"] >= runner.stop_at_return
+                solved = evaluated_if_stopping(row, runner, evaluator, state)
                 logger.log(row, jax.device_get(metrics))
                 steps_at_log, time_at_log = env_steps, time.perf_counter()
                 meta = {
@@ -523,6 +520,15 @@ def train(
     evaluator.close()
     evaluation = logger.finish(returns[None], lengths[None], env_steps=actor.steps.count, updates=updates)
     return HostResult(state, updates, actor.steps.count, evaluation, logger.rows)
+
+
+def evaluated_if_stopping(row: dict[str, float], runner: Any, evaluator: Evaluator, state: Any) -> bool:
+    """When the run may stop early, evaluate the greedy policy into ``row["eval_return"]``; whether
+    it reached ``runner.stop_at_return``."""
+    if runner.stop_at_return is None:
+        return False
+    row["eval_return"] = float(np.mean(evaluator(state)[0]))
+    return row["eval_return"] >= runner.stop_at_return
 
 
 def row_of(

@@ -53,6 +53,7 @@ from agentax.train.host import (
     agent_keys,
     collection_over,
     env_factory,
+    evaluated_if_stopping,
     fold_actor_key,
     num_updates,
     record_returns,
@@ -431,10 +432,7 @@ class _Rows:
         row.update(self.meter.row(collected, updates, learner_wait))
         if self.replay is not None:
             row.update(replay_size=self.replay.size, replay_bytes=self.replay.nbytes)
-        solved = False
-        if self.runner.stop_at_return is not None:
-            row["eval_return"] = float(np.mean(self.evaluator(state)[0]))
-            solved = row["eval_return"] >= self.runner.stop_at_return
+        solved = evaluated_if_stopping(row, self.runner, self.evaluator, state)
         self.logger.log(row, jax.device_get(metrics))
         self.steps_at_log, self.time_at_log = env_steps, time.perf_counter()
         meta = {

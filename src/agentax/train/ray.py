@@ -22,9 +22,9 @@ it and waits. So
 Where it runs: ``ray_address`` joins an existing cluster (``auto``, or ``HOST:PORT`` of ``ray start
 --head``); without it the run starts a local Ray (no dashboard, Ray's token authentication, as many
 CPUs as the machine has; Ray 2.60 listens on the machine's address, it cannot be held to loopback)
-and shuts it down at the end, also after Ctrl-C (at the learner's next safe point) or an error. A process that is already
-connected to Ray (``ray.init`` before the call, as the tests do) keeps its connection. Every node
-needs agentax installed (the same version); the learner stays in this process.
+and shuts it down at the end, also after Ctrl-C (at the learner's next safe point) or an error. A
+process already connected to Ray (``ray.init`` before the call, as the tests do) keeps its
+connection. Every node needs agentax installed (the same version); the learner stays in this process.
 """
 
 from __future__ import annotations
