@@ -452,12 +452,14 @@ def ppo_rate(runner: str) -> dict:
     agent steps/s after the first update."""
     from agentax.agents import ppo
     from agentax.agents.protocol import EnvSpec
-    from agentax.train import compiled_atari, host
-    from agentax.train import parallel as parallel_runner
+    from agentax.api import agent_maker
+    from agentax.envs import make_host_env
+    from agentax.runners import compiled_atari, host
+    from agentax.runners import parallel as parallel_runner
 
     cfg = dataclasses.replace(ppo.PRESETS["atari"].config, total_steps=1_024 * (PPO_UPDATES + 1))
-    env = host.make_host_env(ENV_ID, 1, sticky_actions=0.0)
-    agent = ppo.make_agent(EnvSpec.of(env), cfg)
+    env = make_host_env(ENV_ID, 1, sticky_actions=0.0)
+    agent = agent_maker(ppo, EnvSpec.of(env), cfg)()
     env.close()
     options = dict(log_every_steps=1_024, eval_episodes=1, sticky_actions=0.0)
     start = time.perf_counter()

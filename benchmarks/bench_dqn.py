@@ -2,11 +2,11 @@
 
 Rows, all measured in this run:
 
-- the compiled runner (``agentax.train.compiled``, the JAX CartPole, DQN's ``default`` preset) with
+- the compiled runner (``agentax.runners.compiled``, the JAX CartPole, DQN's ``default`` preset) with
   1 and with 8 seeds vmapped into one program: compile time, wall-clock from the start of training
   to the first evaluation (20 greedy episodes per seed) whose mean reaches 475, learner updates
   (gradient steps, summed over seeds) per second of training, and the final per-seed evaluation;
-- the host runner (``agentax.train.host.train``) on Gymnasium's own CartPole-v1, same preset: the
+- the host runner (``agentax.runners.host.train``) on Gymnasium's own CartPole-v1, same preset: the
   greedy policy is evaluated on 10 Gymnasium episodes every 2,048 env steps;
 - the whole ``agentax train dqn --env CartPole-v1`` process (start-up, compile, training until
   solved, final evaluation, run folder), with an empty and with a warm compilation cache;
@@ -64,7 +64,7 @@ def _pinned():
 def compiled_row(num_seeds: int) -> list:
     from agentax.agents import dqn
     from agentax.envs import make_jax
-    from agentax.train.compiled import RunnerConfig, train
+    from agentax.runners.compiled import RunnerConfig, train
 
     preset = dqn.PRESETS["default"]
     env = make_jax("CartPole-v1")
@@ -95,7 +95,8 @@ def compiled_row(num_seeds: int) -> list:
 def host_row() -> list:
     from agentax.agents import dqn
     from agentax.agents.protocol import EnvSpec
-    from agentax.train.host import HostRunnerConfig, make_host_env, train
+    from agentax.envs import make_host_env
+    from agentax.runners.host import HostRunnerConfig, train
 
     cfg = dqn.PRESETS["default"].config
     env = make_host_env("CartPole-v1", 1)
@@ -209,7 +210,7 @@ def run() -> dict:
         "seed's mean reaches 475; "
         "'solved' counts seeds whose final evaluation (20 fresh episodes) is ≥ 475. Learner updates are "
         "gradient steps on a batch of 64, summed over seeds. The host row steps Gymnasium's CartPole "
-        "(4 envs, SAME_STEP autoreset) through the host runner (`agentax.train.host.train`: an Actor's "
+        "(4 envs, SAME_STEP autoreset) through the host runner (`agentax.runners.host.train`: an Actor's "
         "Driver fills the replay, the same `dqn.learn` learns, 128 steps per compiled call); its "
         "wall-clock includes compilation and the periodic evaluations. The process rows run "
         "`python -m agentax.cli train dqn --env CartPole-v1` in a subprocess: first with an empty "

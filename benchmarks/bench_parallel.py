@@ -4,12 +4,12 @@ and what logging, evaluation and checkpoints cost each runner.
 **Overlap.** On the same work (same env steps, same learning steps), measured one after the other in
 this process:
 
-- *collect alone*: an :class:`agentax.train.host.Actor` fills a replay buffer (DQN) or collects
+- *collect alone*: an :class:`agentax.runners.host.Actor` fills a replay buffer (DQN) or collects
   rollouts (PPO) with fixed parameters, no learning;
 - *learn alone*: the same learning steps with no env: DQN's ``OffPolicyLearner.phase`` on the buffer
   that collect-alone filled, PPO's jitted ``learn`` on one collected rollout, over and over;
-- *sequential*: ``agentax.train.host.train`` (collect, then learn, then collect ...);
-- *parallel*: ``agentax.train.parallel.train`` with 1 and with 2 actor threads (DQN: rate limiter;
+- *sequential*: ``agentax.runners.host.train`` (collect, then learn, then collect ...);
+- *parallel*: ``agentax.runners.parallel.train`` with 1 and with 2 actor threads (DQN: rate limiter;
   PPO: policy lag 1).
 
 Every timing includes the same one-off costs (a fresh learner's jitted programs retraced, their
@@ -84,7 +84,7 @@ def _mean_of(rows: list[dict], name: str) -> float:
 def dqn_agent(total_steps: int):
     from agentax.agents import dqn
     from agentax.agents.protocol import EnvSpec
-    from agentax.train.host import make_host_env
+    from agentax.envs import make_host_env
 
     cfg = dataclasses.replace(dqn.PRESETS["default"].config, total_steps=total_steps, **DQN_WORKLOAD)
     env = make_host_env(ENV_ID, 1)
@@ -96,28 +96,30 @@ def dqn_agent(total_steps: int):
 def ppo_agent(total_steps: int, preset: str = "cartpole-fast"):
     from agentax.agents import ppo
     from agentax.agents.protocol import EnvSpec
-    from agentax.train.host import make_host_env
+    from agentax.api import agent_maker
+    from agentax.envs import make_host_env
 
     cfg = dataclasses.replace(ppo.PRESETS[preset].config, total_steps=total_steps)
     env = make_host_env(ENV_ID, 1)
-    agent = ppo.make_agent(EnvSpec.of(env), cfg)
+    agent = agent_maker(ppo, EnvSpec.of(env), cfg)()
     env.close()
     return agent
 
 
 def _actor(agent, num_envs: int):
-    from agentax.train import host
+    from agentax.envs import make_host_env
+    from agentax.runners import host
 
     init_key, _, actors_key = host.agent_keys(0)
-    env = host.make_host_env(ENV_ID, num_envs, training=True)
+    env = make_host_env(ENV_ID, num_envs, training=True)
     actor = host.Actor(agent, env, host.actor_seed(0, 0, 0), host.fold_actor_key(actors_key, 0, 0))
     return actor, agent.init(init_key)
 
 
 def collect_alone_off_policy(agent):
     """The actor alone: ``total_steps`` env steps into a replay buffer with fixed parameters."""
-    from agentax.train import host
-    from agentax.train.driver import ReplayObserver
+    from agentax.runners import host
+    from agentax.runners.driver import ReplayObserver
 
     experience = agent.experience
     actor, state = _actor(agent, experience.num_envs)
@@ -134,7 +136,7 @@ def learn_alone_off_policy(agent, replay, phases: int):
     """The learner alone: ``phases`` learning phases on a filled buffer, no env."""
     import jax
 
-    from agentax.train import host
+    from agentax.runners import host
 
     init_key, learner_key, _ = host.agent_keys(0)
     state = agent.init(init_key)
@@ -161,7 +163,7 @@ def collect_alone_on_policy(agent, iterations: int):
 def learn_alone_on_policy(agent, trajectory, iterations: int):
     import jax
 
-    from agentax.train import host
+    from agentax.runners import host
 
     init_key, learner_key, _ = host.agent_keys(0)
     state = agent.init(init_key)
@@ -175,7 +177,7 @@ def learn_alone_on_policy(agent, trajectory, iterations: int):
 
 
 def sequential(agent):
-    from agentax.train import host
+    from agentax.runners import host
 
     with Clock() as clock:
         result = host.train(agent, ENV_ID, host.HostRunnerConfig())
@@ -183,7 +185,7 @@ def sequential(agent):
 
 
 def parallel_run(agent, actors: int):
-    from agentax.train import parallel
+    from agentax.runners import parallel
 
     with Clock() as clock:
         result = parallel.train(agent, ENV_ID, parallel.ParallelRunnerConfig(actors=actors, policy_lag=1))
@@ -272,9 +274,9 @@ def collection_breakdown(agent) -> dict:
     (dispatch, run, device_get), the NumPy n-step push; the rest is the Driver and observers."""
     import jax
 
+    from agentax.envs import make_host_env
     from agentax.replay.host import NStepAccumulator
-    from agentax.train.driver import first_time_step
-    from agentax.train.host import make_host_env
+    from agentax.runners.driver import first_time_step
 
     experience = agent.experience
     envs = experience.num_envs
@@ -325,8 +327,8 @@ def compiled_overhead() -> dict:
     from agentax.agents import ppo
     from agentax.agents.protocol import SEED_AXIS
     from agentax.envs import make_jax
+    from agentax.runners import compiled
     from agentax.runs import Run
-    from agentax.train import compiled
 
     env, preset = make_jax(ENV_ID), ppo.PRESETS["default"]
     algorithm = ppo.make_train(env, preset.config)
@@ -369,8 +371,8 @@ def compiled_overhead() -> dict:
 
 def host_overhead() -> dict:
     """PPO default preset on Gymnasium's CartPole-v1: host.train with a run folder vs ``run=None``."""
+    from agentax.runners import host
     from agentax.runs import Run
-    from agentax.train import host
 
     agent = ppo_agent(HOST_OVERHEAD_STEPS, "default")
     figures = {"bare": [], "run": []}

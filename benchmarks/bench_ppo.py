@@ -9,7 +9,7 @@ Rows, all measured in this run:
 - the compiled runner's throughput (``cartpole-fast`` preset, 51,200 steps per seed, no early
   stop): env steps per second of training (all seeds), compile apart;
 - the reference that installs everywhere: the same PPO on Gymnasium's own CartPole-v1 through the
-  host runner (``agentax.train.host.train``: Gymnasium steps the envs, the same jitted ``act``/``learn``),
+  host runner (``agentax.runners.host.train``: Gymnasium steps the envs, the same jitted ``act``/``learn``),
   evaluated every 2,560 steps on 10 Gymnasium episodes;
 - Stable-Baselines3 PPO with RL-Zoo's CartPole-v1 settings (8 envs, n_steps 32, batch 256, GAE 0.8,
   γ 0.98, 20 epochs, no entropy bonus, lr and clip linear from 1e-3 and 0.2, 1e5 steps; the whole
@@ -107,7 +107,7 @@ def throughput(seeds: int) -> tuple[float, float]:
     """Env steps per second of the compiled runner (all seeds), and its compile seconds."""
     from agentax.agents import ppo
     from agentax.envs import make_jax
-    from agentax.train.compiled import RunnerConfig, train
+    from agentax.runners.compiled import RunnerConfig, train
 
     env, preset = make_jax("CartPole-v1"), ppo.PRESETS["cartpole-fast"]
     runner = RunnerConfig(num_seeds=seeds, updates_per_chunk=preset.updates_per_chunk, eval_every_chunks=1000)
@@ -120,7 +120,8 @@ def host_reference() -> dict:
     """The same PPO preset on Gymnasium's CartPole-v1 through the host loop, stopping when solved."""
     from agentax.agents import ppo
     from agentax.agents.protocol import EnvSpec
-    from agentax.train.host import HostRunnerConfig, make_host_env, train
+    from agentax.envs import make_host_env
+    from agentax.runners.host import HostRunnerConfig, train
 
     cfg = ppo.PRESETS["cartpole-fast"].config
     env = make_host_env("CartPole-v1", 1)
@@ -239,7 +240,7 @@ def run() -> dict:
         "10 epochs × 2 minibatches, γ 0.98, GAE 0.8. 'Whole process' is the wall-clock of "
         "`agentax train ppo --env CartPole-v1 [--seeds 8]` as a subprocess, start-up and run folder "
         "included; 'empty cache' traces and compiles, 'warm cache' loads the stored programs "
-        "(agentax.train.programs: no tracing) and their compiled code (the persistent JAX cache); warm "
+        "(agentax.runners.programs: no tracing) and their compiled code (the persistent JAX cache); warm "
         "rows are the median of 3 runs. The host-loop reference runs inside this process (imports "
         "done, its small act/learn programs from the warm cache), so its wall-clock has no start-up in "
         "it. Env steps/s counts all seeds, training only." + sb3_note

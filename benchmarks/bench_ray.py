@@ -44,8 +44,8 @@ def _rows_mean(rows: list[dict], name: str) -> float:
 def runs(ray) -> tuple[list[list], dict]:
     """Thread actors and Ray actors on the same two workloads."""
     from agentax.agents import dqn, ppo
-    from agentax.train import parallel
-    from agentax.train import ray as ray_runner
+    from agentax.runners import parallel
+    from agentax.runners import ray as ray_runner
 
     spec = _cartpole_spec()
     workloads = {
@@ -88,7 +88,7 @@ def runs(ray) -> tuple[list[list], dict]:
 
 def _cartpole_spec():
     from agentax.agents.protocol import EnvSpec
-    from agentax.train.host import make_host_env
+    from agentax.envs import make_host_env
 
     env = make_host_env(bp.ENV_ID, 1)
     spec = EnvSpec.of(env)
@@ -205,7 +205,7 @@ def atari_actor_row(ray) -> tuple[list, dict]:
     from agentax.agents import ppo
     from agentax.agents.protocol import EnvSpec, acting_view
     from agentax.envs.core import Discrete
-    from agentax.train.ray import Collector, RayRunnerConfig
+    from agentax.runners.ray import Collector, RayRunnerConfig
 
     spec = EnvSpec((4, 84, 84), Discrete(4), np.dtype("uint8"))
     cfg = dataclasses.replace(ppo.PRESETS["atari"].config, num_envs=4)

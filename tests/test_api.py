@@ -11,11 +11,11 @@ from pathlib import Path
 import pytest
 
 import agentax
-import agentax.train.compiled
+import agentax.runners.compiled
 from agentax.cli import main
 from agentax.errors import UsageError
-from agentax.train.compiled import TrainResult
-from agentax.train.host import HostResult
+from agentax.runners.compiled import TrainResult
+from agentax.runners.host import HostResult
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = {"total_steps": 2048, "learning_rate": 2e-3}  # 8 updates of cartpole-fast's 8 envs × 32 steps
@@ -103,20 +103,19 @@ def test_host_runner_through_the_api(tmp_path):
     assert run.evaluate(episodes=5, seed=2) == agentax.load(run.path).evaluate(episodes=5, seed=2)
 
 
-def test_train_is_the_function_and_the_subpackage():
-    """``agentax.train`` is the runners' subpackage, callable (agentax/train/__init__.py)."""
-    assert agentax.train is sys.modules["agentax.train"] and callable(agentax.train)
-    assert agentax.train.compiled.TrainResult is TrainResult and agentax.train.RUNNERS
+def test_train_is_a_plain_function_beside_the_runners_package():
+    """``agentax.train`` is :func:`agentax.api.train`; the runners are the package ``agentax.runners``,
+    so importing a runner module never rebinds the name (in a fresh interpreter, either order)."""
+    assert agentax.train is agentax.api.train and agentax.runners.compiled.TrainResult is TrainResult
     with pytest.raises(UsageError, match="unknown algorithm"):
-        agentax.train("alchemy")  # the call reaches agentax.api.train
-    # In a fresh interpreter, the submodules imported first and the call afterwards, and the reverse.
+        agentax.train("alchemy")
     code = (
-        "import agentax.train.host, agentax.train.compiled\n"
+        "import agentax.runners.host, agentax.runners.compiled\n"
         "from agentax.errors import UsageError\n"
         "import agentax\n"
         "try:\n    agentax.train('alchemy')\nexcept UsageError as e:\n    print('called:', e)\n"
-        "from agentax.train.parallel import ParallelRunnerConfig\n"
-        "print(agentax.train.host.HostRunnerConfig.__name__, ParallelRunnerConfig.__name__)\n"
+        "from agentax.runners.parallel import ParallelRunnerConfig\n"
+        "print(agentax.runners.host.HostRunnerConfig.__name__, ParallelRunnerConfig.__name__)\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
@@ -163,7 +162,7 @@ def test_a_wheel_of_the_tree_installs_a_working_agentax(tmp_path):
     with zipfile.ZipFile(wheel) as archive:
         names = archive.namelist()
         metadata = archive.read(next(n for n in names if n.endswith(".dist-info/METADATA"))).decode()
-    assert "agentax/api.py" in names and "agentax/cli/report.py" in names and "agentax/train/host.py" in names
+    assert {"agentax/api.py", "agentax/cli/report.py", "agentax/runners/host.py"} <= set(names)
     for extra in ("atari", "ray", "docs", "dev"):
         assert f"Provides-Extra: {extra}" in metadata
 

@@ -18,15 +18,44 @@ from agentax.agents.protocol import ACTING_UNUSED, Agent, EnvSpec, acting_view
 from agentax.cli import main
 
 PACKAGE_ROOT = Path(agentax.__file__).resolve().parent
-LEAVES = (
-    "agentax.nets",
-    "agentax.returns",
-    "agentax.policies",
-    "agentax.errors",
-    "agentax.replay",
-    "agentax.agents.protocol",
-)
-LEAF_MAY_NOT_IMPORT = ("agentax.agents", "agentax.train", "agentax.runs", "agentax.evaluate", "agentax.cli")
+RANKS: dict[str, int] = {
+    "agentax.cli": 9,
+    "agentax": 8,  # the package's __init__: the public names, from api
+    "agentax.api": 8,
+    "agentax.runners": 7,
+    "agentax.agents": 6,  # the registry, presets and the algorithms
+    "agentax.search": 6,
+    "agentax.tabular": 6,
+    "agentax.agents.protocol": 5,
+    "agentax.replay": 5,
+    "agentax.runs": 5,
+    "agentax.curves": 5,
+    "agentax.evaluate": 5,
+    "agentax.render": 5,
+    "agentax.report": 5,
+    "agentax.nets": 4,
+    "agentax.returns": 4,
+    "agentax.policies": 4,
+    "agentax.envs": 3,
+    "agentax.errors": 2,
+    "agentax._xla": 2,
+}
+"""Every module's layer, top to bottom: a module imports only from its own layer or below (its own
+layer only where the graph stays acyclic, checked apart). A module takes the rank of the longest
+prefix naming it (``agentax.agents.ppo`` is ``agentax.agents``'s 6)."""
+ALGORITHM_MODULES = ("agentax.agents.dqn", "agentax.agents.ppo", "agentax.agents.reinforce")
+MAY_IMPORT_XLA = ("agentax", "agentax.api", "agentax.runners", "agentax.cli")
+"""The platform's workarounds (the CPU hang's cure, the compilation cache) stay in the entry points
+and the runners: no algorithm, env or store shapes itself around a backend."""
+
+
+def rank(module: str) -> int:
+    """The layer of ``module`` (a ``KeyError`` for a module missing from :data:`RANKS`)."""
+    parts = module.split(".")
+    for end in range(len(parts), 0, -1):
+        if ".".join(parts[:end]) in RANKS:
+            return RANKS[".".join(parts[:end])]
+    raise KeyError(f"{module} has no rank in RANKS; give it its layer")
 
 
 def within(name: str, package: str) -> bool:
@@ -74,30 +103,67 @@ def rule_broken(module: str, imported: str) -> str | None:
     """Why ``module`` may not import ``imported`` (None if it may)."""
     if not within(imported, "agentax"):
         return None
-    if within(module, "agentax.agents") and any(
-        within(imported, p) for p in ("agentax.train", "agentax.cli", "agentax.runs")
+    if rank(imported) > rank(module):
+        return f"layer {rank(module)} imports layer {rank(imported)}"
+    if within(module, "agentax.runners") and any(within(imported, m) for m in ALGORITHM_MODULES):
+        return "a runner imports an algorithm module (runners see agents through the protocol)"
+    if (
+        within(imported, "agentax._xla")
+        and not any(module == m or within(module, m) for m in MAY_IMPORT_XLA if m != "agentax")
+        and module != "agentax"
     ):
-        return "an agent imports a runner, the CLI or the run folder"
-    if within(module, "agentax.envs") and any(
-        within(imported, p)
-        for p in (
-            "agentax.evaluate",
-            "agentax.runs",
-            "agentax.agents",
-            "agentax.train",
-            "agentax.search",
-            "agentax.cli",
-        )
-    ):
-        return "an env imports evaluation, agents, runners, search, runs or the CLI"
-    if any(within(module, leaf) for leaf in LEAVES):
-        if not within(imported, "agentax.agents.protocol") and any(
-            within(imported, p) for p in LEAF_MAY_NOT_IMPORT
-        ):
-            return "a leaf module imports agents, runners, runs, evaluation or the CLI"
-    if within(imported, "agentax.cli") and not within(module, "agentax.cli"):
-        return "a module outside agentax.cli imports the CLI"
+        return "a platform workaround (_xla) outside the entry points and runners"
     return None
+
+
+def import_graph(sources: dict[str, tuple[str, bool]]) -> dict[str, set[str]]:
+    """``module -> modules it imports`` among ``sources`` (``module -> (source, is_package)``)."""
+    return {
+        module: {imported for _, imported in imports_of(source, module, is_package) if imported in sources}
+        - {module}
+        for module, (source, is_package) in sources.items()
+    }
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of ``graph`` with more than one module (Tarjan), sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for successor in sorted(graph[node]):
+            if successor not in index:
+                visit(successor)
+                low[node] = min(low[node], low[successor])
+            elif successor in on_stack:
+                low[node] = min(low[node], index[successor])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return sorted(found)
+
+
+def package_sources() -> dict[str, tuple[str, bool]]:
+    paths = sorted(PACKAGE_ROOT.rglob("*.py"))
+    assert len(paths) > 30, paths  # the whole package was found, not an empty folder
+    return {module_name(path): (path.read_text(), path.name == "__init__.py") for path in paths}
 
 
 def violations(source: str, module: str, filename: str, is_package: bool = False) -> list[str]:
@@ -108,37 +174,65 @@ def violations(source: str, module: str, filename: str, is_package: bool = False
     ]
 
 
-def test_every_module_imports_only_downwards():
-    paths = sorted(PACKAGE_ROOT.rglob("*.py"))
-    assert len(paths) > 30, paths  # the whole package was found, not an empty folder
+def test_every_module_has_a_rank_and_imports_only_downwards():
     found = []
-    for path in paths:
-        module = module_name(path)
-        found += violations(path.read_text(), module, str(path), is_package=path.name == "__init__.py")
+    for module, (source, is_package) in package_sources().items():
+        found += violations(source, module, module, is_package)
     assert not found, "layers reaching up:\n" + "\n".join(found)
 
 
+def test_no_import_cycle():
+    """No cycle among agentax's modules, function-local imports included: a lazy import that closes a
+    loop hides it from Python's import order, not from the graph (STYLE anti-pattern 7)."""
+    assert cycles(import_graph(package_sources())) == []
+
+
 def test_the_checker_catches_violations():
-    """The rules above fire on synthetic sources (so the test above can fail)."""
-    agent_source = "import jax\n\ndef f():\n    from agentax.train import host\n    return host\n"
+    """The rules above fire on synthetic sources (so the tests above can fail)."""
+    agent_source = "import jax\n\ndef f():\n    from agentax.runners import host\n    return host\n"
     assert violations(agent_source, "agentax.agents.ppo", "ppo.py") == [
-        "ppo.py:4: agentax.agents.ppo imports agentax.train.host "
-        "(an agent imports a runner, the CLI or the run folder)"
+        "ppo.py:4: agentax.agents.ppo imports agentax.runners.host (layer 6 imports layer 7)"
     ]
-    assert violations("from agentax import runs\n", "agentax.agents.dqn", "dqn.py")
+    assert violations("from agentax import runners\n", "agentax.runs", "runs.py")  # the store reaching up
     assert violations("import agentax.evaluate\n", "agentax.envs.cartpole", "c.py")
-    assert violations("from agentax import agents\n", "agentax.envs.gym", "g.py")
+    assert violations("from agentax.policies import Policy\n", "agentax.envs.vacuum", "v.py")
     assert violations("from ..agents import ppo\n", "agentax.envs.gym", "g.py")  # relative, resolved
     assert violations("from agentax.agents import ppo\n", "agentax.replay.uniform", "u.py")
-    assert violations("from agentax.train.host import Actor\n", "agentax.agents.protocol", "p.py")
-    assert violations("from . import train\n", "agentax", "__init__.py", is_package=True) == []
-    assert violations("import agentax.cli.train\n", "agentax.train.host", "h.py")
+    assert violations("from agentax.api import train\n", "agentax.runners", "r.py", is_package=True)
+    assert violations("import agentax.cli.train\n", "agentax.runners.host", "h.py")
+    assert violations("from agentax.agents.dqn import DQNConfig\n", "agentax.runners.host", "h.py") == [
+        "h.py:1: agentax.runners.host imports agentax.agents.dqn "
+        "(a runner imports an algorithm module (runners see agents through the protocol))"
+    ]
+    assert violations("from agentax import _xla\n", "agentax.agents.ppo", "ppo.py")
+    assert violations("from agentax import _xla\n", "agentax.runs", "runs.py")
+    with pytest.raises(KeyError, match="no rank"):
+        rank("elsewhere.module")
     # what is allowed stays allowed
     assert violations("from agentax.agents.protocol import Agent\n", "agentax.replay.core", "r.py") == []
-    assert violations("from agentax.agents import protocol\n", "agentax.replay.core", "r.py") == []
     assert violations("from agentax import agents\n", "agentax.agents.ppo", "ppo.py") == []
-    assert violations("from agentax.train import host\n", "agentax.cli.train", "t.py") == []
+    assert violations("from agentax.runners import host\n", "agentax.cli.train", "t.py") == []
     assert violations("from agentax.envs.core import Box\n", "agentax.nets", "n.py") == []
+    assert violations("from agentax import _xla\n", "agentax.runners.host", "h.py") == []
+    assert violations("from agentax.api import train\n", "agentax", "__init__.py", is_package=True) == []
+
+
+def test_the_cycle_check_finds_cycles_closed_by_a_lazy_import():
+    sources = {
+        "agentax.runs": ("def load():\n    from agentax.runners import host\n", False),
+        "agentax.runners.host": ("from agentax.runs import Run\n", False),
+        "agentax.replay.frames": ("from agentax.replay.host import Dataset\n", False),
+        "agentax.replay.host": ("def save():\n    from agentax.replay import frames\n", False),
+        "agentax.replay": ("", True),
+        "agentax.envs.core": ("", False),
+        "agentax.policies": ("from agentax.envs.core import Box\n", False),
+    }
+    assert cycles(import_graph(sources)) == [
+        ["agentax.replay.frames", "agentax.replay.host"],
+        ["agentax.runners.host", "agentax.runs"],
+    ]
+    del sources["agentax.runs"]
+    assert cycles(import_graph(sources)) == [["agentax.replay.frames", "agentax.replay.host"]]
 
 
 def test_module_names_and_relative_imports_resolve():
@@ -166,7 +260,7 @@ def test_every_registered_algorithm_follows_the_protocol(name):
     for default_preset in getattr(module, "DEFAULT_PRESETS", {}).values():
         assert default_preset in module.PRESETS
     assert callable(module.make_train)
-    from agentax.train.host import make_host_env
+    from agentax.envs import make_host_env
 
     env = make_host_env("CartPole-v1", 1)
     agent = module.make_agent(EnvSpec.of(env), module.PRESETS["default"].config)

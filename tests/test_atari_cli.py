@@ -14,6 +14,7 @@ import jax
 import numpy as np
 import pytest
 
+from agentax.api import agent_maker
 from agentax.cli import main
 
 pytest.importorskip("ale_py")
@@ -58,13 +59,14 @@ def tiny_run(run_dir: Path, algo: str = "ppo", backend: str = "ale", sticky_acti
     from agentax.agents import algorithm
     from agentax.agents.protocol import EnvSpec
     from agentax.cli.train import parse
+    from agentax.envs import make_host_env
+    from agentax.runners.host import HostRunnerConfig, agent_keys
     from agentax.runs import Run, run_config
-    from agentax.train.host import HostRunnerConfig, agent_keys, make_host_env
 
     module = algorithm(algo)
     _, cfg, _ = parse(algo, ["--env", BREAKOUT])
     probe = make_host_env(BREAKOUT, 1, backend=backend, sticky_actions=sticky_actions)
-    agent = module.make_agent(EnvSpec.of(probe), cfg)
+    agent = agent_maker(module, EnvSpec.of(probe), cfg)()
     probe.close()
     runner = HostRunnerConfig(env_backend=backend, sticky_actions=sticky_actions)
     run = Run.create(run_dir, run_config(algo, BREAKOUT, "auto", "host", runner, module.config_to_dict(cfg)))
@@ -149,7 +151,7 @@ def test_a_parallel_atari_dqn_run_writes_its_run_folder(tmp_path, capsys):
 def test_training_on_each_backend_writes_the_run_and_resume_finishes_it(
     tmp_path, monkeypatch, backend, capsys
 ):
-    from agentax.train.logger import RunLogger
+    from agentax.runners.logger import RunLogger
 
     checkpoint = RunLogger.checkpoint
 

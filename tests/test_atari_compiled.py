@@ -19,6 +19,7 @@ import pytest
 
 from agentax.agents import ppo
 from agentax.agents.protocol import EnvSpec
+from agentax.api import agent_maker
 from agentax.envs.core import Discrete
 from agentax.envs.envpool_xla import EpisodeTracker, PoolStep, XlaAtari, track
 from agentax.errors import UsageError
@@ -119,7 +120,7 @@ def _broadcast(valid: np.ndarray, leaf: np.ndarray) -> np.ndarray:
 
 def _ppo_agent(env, **overrides):
     cfg = dataclasses.replace(ppo.PRESETS["atari"].config, **overrides).validate()
-    return ppo.make_agent(EnvSpec.of(env), cfg)
+    return agent_maker(ppo, EnvSpec.of(env), cfg)()
 
 
 @pytest.mark.timeout(60)
@@ -127,7 +128,7 @@ def test_rollout_on_a_real_pool_masks_reset_steps_after_done_steps():
     """A 128-step rollout of 8 Breakout envs with an untrained CNN policy: each masked step comes
     right after a done step (or is the first, after one carried in), pays nothing, starts from the
     observation the done step reached."""
-    from agentax.train.compiled_atari import make_rollout, start_collector
+    from agentax.runners.compiled_atari import make_rollout, start_collector
 
     env = XlaAtari(BREAKOUT, 8, seed=3, sticky_actions=0.25)
     agent = _ppo_agent(env)
@@ -215,10 +216,10 @@ def _step_and_track(env, handle, tracker, action):
 
 @pytest.mark.timeout(30)
 def test_refuses_what_it_cannot_run():
-    from agentax.train.compiled_atari import check
-    from agentax.train.host import HostRunnerConfig
+    from agentax.runners.compiled_atari import check
+    from agentax.runners.host import HostRunnerConfig
 
-    agent = ppo.make_agent(EnvSpec((4, 84, 84), Discrete(4), jnp.uint8), ppo.PRESETS["atari"].config)
+    agent = agent_maker(ppo, EnvSpec((4, 84, 84), Discrete(4), jnp.uint8), ppo.PRESETS["atari"].config)()
     with pytest.raises(UsageError, match="cannot be vmapped over seeds"):
         check(agent, BREAKOUT, HostRunnerConfig(), num_seeds=2)
     with pytest.raises(UsageError, match="--env-backend ale"):
@@ -232,7 +233,7 @@ def test_short_run_writes_the_run_folder_loads_and_resumes(tmp_path):
     """Two iterations of 2 envs x 32 steps: metrics rows, a checkpoint that the host runner's
     ``restore_policy`` loads into the trained greedy policy, eval.json and curve.png; resumed with a
     longer budget it continues from iteration 2."""
-    from agentax.train import compiled_atari, host
+    from agentax.runners import compiled_atari, host
 
     probe = XlaAtari(BREAKOUT, 1, sticky_actions=0.0)
     overrides = dict(num_envs=2, num_steps=32, num_minibatches=2, update_epochs=1)

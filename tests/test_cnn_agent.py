@@ -8,7 +8,9 @@ import pytest
 
 from agentax.agents import dqn, ppo
 from agentax.agents.protocol import EnvSpec
-from agentax.train import host
+from agentax.api import agent_maker
+from agentax.envs import make_host_env
+from agentax.runners import host
 
 
 class PixelSide(gymnasium.Env):
@@ -39,7 +41,7 @@ gymnasium.register(id="PixelSide-v0", entry_point=PixelSide)
 
 
 def spec():
-    env = host.make_host_env("PixelSide-v0", 1)
+    env = make_host_env("PixelSide-v0", 1)
     try:
         return EnvSpec.of(env)
     finally:
@@ -58,7 +60,7 @@ def test_ppo_with_the_nature_cnn_learns_where_the_square_is():
         update_epochs=2,
         learning_rate=1e-3,
     )
-    agent = ppo.make_agent(spec(), cfg)
+    agent = agent_maker(ppo, spec(), cfg)()
     result = host.train(agent, "PixelSide-v0", host.HostRunnerConfig(log_every_steps=512, eval_episodes=64))
     assert result.rows[0]["mean_return"] < 0.7  # chance is 0.5
     assert result.eval["mean_return"] >= 0.9, [row["mean_return"] for row in result.rows]

@@ -16,8 +16,8 @@ from agentax import _xla
 from agentax.agents import ppo
 from agentax.envs import make_jax
 from agentax.errors import UsageError
+from agentax.runners.compiled import RunnerConfig, train
 from agentax.runs import Run, checkpoints, read_metrics
-from agentax.train.compiled import RunnerConfig, train
 
 HANG_PROGRAM = textwrap.dedent(
     """
@@ -26,7 +26,7 @@ HANG_PROGRAM = textwrap.dedent(
     import jax
     from agentax.agents import ppo
     from agentax.envs import make_jax
-    from agentax.train.compiled import RunnerConfig, train
+    from agentax.runners.compiled import RunnerConfig, train
 
     jax.numpy.ones(3).block_until_ready()  # the client, and its threads, exist before the runner
     env = make_jax("CartPole-v1")

@@ -4,16 +4,8 @@ that stay within the data; TensorBoard tags in groups."""
 import numpy as np
 import pytest
 
-from agentax.runs import (
-    Run,
-    bootstrap_band,
-    curve_figure,
-    plot_curves,
-    read_metrics,
-    run_curves,
-    solved_threshold,
-    tensorboard_tag,
-)
+from agentax.curves import bootstrap_band, curve_figure, plot_curves, run_curves, solved_threshold
+from agentax.runs import Run, read_metrics, tensorboard_tag
 
 # Eight CartPole-v1 seeds late in training: six at the cap, two still learning.
 CARTPOLE_SEEDS = np.array([500, 500, 500, 500, 500, 500, 320, 210], float)

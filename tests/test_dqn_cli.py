@@ -7,10 +7,12 @@ import pytest
 
 from agentax.agents import dqn
 from agentax.agents.protocol import EnvSpec
+from agentax.api import restore_policy
 from agentax.cli import main
+from agentax.envs import make_host_env
 from agentax.evaluate import host_episode_returns
-from agentax.runs import load_checkpoint, load_policy, read_metrics
-from agentax.train import host
+from agentax.runners import host
+from agentax.runs import load_checkpoint, read_metrics
 
 
 @pytest.mark.timeout(240)
@@ -78,12 +80,12 @@ def test_a_gymnasium_env_trains_through_the_host_driver(tmp_path):
     assert evaluation["env_steps"] == 1024 and evaluation["updates"] == 128
     assert read_metrics(out)[-1]["updates"] == 128
     episodes = config["runner"]["eval_episodes"]
-    env = host.make_host_env("Acrobot-v1", min(episodes, 8))  # as the runner's evaluator
+    env = make_host_env("Acrobot-v1", min(episodes, 8))  # as the runner's evaluator
     agent = dqn.make_agent(EnvSpec.of(env), dqn.config_from_dict(config["config"]))
     (state, _), meta, _ = load_checkpoint(out, host.checkpoint_target(agent))
     assert int(state.step) == meta["updates"] == 128 and meta["env_steps"] == 1024
     # The reloaded policy replays the final evaluation (seed + 123,457) to eval.json's returns.
-    _, policy = load_policy(out)
+    _, policy = restore_policy(out)
     returns, lengths = host_episode_returns(env, policy, episodes, seed=config["runner"]["seed"] + 123_457)
     env.close()
     assert float(np.mean(returns)) == pytest.approx(evaluation["mean_return"], rel=1e-6)

@@ -11,9 +11,9 @@ from agentax.agents.protocol import EnvSpec
 from agentax.envs import make_jax
 from agentax.envs.gym import GymnasiumEnv
 from agentax.evaluate import host_episode_returns
+from agentax.runners import host
+from agentax.runners.compiled import RunnerConfig, train
 from agentax.runs import Run, load_checkpoint, run_config
-from agentax.train import host
-from agentax.train.compiled import RunnerConfig, train
 
 # The tuned preset, cut down: 16 learning steps per 64 env steps instead of 128 per 256, the target
 # network synced every 128 learning steps.

@@ -7,7 +7,7 @@ import pytest
 
 from agentax.envs.gym import GymnasiumEnv
 from agentax.replay import example_transition, host
-from agentax.train.driver import (
+from agentax.runners.driver import (
     AverageEpisodeLength,
     AverageReturn,
     Driver,

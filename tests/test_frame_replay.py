@@ -13,10 +13,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from agentax.errors import UsageError
-from agentax.replay import frames
+from agentax.replay import files, frames
 from agentax.replay.core import Transition
 from agentax.replay.frames import FrameReplayBuffer, required_bytes
-from agentax.train.driver import ReplayObserver
+from agentax.runners.driver import ReplayObserver
 
 FIELDS = ("obs", "action", "reward", "next_obs", "terminated", "truncated", "num_steps")
 
@@ -299,7 +299,7 @@ def test_a_capacity_beyond_the_memory_available_is_refused_before_allocating(mon
 def test_save_and_load_give_identical_samples_and_refuse_foreign_files(tmp_path):
     buffer = filled(prioritized=True, n_step=3, steps=90)
     buffer.update_priorities(buffer.valid_indices()[:20], np.linspace(0, 5, 20))
-    path = frames.save(buffer, tmp_path / "replay.npz")
+    path = files.save_replay(buffer, tmp_path / "replay.npz")
     assert [p.name for p in tmp_path.iterdir()] == ["replay.npz"]  # the temporary file was renamed
     with zipfile.ZipFile(path) as archive:
         assert {info.compress_type for info in archive.infolist()} == {zipfile.ZIP_DEFLATED}

@@ -16,10 +16,11 @@ import pytest
 from agentax.agents import ppo
 from agentax.agents.protocol import EnvSpec
 from agentax.cli import main
+from agentax.envs import make_host_env
 from agentax.errors import TrainingDiverged
+from agentax.runners import host
+from agentax.runners.host import HostRunnerConfig, checkpoint_target
 from agentax.runs import Run, checkpoints, load_checkpoint, read_config, read_metrics, run_config
-from agentax.train import host
-from agentax.train.host import HostRunnerConfig, checkpoint_target, make_host_env
 
 DIVERGED = re.compile(
     r"^agentax train: error: non-finite (\w+) at env step ([\d,]+): lower the learning rate or clip the "

@@ -15,9 +15,10 @@ from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 
 from agentax.agents import dqn, ppo, reinforce
 from agentax.agents.protocol import EnvSpec
-from agentax.train import host, parallel
-from agentax.train.host import HostRunnerConfig, make_host_env
-from agentax.train.parallel import Coordinator, ParallelRunnerConfig, RateLimiter
+from agentax.envs import make_host_env
+from agentax.runners import host, parallel
+from agentax.runners.host import HostRunnerConfig
+from agentax.runners.parallel import Coordinator, ParallelRunnerConfig, RateLimiter
 
 TIMING_COLUMNS = (
     "steps_per_second",

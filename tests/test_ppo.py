@@ -11,7 +11,7 @@ from agentax.agents import ppo
 from agentax.envs import make_jax
 from agentax.errors import UsageError
 from agentax.nets import gaussian_entropy, gaussian_log_prob
-from agentax.train.compiled import RunnerConfig, train
+from agentax.runners.compiled import RunnerConfig, train
 
 
 def test_clipped_surrogate_loss_hand_computed():

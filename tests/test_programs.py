@@ -1,4 +1,4 @@
-"""The program cache (agentax.train.programs): a stored program computes what tracing computes."""
+"""The program cache (agentax.runners.programs): a stored program computes what tracing computes."""
 
 import dataclasses
 
@@ -10,8 +10,8 @@ import pytest
 from agentax import _xla
 from agentax.agents import ppo
 from agentax.envs import make_jax
-from agentax.train import programs
-from agentax.train.compiled import RunnerConfig, train
+from agentax.runners import programs
+from agentax.runners.compiled import RunnerConfig, train
 
 pytestmark = pytest.mark.timeout(240)
 

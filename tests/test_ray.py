@@ -28,13 +28,14 @@ psutil = pytest.importorskip("psutil")
 
 from agentax.agents import dqn, ppo  # noqa: E402
 from agentax.agents.protocol import EnvSpec  # noqa: E402
+from agentax.api import agent_maker  # noqa: E402
+from agentax.envs import make_host_env  # noqa: E402
 from agentax.errors import TrainingDiverged  # noqa: E402
+from agentax.runners import parallel  # noqa: E402
+from agentax.runners import ray as ray_runner  # noqa: E402
+from agentax.runners.parallel import ParallelRunnerConfig  # noqa: E402
+from agentax.runners.ray import RayRunnerConfig  # noqa: E402
 from agentax.runs import Run  # noqa: E402
-from agentax.train import parallel  # noqa: E402
-from agentax.train import ray as ray_runner  # noqa: E402
-from agentax.train.host import make_host_env  # noqa: E402
-from agentax.train.parallel import ParallelRunnerConfig  # noqa: E402
-from agentax.train.ray import RayRunnerConfig  # noqa: E402
 
 pytestmark = pytest.mark.xdist_group("ray")  # one worker, one cluster
 AGENTAX = [str(Path(sys.executable).parent / "agentax")]
@@ -145,7 +146,7 @@ def assert_same_transitions(a, b):
 
 @pytest.mark.timeout(60)
 def test_stacked_frames_travel_once_and_come_back_exactly():
-    from agentax.train.ray import PackedFrames, pack_frames, unpack_frames
+    from agentax.runners.ray import PackedFrames, pack_frames, unpack_frames
 
     trajectory = stacked_trajectory(12, 3, done_at={(2, 0), (5, 1), (5, 2), (11, 0)})
     trajectory.obs[7, 2, 0] = 0  # a stack that is not its predecessor shifted: sent whole
@@ -167,11 +168,11 @@ def test_a_breakout_rollout_packs_over_sixfold_and_unpacks_exactly():
     import jax
 
     from agentax.agents import ppo
-    from agentax.train.host import Actor
-    from agentax.train.ray import pack_frames, unpack_frames
+    from agentax.runners.host import Actor
+    from agentax.runners.ray import pack_frames, unpack_frames
 
     env = make_host_env("ALE/Breakout-v5", 2, training=True, backend="ale", sticky_actions=0.0)
-    agent = ppo.make_agent(EnvSpec.of(env), dataclasses.replace(ppo.PRESETS["atari"].config, num_envs=2))
+    agent = agent_maker(ppo, EnvSpec.of(env), dataclasses.replace(ppo.PRESETS["atari"].config, num_envs=2))()
     actor = Actor(agent, env, seed=3, key=jax.random.key(0))
     trajectory = actor.rollout(agent.init(jax.random.key(1)), 200)  # a lost life or two in 200 steps
     actor.close()

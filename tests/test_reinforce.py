@@ -9,7 +9,7 @@ import pytest
 from agentax.agents import reinforce
 from agentax.envs import make_jax
 from agentax.errors import UsageError
-from agentax.train.compiled import RunnerConfig, train
+from agentax.runners.compiled import RunnerConfig, train
 
 
 def test_loss_is_minus_mean_log_prob_times_normalized_return():

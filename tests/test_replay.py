@@ -7,7 +7,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agentax.replay import ReplaySample, Transition, example_transition, host, nstep, prioritized, uniform
+from agentax.replay import (
+    ReplaySample,
+    Transition,
+    _numpy,
+    example_transition,
+    host,
+    nstep,
+    prioritized,
+    uniform,
+)
 
 
 def batch_of(rewards, obs_dim=2):
@@ -93,7 +102,7 @@ def test_sum_tree_invariants(capacity, updates):
         indices = np.resize(np.asarray(indices) % capacity, 6)  # one shape: compile once per tree size
         values = value + indices  # a duplicate index gets the same value: the result is well defined
         jax_tree = set_leaves_jit(jax_tree, jnp.asarray(indices), jnp.asarray(values, jnp.float32))
-        host_tree = host.set_leaves(host_tree, indices, values)
+        host_tree = _numpy.set_leaves(host_tree, indices, values)
         check_sum_tree(jax_tree)
         check_sum_tree(host_tree)
     np.testing.assert_allclose(prioritized.leaves(jax_tree), host_tree[size:], rtol=1e-6)
@@ -106,7 +115,7 @@ def test_prefix_sum_search():
     expected = [0, 0, 1, 1, 2, 2, 3, 3]
     np.testing.assert_array_equal(prioritized.find_prefix_sum(tree, masses), expected)
     np.testing.assert_array_equal(
-        host.find_prefix_sum(np.asarray(tree, np.float64), np.asarray(masses)), expected
+        _numpy.find_prefix_sum(np.asarray(tree, np.float64), np.asarray(masses)), expected
     )
 
 

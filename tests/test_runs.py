@@ -8,6 +8,8 @@ import msgpack
 import numpy as np
 import pytest
 
+from agentax.api import restore_policy
+from agentax.curves import plot_curves
 from agentax.errors import UsageError
 from agentax.runs import (
     Run,
@@ -15,9 +17,7 @@ from agentax.runs import (
     default_run_dir,
     latest_checkpoint,
     load_checkpoint,
-    load_policy,
     load_tree,
-    plot_curves,
     read_config,
     read_metrics,
     save_tree,
@@ -180,9 +180,9 @@ def test_plot_curves_overlays_runs(tmp_path):
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_load_policy_rejects_unknown_algorithms_and_empty_folders(tmp_path):
+def test_restore_policy_rejects_unknown_algorithms_and_empty_folders(tmp_path):
     Run.create(tmp_path / "r", {"algo": "alchemy", "env": "CartPole-v1"})
     with pytest.raises(UsageError, match="unknown algorithm 'alchemy'"):
-        load_policy(tmp_path / "r")
+        restore_policy(tmp_path / "r")
     with pytest.raises(UsageError, match="no config.json"):
-        load_policy(tmp_path)
+        restore_policy(tmp_path)

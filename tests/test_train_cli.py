@@ -13,13 +13,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from agentax.api import restore_policy
 from agentax.cli import main
-from agentax.envs import make_jax
+from agentax.envs import make_host_env, make_jax
 from agentax.envs.core import episode_returns
 from agentax.evaluate import host_episode_returns
-from agentax.runs import load_policy, read_metrics
-from agentax.train.compiled import EVAL_KEY_OFFSET
-from agentax.train.host import make_host_env
+from agentax.runners.compiled import EVAL_KEY_OFFSET
+from agentax.runs import read_metrics
 
 
 @pytest.mark.parametrize(
@@ -45,7 +45,7 @@ def test_resuming_a_folder_without_a_run(tmp_path, capsys):
 
 
 @pytest.mark.timeout(180)
-def test_train_then_plot_then_load_policy(tmp_path, capsys):
+def test_train_then_plot_then_restore_policy(tmp_path, capsys):
     out = tmp_path / "run"
     argv = [
         "train",
@@ -68,7 +68,7 @@ def test_train_then_plot_then_load_policy(tmp_path, capsys):
     assert config["algo"] == "ppo" and config["env"] == "CartPole-v1" and config["config"]["num_envs"] == 4
     assert read_metrics(out)[-1]["env_steps"] == 4096
     assert main(["plot", str(out), "--out", str(tmp_path / "curves.png")]) == 0
-    env_id, policy = load_policy(out)
+    env_id, policy = restore_policy(out)
     assert env_id == "CartPole-v1"
     # The reloaded policy is the best seed's: replaying the final evaluation's episodes (its key:
     # the seed's, folded with the number of evaluations before it) gives eval.json's return.
@@ -90,7 +90,7 @@ def test_host_loop_trains_pendulum_and_loads(tmp_path):
     evaluation = json.loads((out / "eval.json").read_text())
     config = json.loads((out / "config.json").read_text())
     assert config["runner_kind"] == "host" and evaluation["env_steps"] == 4096
-    _, policy = load_policy(out)
+    _, policy = restore_policy(out)
     action = policy(jnp.zeros(3, jnp.float32), jax.random.key(0))
     assert action.shape == (1,) and -2.0 <= float(action[0]) <= 2.0
     # The reloaded policy is the trained one: its episodes on the final evaluation's seed (the host

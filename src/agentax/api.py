@@ -18,9 +18,8 @@ command line is a thin layer over this module: ``agentax train`` parses its flag
 :class:`RunArgs` and the algorithm's config with tyro, then calls :func:`start` (``--resume``:
 :func:`resume`), the functions :func:`train` calls.
 
-The function is reached as ``agentax.train(...)`` although ``agentax.train`` is the runners'
-subpackage: that module is callable (see :mod:`agentax.train`), so ``import agentax.train.host``
-and ``agentax.train("ppo", ...)`` work side by side.
+:func:`restore_policy` rebuilds the greedy policy of any run folder (any algorithm, any runner, or a
+policy search), for ``Run.policy`` and ``agentax evaluate/play --policy DIR``.
 """
 
 from __future__ import annotations
@@ -102,8 +101,8 @@ class Run:
     ``policy`` is the greedy policy (the best seed by the final evaluation); ``evaluate`` plays it
     on fresh episodes; ``metrics`` are the rows of metrics.csv; ``final_eval`` is eval.json (the
     evaluation at the end of training); ``plot`` and ``video`` write the learning curve and one
-    episode. ``result`` is the runner's :class:`~agentax.train.compiled.TrainResult` or
-    :class:`~agentax.train.host.HostResult` when this process trained the run, else ``None``.
+    episode. ``result`` is the runner's :class:`~agentax.runners.compiled.TrainResult` or
+    :class:`~agentax.runners.host.HostResult` when this process trained the run, else ``None``.
     (Not to be confused with :class:`agentax.runs.Run`, the writer a runner logs through.)
     """
 
@@ -140,9 +139,7 @@ class Run:
     @cached_property
     def policy(self) -> Policy:
         """The greedy policy ``(obs, key) -> action`` of the run's best seed, from its newest checkpoint."""
-        from agentax.train import load_policy
-
-        return load_policy(self.path, self.config)
+        return _restore_learned(self.path, self.config)
 
     def evaluate(self, episodes: int = 100, seed: int = 0) -> EvalStats:
         """The policy's returns over ``episodes`` fresh episodes: what ``agentax evaluate --policy DIR
@@ -175,7 +172,7 @@ class Run:
 
     def plot(self, path: str | Path | None = None) -> Path:
         """Write the learning curve (mean over seeds, 95 % band) as a PNG; default ``<run>/curve.png``."""
-        from agentax.runs import plot_curves
+        from agentax.curves import plot_curves
 
         return plot_curves([self.path], self.path / "curve.png" if path is None else path)
 
@@ -195,6 +192,52 @@ class Run:
 def load(run_dir: str | Path) -> Run:
     """The run in ``run_dir`` (written by :func:`train` or ``agentax train``)."""
     return Run(run_dir)
+
+
+def restore_policy(run_dir: str | Path) -> tuple[str, Policy]:
+    """``(env_id, policy)`` of a trained run: a learning algorithm's greedy policy (its best seed, from
+    its newest good checkpoint) or a policy search's (its module's ``load_policy``)."""
+    import importlib
+
+    from agentax.agents import ALGORITHMS
+    from agentax.runs import read_config
+    from agentax.search import METHODS
+
+    config = read_config(run_dir)
+    algo = config["algo"]
+    if algo in ALGORITHMS:
+        return config["env"], _restore_learned(Path(run_dir), config)
+    if algo not in METHODS:
+        known = ", ".join([*ALGORITHMS, *METHODS])
+        raise UsageError(f"{run_dir}: unknown algorithm {algo!r} in config.json; known: {known}")
+    return config["env"], importlib.import_module(METHODS[algo]).load_policy(Path(run_dir), config)
+
+
+def _restore_learned(run_dir: Path, config: dict[str, Any]) -> Policy:
+    """The greedy policy of a learning algorithm's run (its best seed), from its newest good checkpoint."""
+    from agentax.agents.protocol import EnvSpec
+
+    module = algorithm(config["algo"])
+    cfg = module.config_from_dict(config["config"])
+    if config.get("runner_kind", "compiled") == "compiled":
+        from agentax.envs import make_jax
+        from agentax.runners.compiled import RunnerConfig
+        from agentax.runners.compiled import restore_policy as restore_compiled
+
+        env = make_jax(config["env"])
+        return restore_compiled(run_dir, module.make_train(env, cfg), RunnerConfig(**config["runner"]))
+    from agentax.envs import make_host_env
+    from agentax.runners.host import restore_policy as restore_host
+
+    runner = config.get("runner", {})
+    options = {
+        "backend": runner.get("env_backend", "auto"),
+        "sticky_actions": runner.get("sticky_actions", 0.25),
+    }
+    env = make_host_env(config["env"], 1, **options)
+    spec = EnvSpec.of(env)
+    env.close()
+    return restore_host(run_dir, module.make_agent(spec, cfg))
 
 
 # Choosing the settings (shared with ``agentax train``).
@@ -248,12 +291,12 @@ def runner_kind(run_args: RunArgs) -> str:
     """The runner a training uses: ``--runner``, or compiled for a JAX env and host for others."""
     if run_args.runner == "auto":
         return "compiled" if _is_jax_env(run_args.env) else "host"
-    from agentax.train import RUNNERS
+    from agentax.runners import RUNNERS
 
     if run_args.runner not in RUNNERS:
         raise UsageError(f"unknown runner {run_args.runner!r}; choose from {', '.join(RUNNERS)}")
     if run_args.runner == "compiled" and _is_atari(run_args.env):
-        from agentax.train.compiled_atari import RUNNER_KIND
+        from agentax.runners.compiled_atari import RUNNER_KIND
 
         return RUNNER_KIND  # PPO's rollout and EnvPool's step in one program, one seed per process
     if run_args.runner == "compiled" and not _is_jax_env(run_args.env):
@@ -265,6 +308,14 @@ def runner_kind(run_args: RunArgs) -> str:
 
 
 # Training: the one code path of agentax.train and `agentax train`.
+
+
+def agent_maker(module: Any, spec: Any, cfg: Any) -> Any:
+    """``make()``: the algorithm's agent for ``spec``, learning in the loop this platform runs best
+    (a picklable callable: Ray's actor processes build the agent with it)."""
+    from agentax import _xla
+
+    return functools.partial(module.make_agent, spec, cfg, loop=_xla.learning_loop(spec.obs_shape))
 
 
 def _announce(message: str, quiet: bool) -> None:
@@ -284,7 +335,7 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Preset, *, quiet: bool
     kind = runner_kind(run_args)
     if kind == "compiled":
         from agentax.envs import make_jax
-        from agentax.train.compiled import RunnerConfig
+        from agentax.runners.compiled import RunnerConfig
 
         env = make_jax(run_args.env)
         stop = parse_stop(run_args.stop_at_return, preset, env)
@@ -310,11 +361,12 @@ def _start_host(
 ) -> Run:
     """The host, parallel, ray or compiled Atari runner: one seed per process."""
     from agentax.agents.protocol import EnvSpec, OffPolicy
+    from agentax.envs import make_host_env
+    from agentax.runners import compiled_atari
+    from agentax.runners.host import HostRunnerConfig
+    from agentax.runners.parallel import ParallelRunnerConfig
     from agentax.runs import Run as RunFolder
     from agentax.runs import run_config
-    from agentax.train import compiled_atari
-    from agentax.train.host import HostRunnerConfig, make_host_env
-    from agentax.train.parallel import ParallelRunnerConfig
 
     if run_args.seeds != 1 and kind != compiled_atari.RUNNER_KIND:  # which says why below
         raise UsageError(
@@ -329,7 +381,8 @@ def _start_host(
     )
     spec, env_spec = EnvSpec.of(probe), getattr(getattr(probe, "vector_env", None), "spec", None)
     probe.close()
-    agent = module.make_agent(spec, cfg)  # refuses what the agent cannot train before anything is written
+    remake = agent_maker(module, spec, cfg)
+    agent = remake()  # refuses what the agent cannot train before anything is written
     stop = parse_stop(run_args.stop_at_return, preset, env_spec)
     common = {
         "seed": run_args.seed,
@@ -341,7 +394,7 @@ def _start_host(
     if kind in ("parallel", "ray"):
         parallel = {"actors": run_args.actors, "policy_lag": run_args.policy_lag}
         if kind == "ray":
-            from agentax.train.ray import RayRunnerConfig
+            from agentax.runners.ray import RayRunnerConfig
 
             ray = {"ray_address": run_args.ray_address, "cpus_per_actor": run_args.cpus_per_actor}
             runner = RayRunnerConfig(**common, **parallel, **ray)
@@ -360,7 +413,6 @@ def _start_host(
         out, run_config(algo, run_args.env, run_args.preset, kind, runner, module.config_to_dict(cfg))
     )
     _announce(f"training {algo} on {run_args.env} ({where}) into {out}", quiet)
-    remake = functools.partial(module.make_agent, spec, cfg)
     return _train_host(agent, remake, kind, runner, run, resume=False, progress=run_args.progress)
 
 
@@ -368,16 +420,16 @@ def _train_host(
     agent: Any, remake: Any, kind: str, runner: Any, run: Any, *, resume: bool, progress: bool
 ) -> Run:
     """The host, parallel or ray runner; ``remake()`` builds ``agent`` again (in Ray's actor processes)."""
-    from agentax.train import host, parallel
+    from agentax.runners import host, parallel
 
     start_time = time.perf_counter()
     options = {"resume": resume, "progress": progress}
     if kind == "ray":
-        from agentax.train import ray
+        from agentax.runners import ray
 
         result = ray.train(agent, run.config["env"], runner, run, make_agent=remake, **options)
     else:
-        from agentax.train import compiled_atari
+        from agentax.runners import compiled_atari
 
         trains = {"parallel": parallel.train, compiled_atari.RUNNER_KIND: compiled_atari.train}
         result = trains.get(kind, host.train)(agent, run.config["env"], runner, run, **options)
@@ -388,7 +440,7 @@ def _train_host(
 def _train_compiled(
     module: Any, env: Any, cfg: Any, runner: Any, run: Any, *, resume: bool, progress: bool
 ) -> Run:
-    from agentax.train.compiled import train
+    from agentax.runners.compiled import train
 
     start_time = time.perf_counter()
     # algo, env id and config determine the program (agentax's own envs take no outside params)
@@ -428,9 +480,10 @@ def resume(run_dir: str | Path, progress: bool = True, *, quiet: bool = False) -
     try:
         if kind in ("host", "parallel", "ray", "compiled-atari"):
             from agentax.agents.protocol import EnvSpec
-            from agentax.train.host import HostRunnerConfig, make_host_env
-            from agentax.train.parallel import ParallelRunnerConfig
-            from agentax.train.ray import RayRunnerConfig
+            from agentax.envs import make_host_env
+            from agentax.runners.host import HostRunnerConfig
+            from agentax.runners.parallel import ParallelRunnerConfig
+            from agentax.runners.ray import RayRunnerConfig
 
             configs = {"parallel": ParallelRunnerConfig, "ray": RayRunnerConfig}
             runner = configs.get(kind, HostRunnerConfig)(**config["runner"])
@@ -439,11 +492,11 @@ def resume(run_dir: str | Path, progress: bool = True, *, quiet: bool = False) -
             )
             spec = EnvSpec.of(probe)
             probe.close()
-            remake = functools.partial(module.make_agent, spec, cfg)
+            remake = agent_maker(module, spec, cfg)
             run = RunFolder.open(run_dir)
             return _train_host(remake(), remake, kind, runner, run, resume=True, progress=progress)
         from agentax.envs import make_jax
-        from agentax.train.compiled import RunnerConfig
+        from agentax.runners.compiled import RunnerConfig
 
         runner = RunnerConfig(**config["runner"])
     except (KeyError, TypeError) as error:

@@ -11,9 +11,7 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 
-from agentax.envs.core import Box, Discrete
-
-Policy = Callable[[jax.Array, jax.Array], jax.Array]
+from agentax.envs.core import Box, Discrete, Policy
 
 
 def basic_policy(obs: jax.Array, key: jax.Array | None = None) -> jax.Array:

@@ -41,7 +41,7 @@ together, the seeds that solved early keep their policy while the others go on.
 The algorithm is pure functions: ``init``, ``act`` and ``learn = make_learn(cfg)``, the last
 picking the loss pieces once, outside ``jit``. Runners own the loop: ``make_train(env, cfg)`` gives
 the compiled runner's ``init(key)`` / ``update(state)`` (collection, replay and learning of JAX envs
-in one jitted program, vmappable over seeds); ``agentax.train.driver`` runs the same ``learn`` on
+in one jitted program, vmappable over seeds); ``agentax.runners.driver`` runs the same ``learn`` on
 Gymnasium envs stepped on the host.
 """
 
@@ -61,7 +61,7 @@ from flax import struct
 
 from agentax import agents
 from agentax.agents import Preset
-from agentax.agents.protocol import Agent, CompiledAlgorithm, EnvSpec, OffPolicy, any_seed
+from agentax.agents.protocol import Agent, CompiledAlgorithm, EnvSpec, Loop, OffPolicy, any_seed
 from agentax.envs.core import Discrete, Environment
 from agentax.errors import UsageError
 from agentax.nets import QNetwork, is_image, random_shift, support
@@ -693,10 +693,11 @@ def one_step_transition(obs: jax.Array, action: jax.Array, time_step: Any) -> Tr
     )
 
 
-def make_agent(spec: EnvSpec, cfg: DQNConfig) -> Agent:
+def make_agent(spec: EnvSpec, cfg: DQNConfig, *, loop: Loop = jax.lax.scan) -> Agent:
     """DQN's pure functions for the host and parallel runners (see ``agentax.agents.protocol``).
 
-    ``act``'s ``progress`` is the env steps (episodes, in the episode schedule) that set ε.
+    ``act``'s ``progress`` is the env steps (episodes, in the episode schedule) that set ε. ``learn``
+    is one learning step, so ``loop`` goes unused: the runner loops over a learning phase's steps.
     """
     cfg.validate()
     num_actions = num_actions_of(spec.action_space)
@@ -821,7 +822,7 @@ def replay_for(cfg: DQNConfig) -> Replay:
 
 
 def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None):
-    """DQN for :func:`agentax.train.compiled.train`: a ``CompiledAlgorithm`` on JAX env ``env``.
+    """DQN for :func:`agentax.runners.compiled.train`: a ``CompiledAlgorithm`` on JAX env ``env``.
 
     One ``update`` collects ``steps_per_update`` env steps (``train_frequency`` steps of ``num_envs``
     envs, or one step in the lecture's episode schedule) into the replay buffer and then, once

@@ -31,9 +31,9 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from agentax import _xla, agents
+from agentax import agents
 from agentax.agents import Preset
-from agentax.agents.protocol import Agent, CompiledAlgorithm, EnvSpec, OnPolicy
+from agentax.agents.protocol import Agent, CompiledAlgorithm, EnvSpec, Loop, OnPolicy
 from agentax.envs.core import Box, Discrete, Environment
 from agentax.errors import UsageError
 from agentax.nets import (
@@ -317,11 +317,16 @@ def loss_fn(params: Any, batch: dict[str, jax.Array], clip_eps: jax.Array, spec:
 
 
 def learn(
-    agent: PPOAgent, rollout: Transition, key: jax.Array, spec: EnvSpec, cfg: PPOConfig
+    agent: PPOAgent,
+    rollout: Transition,
+    key: jax.Array,
+    spec: EnvSpec,
+    cfg: PPOConfig,
+    loop: Loop = jax.lax.scan,
 ) -> tuple[PPOAgent, dict[str, jax.Array]]:
     """One PPO iteration on a rollout ``[T, E, ...]`` (``info["log_prob"]`` from :func:`act`, the
     behaviour policy's; ``info["valid"]``, if there, the steps to learn from): GAE, then epochs of
-    minibatch SGD."""
+    minibatch SGD, each run by ``loop`` (``lax.scan``'s signature; the runner chooses it)."""
     net, tx = network(cfg, spec), optimizer(cfg)
     # Both values from the learner's parameters: a rollout collected with older ones (a parallel
     # runner's policy lag) would otherwise feed each change of V into the targets again.
@@ -350,9 +355,6 @@ def learn(
     progress = agent.updates.astype(jnp.float32) / cfg.num_updates
     clip_eps = cfg.clip_eps * (1.0 - progress) if cfg.anneal_clip else jnp.float32(cfg.clip_eps)
     grad_fn = jax.grad(loss_fn, has_aux=True)
-    # XLA's CPU backend runs convolutions many times slower inside a loop body (measured: 4 Nature-CNN
-    # gradient steps of batch 256 took 51 s in a lax.scan), so a CNN's SGD steps are written out.
-    python_loop = is_image(spec.obs_shape)
 
     def sgd_step(carry, minibatch):
         params, opt_state = carry
@@ -368,13 +370,10 @@ def learn(
             minibatches = jax.tree.map(
                 lambda x: x[order].reshape(cfg.num_minibatches, -1, *x.shape[1:]), flat
             )
-        return _xla.scan(sgd_step, carry, minibatches, python_loop=python_loop)
+        return loop(sgd_step, carry, minibatches)
 
-    (params, opt_state), metrics = _xla.scan(
-        epoch,
-        (agent.params, agent.opt_state),
-        jax.random.split(key, cfg.update_epochs),
-        python_loop=python_loop,
+    (params, opt_state), metrics = loop(
+        epoch, (agent.params, agent.opt_state), jax.random.split(key, cfg.update_epochs)
     )
     agent = PPOAgent(params, opt_state, agent.updates + 1)
     return agent, jax.tree.map(jnp.mean, metrics)
@@ -392,8 +391,9 @@ class TrainState:
     episodes: EpisodeStats
 
 
-def make_agent(spec: EnvSpec, cfg: PPOConfig) -> Agent:
-    """PPO's pure functions for the host and parallel runners (see ``agentax.agents.protocol``)."""
+def make_agent(spec: EnvSpec, cfg: PPOConfig, *, loop: Loop = jax.lax.scan) -> Agent:
+    """PPO's pure functions for the host and parallel runners (see ``agentax.agents.protocol``);
+    ``loop`` runs the learning steps (the runner's :func:`agentax._xla.learning_loop`)."""
     cfg.validate()
     action_dim(spec)  # a clear error for actions PPO cannot take
 
@@ -406,7 +406,7 @@ def make_agent(spec: EnvSpec, cfg: PPOConfig) -> Agent:
         init=lambda key: init(key, spec, cfg),
         act=act_with_info,
         greedy_policy=lambda state: greedy_policy(state.params, spec, cfg),
-        learn=lambda state, rollout, key: learn(state, rollout, key, spec, cfg),
+        learn=lambda state, rollout, key: learn(state, rollout, key, spec, cfg, loop),
         experience=OnPolicy(cfg.num_envs, cfg.num_steps),
         total_steps=cfg.total_steps,
         env_action=lambda action: env_action(action, spec),
@@ -414,7 +414,7 @@ def make_agent(spec: EnvSpec, cfg: PPOConfig) -> Agent:
 
 
 def make_train(env: Environment, cfg: PPOConfig, env_params: Any = None):
-    """PPO for :func:`agentax.train.compiled.train`: a ``CompiledAlgorithm``."""
+    """PPO for :func:`agentax.runners.compiled.train`: a ``CompiledAlgorithm``."""
     cfg.validate()
     params = env.default_params() if env_params is None else env_params
     spec = EnvSpec.of(env, params)

@@ -28,7 +28,7 @@ key)``                 :class:`~agentax.replay.Transition` ``[T, E]``, its ``inf
 ``experience`` says which: :class:`OnPolicy` (rollouts of ``num_steps`` steps from ``num_envs``
 envs, collected with the current parameters), :class:`Episodes` (whole episodes from fresh resets,
 REINFORCE) or :class:`OffPolicy` (a replay buffer, its sample size and the learning schedule).
-Runners (``agentax.train``) own the loop; an agent never imports a runner, the CLI or the run
+Runners (``agentax.runners``) own the loop; an agent never imports a runner, the CLI or the run
 folder. This module is a leaf: both sides import it, it imports neither.
 """
 
@@ -46,6 +46,10 @@ from agentax.policies import Policy
 
 AgentState = Any
 Experience = Any
+Loop = Callable[[Callable, Any, Any], tuple[Any, Any]]
+"""How a learning phase runs its steps: ``loop(f, carry, xs) -> (carry, ys)``, ``jax.lax.scan``'s
+signature. The runner chooses it for its platform (:func:`agentax._xla.learning_loop`) and hands it
+to ``make_agent(spec, cfg, loop=...)``; an agent never asks which backend it is on."""
 
 
 @dataclass(frozen=True)
@@ -149,7 +153,7 @@ SEED_AXIS = "seeds"  # the name of the compiled runner's vmap axis over seeds
 
 @dataclass(frozen=True)
 class CompiledAlgorithm:
-    """What an algorithm hands the compiled runner (``agentax.train.compiled``).
+    """What an algorithm hands the compiled runner (``agentax.runners.compiled``).
 
     ``init(key) -> TrainState``: everything one seed's training carries (agent, env states, replay,
     key, counters), with an ``episodes`` field (:class:`agentax.returns.EpisodeStats`);

@@ -30,7 +30,7 @@ from flax import struct
 
 from agentax import agents
 from agentax.agents import Preset
-from agentax.agents.protocol import Agent, CompiledAlgorithm, EnvSpec, Episodes
+from agentax.agents.protocol import Agent, CompiledAlgorithm, EnvSpec, Episodes, Loop
 from agentax.envs.core import Discrete, Environment
 from agentax.errors import UsageError
 from agentax.nets import ACTIVATIONS, MLP, PolicyNet, log_prob
@@ -169,11 +169,11 @@ def returns_to_go(reward: jax.Array, ended: jax.Array, discount_factor: float) -
     return discounted_returns(reward, discounts, jnp.zeros(reward.shape[1:]))
 
 
-def make_agent(spec: EnvSpec, cfg: ReinforceConfig) -> Agent:
+def make_agent(spec: EnvSpec, cfg: ReinforceConfig, *, loop: Loop = jax.lax.scan) -> Agent:
     """REINFORCE's pure functions for the host and parallel runners (see ``agentax.agents.protocol``).
 
     It learns from whole episodes: ``Episodes(episodes_per_update, max_steps)``, the steps after an
-    episode's end masked out by ``info["valid"]``.
+    episode's end masked out by ``info["valid"]``. ``learn`` is one gradient step (``loop`` unused).
     """
     cfg.validate()
     num_actions = num_actions_of(spec, cfg)
@@ -213,7 +213,7 @@ class TrainState:
 
 
 def make_train(env: Environment, cfg: ReinforceConfig, env_params: Any = None):
-    """REINFORCE for :func:`agentax.train.compiled.train`: a ``CompiledAlgorithm``."""
+    """REINFORCE for :func:`agentax.runners.compiled.train`: a ``CompiledAlgorithm``."""
     cfg.validate()
     params = env.default_params() if env_params is None else env_params
     spec = EnvSpec.of(env, params)

@@ -44,8 +44,8 @@ def main(argv: list[str]) -> int:
     from agentax.evaluate import evaluate
     from agentax.policies import basic_policy
     from agentax.render import check_video_path, save_episode
+    from agentax.runners.compiled import RunnerConfig, restore_policy, train
     from agentax.runs import Run, default_run_dir, run_config
-    from agentax.train.compiled import RunnerConfig, restore_policy, train
 
     _xla.enable_compilation_cache()
     env = make_jax("CartPole-v1")

@@ -2,7 +2,7 @@
 
 Each run draws its training episodes' return and its greedy evaluation's (the measure that stops a
 run), means over seeds with 95 % bootstrap intervals across seeds as bands, and the env's solved
-threshold as a dashed line (see :func:`agentax.runs.curve_figure`).
+threshold as a dashed line (see :func:`agentax.curves.curve_figure`).
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ def main(argv: list[str]) -> int:
         raise UsageError("give at least one run folder: agentax plot DIR [DIR ...] --out curves.png")
     if args.labels and len(args.labels) != len(args.runs):
         raise UsageError(f"--labels needs one label per run ({len(args.runs)}), got {len(args.labels)}")
-    from agentax.runs import plot_curves
+    from agentax.curves import plot_curves
 
     for run in args.runs:
         if not Path(run).is_dir():

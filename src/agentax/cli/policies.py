@@ -52,9 +52,10 @@ def resolve_policy(
     """
     options: dict[str, Any] = {}
     if Path(policy).is_dir():
-        from agentax.runs import load_policy, read_config  # here: only a run's folder needs the run machinery
+        from agentax.api import restore_policy  # here: only a run's folder needs the run machinery
+        from agentax.runs import read_config
 
-        run_env_id, policy_fn = load_policy(policy)
+        run_env_id, policy_fn = restore_policy(policy)
         env_id = env_id or run_env_id
         options = read_config(policy).get("runner") or {}
         env = _make(env_id, num_envs, env_backend, sticky_actions, options)

@@ -33,7 +33,7 @@ from agentax.envs.core import episode_returns
 from agentax.envs.vacuum import Vacuum, render_path
 from agentax.errors import UsageError
 from agentax.runs import write_atomic, write_json
-from agentax.search import cem, genetic
+from agentax.search import METHODS, NEURAL_METHODS, VACUUM_METHODS, cem, genetic
 from agentax.search.grid import GridSearchConfig, grid_search
 from agentax.search.population import (
     FlatPolicy,
@@ -47,8 +47,6 @@ from agentax.search.random_search import RandomSearchConfig, random_search
 from agentax.search.settings import plot_heatmap, vacuum_policy
 
 TARGETS = ("vacuum", "cartpole")
-VACUUM_METHODS = {"grid": "agentax.search.grid", "random": "agentax.search.random_search"}
-NEURAL_METHODS = {"ga": "agentax.search.genetic", "cem": "agentax.search.cem"}
 # Episode streams: the search uses jax.random.key(seed + k) for seed k; the final selection and the fresh
 # evaluation fold these numbers into jax.random.key(seed), so no two of them share episodes.
 SELECTION_STREAM, EVAL_STREAM = 2, 1
@@ -154,7 +152,7 @@ def search_vacuum(args: VacuumArgs) -> int:
     out = run_folder(args.out, args.method, "Vacuum-v0")
     write_json(
         out / "config.json",
-        {"algo": args.method, "module": VACUUM_METHODS[args.method], "env": "Vacuum-v0", "seed": args.seed,
+        {"algo": args.method, "module": METHODS[args.method], "env": "Vacuum-v0", "seed": args.seed,
          **dataclasses.asdict(config)},
     )  # fmt: skip
     num_settings = args.grid_size**2
@@ -225,7 +223,7 @@ def search_cartpole(args: CartPoleArgs) -> int:
     out = run_folder(args.out, args.method, env.id)
     write_json(
         out / "config.json",
-        {"algo": args.method, "module": NEURAL_METHODS[args.method], "env": env.id, "seed": args.seed,
+        {"algo": args.method, "module": METHODS[args.method], "env": env.id, "seed": args.seed,
          "seeds": args.seeds, "eval_episodes": args.eval_episodes, **dataclasses.asdict(config)},
     )  # fmt: skip
 

@@ -6,6 +6,8 @@ import difflib
 from collections.abc import Callable
 from typing import Any
 
+import gymnasium
+
 from agentax.envs.atari import AtariEnv, atari_games, is_atari_id, make_atari
 from agentax.envs.cartpole import CartPole, cartpole_v0, cartpole_v1
 from agentax.envs.core import Box, Discrete, Environment, TimeStep
@@ -65,6 +67,25 @@ def make(env_id: str, num_envs: int = 1, **gymnasium_kwargs: Any) -> Environment
     )
 
 
+def host_env_id(env_id: str) -> str:
+    """The Gymnasium id to step ``env_id`` on the host: Gymnasium's own where it has one (CartPole,
+    step-for-step equal to agentax's), else agentax's JAX env registered as ``agentax/ID``."""
+    if env_id in gymnasium.registry or ":" in env_id:
+        return env_id
+    return f"{NAMESPACE}/{env_id}"
+
+
+def make_host_env(
+    env_id: str, num_envs: int, *, training: bool = False, backend: str = "auto", sticky_actions: float = 0.25
+) -> Any:
+    """``num_envs`` copies of ``env_id`` stepped on the host. Atari games get the standard
+    preprocessing (``agentax.envs.atari``): with ``training``, the learning view (a lost life ends
+    an episode, clipped rewards), else whole games and true scores; other envs ignore these options."""
+    if is_atari_id(env_id):
+        return make_atari(env_id, num_envs, backend=backend, sticky_actions=sticky_actions, training=training)
+    return GymnasiumEnv(host_env_id(env_id), num_envs)
+
+
 register_envs(JAX_ENVS)
 
 __all__ = [
@@ -76,6 +97,8 @@ __all__ = [
     "GymnasiumEnv",
     "JaxToGymnasium",
     "TimeStep",
+    "host_env_id",
     "make",
+    "make_host_env",
     "make_jax",
 ]

@@ -34,6 +34,8 @@ from flax import struct
 Array = jax.Array
 EnvState = Any
 EnvParams = Any
+Policy = Callable[[Array, Array], Array]
+"""A policy: ``(obs, key) -> action`` on one observation; callers batch it with ``jax.vmap``."""
 
 
 @struct.dataclass
@@ -204,9 +206,7 @@ class Environment(abc.ABC):
 
 
 @partial(jax.jit, static_argnums=(0, 1, 3))
-def rollout(
-    env: Environment, policy: Callable[[Array, Array], Array], key: Array, num_steps: int, params: EnvParams
-):
+def rollout(env: Environment, policy: Policy, key: Array, num_steps: int, params: EnvParams):
     """Play ``num_steps`` steps from a reset without auto-reset, keeping every state.
 
     Returns ``(states [num_steps + 1, ...], rewards [num_steps], done [num_steps])``; steps after
@@ -228,7 +228,7 @@ def rollout(
 
 def episode_returns(
     env: Environment,
-    policy: Callable[[Array, Array], Array],
+    policy: Policy,
     key: Array,
     num_episodes: int,
     env_params: EnvParams | None = None,

@@ -136,11 +136,15 @@ class GymnasiumEnv:
         return f"GymnasiumEnv({self.id!r}, num_envs={self.num_envs})"
 
 
+_REGISTERED: dict[str, Callable[[], Environment]] = {}
+"""The JAX envs :func:`register_envs` registered in Gymnasium, by agentax id."""
+
+
 @cache
 def _compiled_by_id(env_id: str) -> tuple[Environment, EnvParams, Callable, Callable]:
-    from agentax.envs import make_jax
-
-    env = make_jax(env_id)
+    if env_id not in _REGISTERED:
+        raise UsageError(f"unknown JAX env {env_id!r}; choose from {', '.join(_REGISTERED)}")
+    env = _REGISTERED[env_id]()
     return _compile(env, env.default_params())
 
 
@@ -237,6 +241,7 @@ class JaxToGymnasium(gymnasium.Env):
 
 def register_envs(jax_envs: Mapping[str, Callable[[], Environment]]) -> None:
     """Register each JAX env as Gymnasium id ``agentax/ID`` (ids already registered are kept)."""
+    _REGISTERED.update(jax_envs)
     for env_id in jax_envs:
         gym_id = f"{NAMESPACE}/{env_id}"
         if gym_id not in gymnasium.registry:

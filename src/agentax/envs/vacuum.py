@@ -37,8 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from agentax.envs.core import Box, Environment, TimeStep, rollout, uniform4
-from agentax.policies import Policy
+from agentax.envs.core import Box, Environment, Policy, TimeStep, rollout, uniform4
 
 
 @struct.dataclass

@@ -68,8 +68,8 @@ from typing import Any
 import numpy as np
 
 from agentax.errors import UsageError
+from agentax.replay._numpy import Dataset, find_prefix_sum, set_leaves
 from agentax.replay.core import ReplaySample, Transition
-from agentax.replay.host import Dataset, find_prefix_sum, set_leaves
 from agentax.replay.prioritized import tree_size
 
 FRAME_SLACK = 1 / 20
@@ -472,24 +472,6 @@ class FrameReplayBuffer(Dataset):
             self.max_priority = float(state["max_priority"])
             self.rng.bit_generator.state = json.loads(str(state["rng"]))
             self.new_stream = np.ones(self.num_envs, bool)
-
-
-def save(buffer: FrameReplayBuffer, path: str | Path, compresslevel: int = 1) -> Path:
-    """Write ``buffer`` to ``path`` as a compressed ``.npz`` (deflate, no pickle: ``np.load`` reads
-    it with ``allow_pickle=False``), atomically: into a temporary file in the same folder, fsynced,
-    then renamed over ``path``. Holds the buffer's lock meanwhile (the actors wait). Level 1 deflate:
-    frames compress about as well as at level 6 for a fraction of the time."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with buffer.lock, open(tmp, "wb") as f:
-        with zipfile.ZipFile(f, "w", zipfile.ZIP_DEFLATED, compresslevel=compresslevel) as archive:
-            for name, array in buffer.state_dict().items():
-                with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
-                    np.lib.format.write_array(member, np.asanyarray(array), allow_pickle=False)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    return path
 
 
 def load(path: str | Path) -> FrameReplayBuffer:

@@ -11,15 +11,14 @@ from __future__ import annotations
 
 import collections
 import json
-import queue
 import threading
-from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
 import jax
 import numpy as np
 
+from agentax.replay._numpy import Dataset, find_prefix_sum, set_leaves
 from agentax.replay.core import ReplaySample, capacity_of
 from agentax.replay.prioritized import tree_size
 
@@ -85,30 +84,6 @@ def init_prioritized(
     )
 
 
-def set_leaves(tree: np.ndarray, indices: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """Set leaves ``indices`` to ``values`` in place and recompute their ancestors."""
-    num_leaves = len(tree) // 2
-    nodes = np.asarray(indices) + num_leaves
-    tree[nodes] = values
-    for _ in range(num_leaves.bit_length() - 1):
-        nodes = np.unique(nodes // 2)
-        tree[nodes] = tree[2 * nodes] + tree[2 * nodes + 1]
-    return tree
-
-
-def find_prefix_sum(tree: np.ndarray, mass: np.ndarray) -> np.ndarray:
-    """For each ``mass``, the leaf where the running sum of leaves passes it."""
-    num_leaves = len(tree) // 2
-    nodes = np.ones(len(mass), np.int64)
-    mass = np.array(mass, np.float64)
-    for _ in range(num_leaves.bit_length() - 1):
-        left = tree[2 * nodes]
-        go_right = mass >= left
-        mass = np.where(go_right, mass - left, mass)
-        nodes = 2 * nodes + go_right
-    return nodes - num_leaves
-
-
 def add_prioritized(state: HostPrioritizedState, batch: Any) -> HostPrioritizedState:
     """Append ``batch`` with the maximum priority seen so far."""
     batch_size = len(jax.tree.leaves(batch)[0])
@@ -142,23 +117,6 @@ def update_priorities(
     set_leaves(state.tree, np.asarray(indices), priority**state.priority_exponent)
     state.max_priority = max(state.max_priority, float(priority.max()))
     return state
-
-
-class Dataset:
-    """TF-Agents' ``as_dataset`` for a buffer with ``sample(batch_size)`` and ``prioritized``."""
-
-    def as_dataset(
-        self, sample_batch_size: int, num_batches: int = 1, prefetch: int = 2
-    ) -> Iterator[ReplaySample]:
-        """Endless uniform batches, each leaf ``[num_batches, sample_batch_size, ...]``, drawn ``prefetch``
-        ahead by a daemon thread (uniform replay only: prioritized batches depend on the last update)."""
-        if self.prioritized:
-            raise ValueError("as_dataset draws ahead, so it serves uniform replay only; sample() instead")
-        return _Prefetch(lambda: self._stacked(sample_batch_size, num_batches), prefetch)
-
-    def _stacked(self, batch_size: int, num_batches: int) -> ReplaySample:
-        batch = self.sample(batch_size * num_batches)
-        return jax.tree.map(lambda x: x.reshape(num_batches, batch_size, *x.shape[1:]), batch)
 
 
 class ReplayBuffer(Dataset):
@@ -251,33 +209,6 @@ class ReplayBuffer(Dataset):
                 update_priorities(self.state, indices, td_error)
 
 
-class _Prefetch:
-    """An iterator over ``draw()`` results that a daemon thread keeps ``depth`` ahead."""
-
-    def __init__(self, draw: Callable[[], Any], depth: int):
-        self.draw = draw
-        self.queue: queue.Queue = queue.Queue(maxsize=max(depth, 1))
-        self.error: BaseException | None = None
-        threading.Thread(target=self._fill, daemon=True, name="replay-prefetch").start()
-
-    def _fill(self) -> None:
-        try:
-            while True:
-                self.queue.put(self.draw())
-        except BaseException as error:  # handed to the consumer, never lost in a thread
-            self.error = error
-            self.queue.put(None)
-
-    def __iter__(self) -> _Prefetch:
-        return self
-
-    def __next__(self) -> Any:
-        item = self.queue.get()
-        if item is None:
-            raise RuntimeError("replay prefetch failed") from self.error
-        return item
-
-
 class NStepAccumulator:
     """The NumPy twin of :mod:`agentax.replay.nstep` for host loops: the same n-step transitions,
     without a device round trip per env step. ``push`` returns them ``[num_envs]`` once the window of
@@ -308,17 +239,3 @@ class NStepAccumulator:
             truncated=truncated[last, envs],
             num_steps=(last + 1).astype(np.int32),
         )
-
-
-def save_replay(buffer: Any, path: Any) -> None:
-    """Write a replay buffer's ``state_dict`` (this module's or the frame buffer's) compressed and
-    atomically (no pickle)."""
-    from agentax.replay import frames
-
-    frames.save(buffer, path)
-
-
-def restore_replay(buffer: Any, path: Any) -> None:
-    """Load what :func:`save_replay` wrote into ``buffer`` (made with the same settings)."""
-    with np.load(path, allow_pickle=False) as data:
-        buffer.load_state_dict({name: data[name] for name in data.files})

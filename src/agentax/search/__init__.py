@@ -19,7 +19,22 @@ from agentax.search.population import (
 from agentax.search.random_search import RandomSearchConfig, random_search
 from agentax.search.settings import SettingsResult, evaluate_settings, plot_heatmap, vacuum_policy
 
+METHODS: dict[str, str] = {
+    "grid": "agentax.search.grid",
+    "random": "agentax.search.random_search",
+    "ga": "agentax.search.genetic",
+    "cem": "agentax.search.cem",
+}
+"""Every policy search by its name in a run's config.json ("algo"), and the module that restores its
+policy (``load_policy(run_dir, config)``): grid and random search the vacuum robot's settings, ga and
+cem a neural policy's parameters."""
+VACUUM_METHODS = ("grid", "random")
+NEURAL_METHODS = ("ga", "cem")
+
 __all__ = [
+    "METHODS",
+    "NEURAL_METHODS",
+    "VACUUM_METHODS",
     "CEMConfig",
     "FlatPolicy",
     "GAConfig",

@@ -39,10 +39,8 @@ import numpy as np
 from agentax import _xla
 from agentax.agents.protocol import Agent, Episodes, OffPolicy
 from agentax.errors import UsageError
-from agentax.nets import is_image
-from agentax.runs import Run
-from agentax.train.driver import FinishedReturns, ReplayObserver
-from agentax.train.host import (
+from agentax.runners.driver import FinishedReturns, ReplayObserver
+from agentax.runners.host import (
     Actor,
     Evaluator,
     HostResult,
@@ -61,7 +59,8 @@ from agentax.train.host import (
     restore,
     row_of,
 )
-from agentax.train.logger import RunLogger
+from agentax.runners.logger import RunLogger
+from agentax.runs import Run
 
 POLL_SECONDS = 0.05  # how often a blocked thread looks whether the run has stopped
 
@@ -543,7 +542,7 @@ def _off_policy(agent, runner, fleet, threads, coordinator, rows, state, learner
     for i, actor in enumerate(actors):
         threads.append(ActorThread(actor, lambda thread, i=i: collect(thread, i), coordinator, i))
     rows.meter = Meter(threads, fleet.figures)
-    learner = OffPolicyLearner(agent, replay, python_loop=is_image(actors[0].obs_shape))
+    learner = OffPolicyLearner(agent, replay, loop=_xla.learning_loop(actors[0].obs_shape))
 
     def drain() -> list[float]:
         return [r for actor in actors for r in actor.finished_returns()]

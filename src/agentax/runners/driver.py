@@ -14,7 +14,7 @@ agentax's ``TimeStep`` with NumPy arrays ``[num_envs, ...]``) or anything with t
 a policy may also return ``(action, policy_state, info)``, TF-Agents' policy info (PPO's
 log-probabilities and values), which reaches the observers as ``transition.info``.
 
-The runners (``agentax.train.host``, ``agentax.train.parallel``) build their loops from these.
+The runners (``agentax.runners.host``, ``agentax.runners.parallel``) build their loops from these.
 """
 
 from __future__ import annotations

@@ -1,9 +1,9 @@
 """Actors on a Ray cluster: the parallel runner with its actors in Ray actor processes, on any node.
 
-``--runner ray`` is :mod:`agentax.train.parallel` unchanged — its learner, rate limiter, parameter
+``--runner ray`` is :mod:`agentax.runners.parallel` unchanged — its learner, rate limiter, parameter
 channel, policy-lag rules, rows and checkpoints — with a different :class:`~parallel.Fleet`: each
 actor is a :class:`Collector`, a Ray actor process holding the host runner's
-:class:`~agentax.train.host.Actor` (its own vector env, EnvPool or Gymnasium, and the jitted collect
+:class:`~agentax.runners.host.Actor` (its own vector env, EnvPool or Gymnasium, and the jitted collect
 policy), and the parallel runner's actor thread for it drives a :class:`RemoteActor`, which calls
 it and waits. So
 
@@ -43,13 +43,14 @@ import jax
 import numpy as np
 
 from agentax.agents.protocol import Agent, acting_view
+from agentax.envs import make_host_env
 from agentax.errors import UsageError
 from agentax.replay import Transition
+from agentax.runners.driver import EnvironmentSteps, TrajectoryObserver
+from agentax.runners.host import Actor, HostResult, actor_seed, fold_actor_key
+from agentax.runners.parallel import POLL_SECONDS, Coordinator, Fleet, ParallelRunnerConfig
+from agentax.runners.parallel import train as train_parallel
 from agentax.runs import Run
-from agentax.train.driver import EnvironmentSteps, TrajectoryObserver
-from agentax.train.host import Actor, HostResult, actor_seed, fold_actor_key, make_host_env
-from agentax.train.parallel import POLL_SECONDS, Coordinator, Fleet, ParallelRunnerConfig
-from agentax.train.parallel import train as train_parallel
 
 RESTART_SEED_STRIDE = 104_729
 """a restarted collector's envs are seeded ``actor_seed + stride × restarts``"""
@@ -289,7 +290,7 @@ class RemoteActor:
 
 
 def ray_fleet(agent: Agent, make_agent: Callable[[], Agent], env_id: str, runner: RayRunnerConfig, ray: Any):
-    """A :data:`~agentax.train.parallel.MakeFleet` of :class:`Collector` processes, spread over the
+    """A :data:`~agentax.runners.parallel.MakeFleet` of :class:`Collector` processes, spread over the
     cluster's nodes, each with the thread actor's env share, seeds and key."""
     envs_per_actor = agent.experience.num_envs // runner.actors
     collector = ray.remote(Collector)

@@ -21,7 +21,7 @@ evaluates the greedy policy with :func:`agentax.envs.core.episode_returns` on fr
 keys — inside the same program. Seed ``k`` of a batch starting at ``seed`` uses
 ``jax.random.key(seed + k)``, so seed ``k`` run alone gives the same numbers as inside a batch.
 The program and the one that initialises the TrainState pass it as the flat list of its arrays;
-given a description of what they compute, :mod:`agentax.train.programs` keeps them on disk, so a
+given a description of what they compute, :mod:`agentax.runners.programs` keeps them on disk, so a
 repeated run neither traces nor compiles them.
 
 Between chunks, back in Python, it logs a row (metrics.csv, TensorBoard, a rich progress bar),
@@ -49,12 +49,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from agentax.agents.protocol import SEED_AXIS, CompiledAlgorithm, TrainState, any_seed  # noqa: F401
+from agentax.curves import plot_curves, preload_plotting
 from agentax.envs.core import Environment, episode_returns
 from agentax.errors import TrainingInterrupted, UsageError
 from agentax.policies import Policy
-from agentax.runs import Run, load_checkpoint, preload_plotting
-from agentax.train import programs
-from agentax.train.logger import Progress, check_finite, check_finite_tree
+from agentax.runners import programs
+from agentax.runners.logger import Progress, check_finite, check_finite_tree
+from agentax.runs import Run, load_checkpoint
 
 EVAL_KEY_OFFSET = 1_000_003  # evaluation keys are fold_in(seed key, offset + evaluation number)
 INIT_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
@@ -191,7 +192,7 @@ def _programs(
     Both take and give the TrainState as the flat list of its arrays (plain lists export, custom
     pytree nodes do not): ``init(seeds) -> leaves`` and ``chunk(leaves, num_active, do_eval, seeds,
     evaluation) -> (leaves, metrics, returns, lengths)``. With a ``description`` they come from
-    :mod:`agentax.train.programs`, so a repeated run neither traces nor lowers them.
+    :mod:`agentax.runners.programs`, so a repeated run neither traces nor lowers them.
     """
     traced_init = jax.jit(init_from_seeds(algorithm)).trace(seeds)
     shapes = traced_init.out_info
@@ -243,7 +244,7 @@ def train(
     ``resume=True`` continues ``run`` from its newest checkpoint. ``max_chunks`` stops after that
     many chunks of this call (as an interrupt would), leaving a resumable run.
     ``program_description`` (JSON-able: algorithm, env, config) names the training program for
-    :mod:`agentax.train.programs`, so a repeated run loads it instead of tracing it; leave it None
+    :mod:`agentax.runners.programs`, so a repeated run loads it instead of tracing it; leave it None
     unless it determines the program (the CLI passes it).
     """
     start = time.perf_counter()
@@ -378,7 +379,7 @@ def train(
             compile_seconds=compile_seconds,
             train_seconds=train_seconds,
         )
-        run.plot()
+        plot_curves([run.path], run.path / "curve.png")
         run.close()
     else:
         result.eval = {"mean_return": float(returns.mean()), "per_seed_mean": returns.mean(axis=1).tolist()}

@@ -2,10 +2,10 @@
 
 TF-Agents' training loop, one step after the other: an :class:`Actor` drives its vector env with
 the agent's collect policy (``agent.act``, jitted once for the whole batch of envs) through a
-:class:`~agentax.train.driver.Driver`; observers count steps, keep finished returns and feed the
+:class:`~agentax.runners.driver.Driver`; observers count steps, keep finished returns and feed the
 experience the agent asked for — a rollout of T steps (on-policy), whole episodes (REINFORCE), or a
 replay buffer (off-policy, with ``as_dataset`` drawing batches ahead); then ``agent.learn`` (jitted)
-trains on it. :mod:`agentax.train.parallel` runs the same actors and learning steps in threads.
+trains on it. :mod:`agentax.runners.parallel` runs the same actors and learning steps in threads.
 
 Keys: the agent is initialised from ``key(seed)``'s first split, the learner's key chain from its
 second, actor ``i`` acts with its key folded from the third and seeds its envs ``seed + 1000 i``
@@ -27,20 +27,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import gymnasium
 import jax
 import numpy as np
 
 from agentax import _xla
-from agentax.agents.protocol import Agent, Episodes, OffPolicy, OnPolicy
-from agentax.envs.gym import NAMESPACE, GymnasiumEnv
+from agentax.agents.protocol import Agent, Episodes, Loop, OffPolicy, OnPolicy
+from agentax.envs import make_host_env
 from agentax.evaluate import host_episode_returns
 from agentax.nets import is_image
 from agentax.policies import Policy, with_random_actions
 from agentax.replay import Transition, example_transition
-from agentax.replay.host import ReplayBuffer, restore_replay, save_replay
-from agentax.runs import Run, load_checkpoint
-from agentax.train.driver import (
+from agentax.replay.files import restore_replay, save_replay
+from agentax.replay.host import ReplayBuffer
+from agentax.runners.driver import (
     Driver,
     EnvironmentSteps,
     FinishedReturns,
@@ -49,7 +48,8 @@ from agentax.train.driver import (
     TrajectoryObserver,
     first_time_step,
 )
-from agentax.train.logger import RunLogger
+from agentax.runners.logger import RunLogger
+from agentax.runs import Run, load_checkpoint
 
 
 @dataclass(frozen=True)
@@ -85,27 +85,6 @@ class HostResult:
     env_steps: int
     eval: dict[str, Any]
     rows: list[dict[str, float]] = field(default_factory=list)
-
-
-def host_env_id(env_id: str) -> str:
-    """The Gymnasium id to step ``env_id`` on the host: Gymnasium's own where it has one (CartPole,
-    step-for-step equal to agentax's), else agentax's JAX env registered as ``agentax/ID``."""
-    if env_id in gymnasium.registry or ":" in env_id:
-        return env_id
-    return f"{NAMESPACE}/{env_id}"
-
-
-def make_host_env(
-    env_id: str, num_envs: int, *, training: bool = False, backend: str = "auto", sticky_actions: float = 0.25
-) -> Any:
-    """``num_envs`` copies of ``env_id`` stepped on the host. Atari games get the standard
-    preprocessing (``agentax.envs.atari``): with ``training``, the learning view (a lost life ends
-    an episode, clipped rewards), else whole games and true scores; other envs ignore these options."""
-    from agentax.envs.atari import is_atari_id, make_atari
-
-    if is_atari_id(env_id):
-        return make_atari(env_id, num_envs, backend=backend, sticky_actions=sticky_actions, training=training)
-    return GymnasiumEnv(host_env_id(env_id), num_envs)
 
 
 def env_factory(env_id: str, runner: Any) -> Callable[..., Any]:
@@ -280,7 +259,7 @@ class OffPolicyLearner:
     uniform replay (a ``lax.scan`` over batches drawn ahead by ``as_dataset``), step by step for
     prioritized replay (each batch depends on the priorities the last one set)."""
 
-    def __init__(self, agent: Agent, replay: Any, python_loop: bool = False):
+    def __init__(self, agent: Agent, replay: Any, loop: Loop = jax.lax.scan):
         self.experience: OffPolicy = agent.experience
         self.replay = replay
         self.learn = jax.jit(agent.learn)
@@ -291,7 +270,7 @@ class OffPolicyLearner:
                 return state, {"loss": metrics["loss"], "q_mean": metrics.get("q_mean", metrics["loss"])}
 
             keys = jax.random.split(key, self.experience.gradient_steps)
-            state, metrics = _xla.scan(one, state, (samples, keys), python_loop=python_loop)
+            state, metrics = loop(one, state, (samples, keys))
             return state, jax.tree.map(lambda m: m.mean(), metrics)
 
         self.learn_many = jax.jit(learn_many)
@@ -445,7 +424,7 @@ def train(
     if isinstance(experience, OffPolicy):
         replay = replay_for(agent, actor.obs_shape, runner.seed)
         observer = ReplayObserver(replay, experience.n_step, experience.discount_factor)
-        learner = OffPolicyLearner(agent, replay, python_loop=is_image(actor.obs_shape))
+        learner = OffPolicyLearner(agent, replay, loop=_xla.learning_loop(actor.obs_shape))
         replay_checkpoints = ReplayCheckpoints(
             run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
         )

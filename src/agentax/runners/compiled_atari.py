@@ -16,14 +16,14 @@ bootstraps through it nor carries its λ-trace across. The env steps counted (``
 progress bar, ``total_steps``) are the pool's steps, reset steps included; ``masked_fraction``
 in metrics.csv is their share.
 
-**The rest is the host runner's** (:mod:`agentax.train.host`), so the two compare number for
-number where they can: the same :class:`~agentax.train.host.HostRunnerConfig`, the same keys (the
+**The rest is the host runner's** (:mod:`agentax.runners.host`), so the two compare number for
+number where they can: the same :class:`~agentax.runners.host.HostRunnerConfig`, the same keys (the
 agent from ``agent_keys(seed)``'s first key, the learner's chain from the second, the actor's from
 the third, its envs seeded ``actor_seed(seed, 0, updates)``), the same rows
-(:func:`~agentax.train.host.row_of`: ``mean_return`` is the mean true score of the whole games
+(:func:`~agentax.runners.host.row_of`: ``mean_return`` is the mean true score of the whole games
 finished since the last row — every life, raw rewards), the same checkpoints (``(agent state,
-learner key)``, so :func:`agentax.train.host.restore_policy` loads them and a resumed run restarts
-its pool from a new seed), the same final evaluation (:class:`~agentax.train.host.Evaluator`:
+learner key)``, so :func:`agentax.runners.host.restore_policy` loads them and a resumed run restarts
+its pool from a new seed), the same final evaluation (:class:`~agentax.runners.host.Evaluator`:
 whole games on the host adapter, greedy with 1 % random actions).
 """
 
@@ -42,9 +42,9 @@ from agentax.envs.atari import FRAME_SKIP, is_atari_id
 from agentax.envs.envpool_xla import EpisodeTracker, XlaAtari, track
 from agentax.errors import UsageError
 from agentax.replay import Transition
+from agentax.runners import host
+from agentax.runners.logger import RunLogger
 from agentax.runs import Run
-from agentax.train import host
-from agentax.train.logger import RunLogger
 
 RUNNER_KIND = "compiled-atari"
 """config.json's ``runner_kind`` of these runs; their ``runner`` is a ``HostRunnerConfig``."""
@@ -163,7 +163,7 @@ def train(
     num_seeds: int = 1,
 ) -> host.HostResult:
     """Train an on-policy ``agent`` (PPO) on an Atari game, env and learning in one program per
-    iteration; log, checkpoint and evaluate into ``run`` as :func:`agentax.train.host.train` does."""
+    iteration; log, checkpoint and evaluate into ``run`` as :func:`agentax.runners.host.train` does."""
     check(agent, env_id, runner, num_seeds)
     _xla.let_xla_use_every_cpu()
     init_key, learner_key, actors_key = host.agent_keys(runner.seed)

@@ -23,6 +23,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from agentax.curves import plot_curves
 from agentax.errors import TrainingDiverged, TrainingInterrupted
 from agentax.evaluate import EvalStats
 from agentax.runs import Run
@@ -180,6 +181,6 @@ class RunLogger:
             stats = vars(EvalStats.from_returns(returns.ravel(), lengths.ravel()))
             return {**stats, "per_seed_mean": returns.mean(axis=1).tolist(), **extra}
         evaluation = self.run.write_eval(returns, lengths, **extra)
-        self.run.plot()
+        plot_curves([self.run.path], self.run.path / "curve.png")
         self.run.close()
         return evaluation
