@@ -63,6 +63,7 @@ def _pinned():
 
 def compiled_row(num_seeds: int) -> list:
     from agentax.agents import dqn
+    from agentax.api import compiled_program
     from agentax.envs import make_jax
     from agentax.runners.compiled import RunnerConfig, train
 
@@ -74,9 +75,10 @@ def compiled_row(num_seeds: int) -> list:
         updates_per_chunk=preset.updates_per_chunk,
         eval_episodes=preset.eval_episodes,
         stop_at_return=SOLVED,
+        freeze_at_return=preset.freeze_at_return,
     )
     with _pinned():
-        result = train(dqn.make_train(env, preset.config), env, runner)
+        result = train(compiled_program(dqn, env, preset.config, runner), env, runner)
     learning_steps = float(np.sum(np.asarray(result.state.agent.step)))
     per_seed = np.asarray(result.eval["per_seed_mean"])
     solved_wall = result.solved_seconds if result.solved_seconds is not None else float("nan")

@@ -50,7 +50,6 @@ DQN_WORKLOAD = dict(
     batch_size=64,
     hidden=(256, 256),  # RL-Zoo's DQN net for CartPole-v1
     learning_starts=1_000,
-    freeze_at_return=None,  # the same learning steps whatever the returns
 )
 """RL-Zoo's DQN CartPole-v1 net and batch (256-256, 64) with 4 envs and 64 learning steps per 256 env
 steps (RL-Zoo: 128): collecting 256 steps (~28 ms) and a phase of 64 learning steps (~31 ms) cost
@@ -325,13 +324,14 @@ def compiled_overhead() -> dict:
     import jax
 
     from agentax.agents import ppo
-    from agentax.agents.protocol import SEED_AXIS
+    from agentax.api import compiled_program
     from agentax.envs import make_jax
     from agentax.runners import compiled
+    from agentax.runners.rollout import SEED_AXIS
     from agentax.runs import Run
 
     env, preset = make_jax(ENV_ID), ppo.PRESETS["default"]
-    algorithm = ppo.make_train(env, preset.config)
+    algorithm = compiled_program(ppo, env, preset.config)
     seeds = np.arange(1, dtype=np.int32)
 
     def bare(state):

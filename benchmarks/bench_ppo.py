@@ -106,13 +106,14 @@ def whole_process(seeds: int, cache: Path) -> dict:
 def throughput(seeds: int) -> tuple[float, float]:
     """Env steps per second of the compiled runner (all seeds), and its compile seconds."""
     from agentax.agents import ppo
+    from agentax.api import compiled_program
     from agentax.envs import make_jax
     from agentax.runners.compiled import RunnerConfig, train
 
     env, preset = make_jax("CartPole-v1"), ppo.PRESETS["cartpole-fast"]
     runner = RunnerConfig(num_seeds=seeds, updates_per_chunk=preset.updates_per_chunk, eval_every_chunks=1000)
     with _pinned():
-        result = train(ppo.make_train(env, preset.config), env, runner)
+        result = train(compiled_program(ppo, env, preset.config), env, runner)
     return result.env_steps * seeds / result.train_seconds, result.compile_seconds
 
 

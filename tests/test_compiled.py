@@ -14,6 +14,7 @@ import pytest
 
 from agentax import _xla
 from agentax.agents import ppo
+from agentax.api import compiled_program
 from agentax.envs import make_jax
 from agentax.errors import UsageError
 from agentax.runners.compiled import RunnerConfig, train
@@ -25,6 +26,7 @@ HANG_PROGRAM = textwrap.dedent(
     import agentax  # jax's CPU client will be made on one CPU (agentax._xla.create_cpu_client_on_one_cpu)
     import jax
     from agentax.agents import ppo
+    from agentax.api import compiled_program
     from agentax.envs import make_jax
     from agentax.runners.compiled import RunnerConfig, train
 
@@ -32,7 +34,7 @@ HANG_PROGRAM = textwrap.dedent(
     env = make_jax("CartPole-v1")
     cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=12 * 256)
     runner = RunnerConfig(num_seeds=8, updates_per_chunk=2, eval_episodes=4)
-    result = train(ppo.make_train(env, cfg), env, runner)
+    result = train(compiled_program(ppo, env, cfg), env, runner)
     masks, pool = set(), 0
     for task in os.listdir("/proc/self/task"):
         try:
@@ -148,7 +150,7 @@ ENV = make_jax("CartPole-v1")
 
 
 def _train(runner, run=None, **kwargs):
-    return train(ppo.make_train(ENV, TINY), ENV, runner, run, **kwargs)
+    return train(compiled_program(ppo, ENV, TINY), ENV, runner, run, **kwargs)
 
 
 def _params(result, seed_index):

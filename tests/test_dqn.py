@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import agentax
 from agentax.agents import dqn
 from agentax.errors import UsageError
 from agentax.nets import QNetwork, dueling_aggregate
@@ -104,7 +105,7 @@ def test_learn_uses_the_td_targets_it_should():
     # 1: 1 + 0.5 * max[1, 3] - Q(s, 0) = 1 + 1.5 - 1 = 1.5
     # 2: terminated: 1 - Q(s, 1) = 1 - 2 = -1
     # 3: truncated after 2 steps: 0 + 0.25 * 3 - 1 = -0.25 (truncation bootstraps)
-    np.testing.assert_allclose(metrics["td_error"], [1.5, -1.0, -0.25], rtol=1e-6)
+    np.testing.assert_allclose(metrics["priority"], [1.5, -1.0, -0.25], rtol=1e-6)
     # Weighted MSE: (1.5² + 1² + 0.5 · 0.25²) / 3 = (2.25 + 1 + 0.03125) / 3
     assert float(metrics["loss"]) == pytest.approx(3.28125 / 3, rel=1e-6)
 
@@ -130,9 +131,9 @@ def test_double_dqn_target_through_learn():
         weights=jnp.ones(1),
     )
     _, metrics = dqn.make_learn(cfg)(agent, sample)
-    assert float(metrics["td_error"][0]) == pytest.approx(1 + 0.5 * 0 - 1)  # Double: 0.0
+    assert float(metrics["priority"][0]) == pytest.approx(1 + 0.5 * 0 - 1)  # Double: 0.0
     _, metrics = dqn.make_learn(dataclasses.replace(cfg, double=False))(agent, sample)
-    assert float(metrics["td_error"][0]) == pytest.approx(1 + 0.5 * 4 - 1)  # max over the target: 2.0
+    assert float(metrics["priority"][0]) == pytest.approx(1 + 0.5 * 4 - 1)  # max over the target: 2.0
 
 
 def test_compiled_and_host_runners_take_the_same_learning_step():
@@ -162,7 +163,7 @@ def test_compiled_and_host_runners_take_the_same_learning_step():
     for seed in range(2):
         agent = jax.tree.map(lambda x, seed=seed: x[seed], agents)
         hosted, host_metrics = dqn.learn(agent, host_sample, cfg)
-        np.testing.assert_allclose(host_metrics["td_error"], compiled_metrics["td_error"][seed], rtol=1e-5)
+        np.testing.assert_allclose(host_metrics["priority"], compiled_metrics["priority"][seed], rtol=1e-5)
         for a, b in zip(jax.tree.leaves(hosted.params), jax.tree.leaves(compiled.params), strict=True):
             np.testing.assert_allclose(a, b[seed], rtol=1e-5, atol=1e-7)
 
@@ -186,3 +187,45 @@ def test_presets_and_validation():
 
         dqn.num_actions_of(Box(-1.0, 1.0, (1,)))
     assert dqn.config_from_dict(dataclasses.asdict(lecture)) == lecture
+
+
+@pytest.mark.timeout(240)
+@pytest.mark.parametrize("n_step", [1, 3])
+def test_one_agent_keeps_the_same_schedule_on_the_compiled_and_the_host_runner(tmp_path, n_step):
+    """One DQN agent and schedule (2 envs, 8 steps each between phases of 3 learning steps from env
+    step 96), driven by the compiled runner's program and by the host runner's Driver: the same
+    number of learning steps and the same replay size after 1,024 env steps (STYLE 14). Both come
+    from ``OffPolicy``, so the off-policy schedule exists once per side, not once per algorithm."""
+    settings = dict(
+        num_envs=2,
+        train_frequency=8,
+        gradient_steps=3,
+        learning_starts=96,
+        batch_size=16,
+        buffer_size=10_000,
+        hidden=(16,),
+        n_step=n_step,
+        total_steps=1_024,
+        stop_at_return=None,
+        progress=False,
+        freeze_at_return="none",
+    )
+    compiled = agentax.train("dqn", runner="compiled", out=tmp_path / "c", **settings)
+    host = agentax.train("dqn", runner="host", out=tmp_path / "h", **settings)
+    phases = (1_024 - 96) // 16 + 1  # collections of 16 env steps that end at or past step 96
+    emitted = 1_024 - 2 * (n_step - 1)  # each env's first n - 1 steps wait for their n-step return
+    assert int(compiled.result.state.agent.step[0]) == int(host.result.state.step) == 3 * phases
+    assert int(compiled.result.state.replay.size[0]) == host.metrics[-1]["replay_size"] == emitted
+
+
+def test_freezing_seeds_is_a_compiled_runner_option_refused_elsewhere(tmp_path):
+    """The per-seed early stop lives in the compiled program's learning gates: a host run or an
+    on-policy agent asking for it gets one clear error before anything is written."""
+    quick = dict(total_steps=64, progress=False, freeze_at_return=100.0)
+    with pytest.raises(UsageError, match="compiled runner's program; the host runner cannot"):
+        agentax.train("dqn", runner="host", out=tmp_path / "h", **quick)
+    with pytest.raises(UsageError, match="off-policy agent's learning gates, not ppo's"):
+        agentax.train("ppo", runner="compiled", out=tmp_path / "p", **quick)
+    with pytest.raises(UsageError, match="a number, 'none' or 'auto'"):
+        agentax.train("dqn", out=tmp_path / "x", total_steps=64, progress=False, freeze_at_return="soon")
+    assert not (tmp_path / "h").exists() and not (tmp_path / "p").exists()

@@ -8,6 +8,7 @@ import pytest
 
 from agentax.agents import dqn
 from agentax.agents.protocol import EnvSpec
+from agentax.api import compiled_program
 from agentax.envs import make_jax
 from agentax.envs.gym import GymnasiumEnv
 from agentax.evaluate import host_episode_returns
@@ -22,7 +23,6 @@ SMALL = dqn.preset(
     gradient_steps=16,
     train_frequency=16,
     target_update_period=128,
-    freeze_at_return=None,
     total_steps=8_192,
 )
 
@@ -32,11 +32,11 @@ SMALL = dqn.preset(
 def test_dqn_improves_on_the_compiled_runner_and_freezes():
     """From a near-random start to a greedy policy far above random (~22, see LECTURE-FACTS' basic
     policy at ~42); the seed freezes once 4 greedy side episodes each reach 150 and learns no more."""
-    cfg = dataclasses.replace(SMALL, freeze_at_return=150.0, freeze_episodes=4)
-    env = make_jax("CartPole-v1")
-    result = train(
-        dqn.make_train(env, cfg), env, RunnerConfig(seed=0, updates_per_chunk=32, eval_episodes=10)
+    runner = RunnerConfig(
+        seed=0, updates_per_chunk=32, eval_episodes=10, freeze_at_return=150.0, freeze_episodes=4
     )
+    env = make_jax("CartPole-v1")
+    result = train(compiled_program(dqn, env, SMALL, runner), env, runner)
     first, last = result.rows[0], result.rows[-1]
     assert last["env_steps"] == pytest.approx(8_192)
     assert first["mean_return"] < 40  # ε is still high in the first 2,048 steps
@@ -79,7 +79,7 @@ def test_lecture_schedule_counts_episodes(tmp_path):
     cfg = dataclasses.replace(dqn.PRESETS["lecture"].config, max_episodes=55, total_steps=2_000)
     env = make_jax("CartPole-v0")
     result = train(
-        dqn.make_train(env, cfg), env, RunnerConfig(seed=0, updates_per_chunk=2_000, eval_episodes=1)
+        compiled_program(dqn, env, cfg), env, RunnerConfig(seed=0, updates_per_chunk=2_000, eval_episodes=1)
     )
     state = result.state
     assert int(state.episodes.completed[0]) == 55  # collection stopped after the 55th episode
@@ -110,8 +110,10 @@ def test_lecture_schedule_in_a_batch_learns_exactly_as_alone():
     )
     env = make_jax("CartPole-v0")
     runner = RunnerConfig(seed=0, num_seeds=3, updates_per_chunk=800, eval_episodes=1)
-    batch = train(dqn.make_train(env, cfg), env, runner).state
-    alone = train(dqn.make_train(env, cfg), env, dataclasses.replace(runner, seed=1, num_seeds=1)).state
+    batch = train(compiled_program(dqn, env, cfg), env, runner).state
+    alone = train(
+        compiled_program(dqn, env, cfg), env, dataclasses.replace(runner, seed=1, num_seeds=1)
+    ).state
     assert [int(n) for n in batch.episodes.completed] == [12, 12, 12]
     assert [int(n) for n in batch.agent.step] == [21, 21, 21]  # episodes 6..12 end: 7 phases of 3 steps
     for in_batch, by_itself in zip(

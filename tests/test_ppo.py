@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from agentax.agents import ppo
+from agentax.api import compiled_program
 from agentax.envs import make_jax
 from agentax.errors import UsageError
 from agentax.nets import gaussian_entropy, gaussian_log_prob
@@ -52,7 +53,7 @@ def test_config_validation_names_the_bad_value():
 def test_one_update_moves_the_policy_and_reports_finite_losses():
     env = make_jax("CartPole-v1")
     cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, num_envs=4, num_steps=16, update_epochs=10)
-    algorithm = ppo.make_train(env, cfg)
+    algorithm = compiled_program(ppo, env, cfg)
     state = algorithm.init(jax.random.key(0))
     _, first = jax.jit(algorithm.update)(state)
     # approx_kl grows from 0 as the policy moves away from the one that collected the data
@@ -66,7 +67,7 @@ def test_ppo_learns_cartpole():
     env = make_jax("CartPole-v1")
     cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=30_720)
     result = train(
-        ppo.make_train(env, cfg), env, RunnerConfig(seed=1, updates_per_chunk=30, eval_episodes=10)
+        compiled_program(ppo, env, cfg), env, RunnerConfig(seed=1, updates_per_chunk=30, eval_episodes=10)
     )
     first, last = result.rows[0], result.rows[-1]
     assert first["mean_return"] < 100  # early episodes are short

@@ -11,6 +11,7 @@ import pytest
 
 from agentax.agents import dqn
 from agentax.agents.protocol import EnvSpec
+from agentax.api import compiled_program
 from agentax.envs import make_host_env, make_jax
 from agentax.envs.core import Discrete
 from agentax.errors import UsageError
@@ -115,7 +116,7 @@ def test_c51_loss_is_the_cross_entropy_by_hand():
     # 1: the next action is argmax [0, 0.1] = 1, target [0, 0.45, 0.55] (the projection test's first
     #    case); −(0.45 ln 1/4 + 0.55 ln 1/2) = 0.45 · 1.386294 + 0.55 · 0.693147 = 1.005063
     # 2: terminated, r 0.25: target [0, 0.75, 0.25] against action 0's uniform: −ln(1/3) = 1.098612
-    np.testing.assert_allclose(metrics["td_error"], [1.005063, 1.098612], rtol=1e-5)
+    np.testing.assert_allclose(metrics["priority"], [1.005063, 1.098612], rtol=1e-5)
     # Weighted mean: (1.005063 + 0.5 · 1.098612) / 2 = 0.777185
     assert float(metrics["loss"]) == pytest.approx(0.777185, rel=1e-5)
     # Q(s) = [0, −1/4 + 1/2] = [0, 0.25] in both samples: mean 0.125
@@ -130,11 +131,11 @@ def test_c51_double_picks_with_the_online_network():
     _, metrics = jax.jit(dqn.make_learn(cfg))(tabular_c51_agent(cfg, ONLINE, target), sample)
     # Double: the online net picks action 1, the target's uniform there projects (r 0.5, γ 0.5) to
     # [0, 1/3 + 1/6, 1/6 + 1/3]: −(0.5 ln 1/4 + 0.5 ln 1/2) = 1.039721
-    np.testing.assert_allclose(metrics["td_error"], [1.039721], rtol=1e-5)
+    np.testing.assert_allclose(metrics["priority"], [1.039721], rtol=1e-5)
     _, metrics = jax.jit(dqn.make_learn(dataclasses.replace(cfg, double=False)))(
         tabular_c51_agent(cfg, ONLINE, target), sample
     )
-    np.testing.assert_allclose(metrics["td_error"], [1.005063], rtol=1e-5)  # the target's own argmax
+    np.testing.assert_allclose(metrics["priority"], [1.005063], rtol=1e-5)  # the target's own argmax
 
 
 def test_noisy_dense():
@@ -239,7 +240,7 @@ def test_rainbow_learns_cartpole_through_the_host_runner():
 
 
 def test_rainbow_on_the_compiled_runner():
-    """make_train gives learn its key (noise) inside the scan; uniform replay (PER: the host test)."""
+    """The compiled program gives learn its key (noise) inside the scan; uniform replay (PER: host test)."""
     cfg = dataclasses.replace(
         RAINBOW_CARTPOLE,
         hidden=(16,),
@@ -250,7 +251,7 @@ def test_rainbow_on_the_compiled_runner():
         train_frequency=4,
     )
     env = make_jax("CartPole-v1")
-    algorithm = dqn.make_train(env, cfg)
+    algorithm = compiled_program(dqn, env, cfg)
     state = jax.jit(algorithm.init)(jax.random.key(0))
     update = jax.jit(algorithm.update)
     for _ in range(6):
@@ -298,7 +299,7 @@ def test_der_preset_on_frames():
         weights=jnp.ones(2),
     )
     learned, metrics = jax.jit(agent.learn)(state, sample, jax.random.key(4))
-    assert metrics["td_error"].shape == (2,) and bool(jnp.all(metrics["td_error"] > 0))
+    assert metrics["priority"].shape == (2,) and bool(jnp.all(metrics["priority"] > 0))
     assert int(learned.step) == 1
     with pytest.raises(UsageError, match="key"):
         dqn.make_learn(cfg)(state, sample)

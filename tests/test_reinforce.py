@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import pytest
 
 from agentax.agents import reinforce
+from agentax.api import compiled_program
 from agentax.envs import make_jax
 from agentax.errors import UsageError
 from agentax.runners.compiled import RunnerConfig, train
@@ -48,7 +49,9 @@ def test_reinforce_learns_cartpole_v0(preset):
     env = make_jax("CartPole-v0")
     cfg = dataclasses.replace(reinforce.PRESETS[preset].config, total_steps=75 * 2000)  # 75 iterations
     result = train(
-        reinforce.make_train(env, cfg), env, RunnerConfig(seed=1, updates_per_chunk=15, eval_episodes=10)
+        compiled_program(reinforce, env, cfg),
+        env,
+        RunnerConfig(seed=1, updates_per_chunk=15, eval_episodes=10),
     )
     first, last = result.rows[0]["mean_return"], result.rows[-1]["mean_return"]
     assert first < 40  # the untrained policy: ~20-step episodes

@@ -84,12 +84,38 @@ class RunArgs:
     sticky_actions: float = 0.25
     """Atari: probability that the emulator repeats the last action (0.25 as Gymnasium's v5; 0 as
     CleanRL's and EnvPool's published figures)"""
+    freeze_at_return: str = "auto"
+    """compiled runner, off-policy agents: each seed stops learning once its greedy policy's last
+    freeze_episodes side episodes all return at least this; 'none': never; 'auto': the preset's"""
+    freeze_episodes: int = 8
+    """compiled runner: the greedy side episodes behind --freeze-at-return"""
 
     def check(self) -> RunArgs:
         """Raise ``UsageError`` on a value no runner accepts; return ``self``."""
         if self.seeds < 1:
             raise UsageError(f"--seeds must be at least 1, got {self.seeds}")
+        if self.freeze_at_return not in ("auto", "none"):
+            try:
+                float(self.freeze_at_return)
+            except ValueError:
+                raise UsageError(
+                    f"--freeze-at-return must be a number, 'none' or 'auto', got {self.freeze_at_return!r}"
+                ) from None
         return self
+
+    def freeze(self, preset: Preset, kind: str) -> float | None:
+        """The per-seed early stop's return for a ``kind`` runner: the compiled runner's option
+        (the preset's under 'auto'); a number for another runner is refused."""
+        if self.freeze_at_return == "none":
+            return None
+        if self.freeze_at_return == "auto":
+            return preset.freeze_at_return if kind == "compiled" else None
+        if kind != "compiled":
+            raise UsageError(
+                f"--freeze-at-return stops seeds inside the compiled runner's program; the {kind} "
+                "runner cannot (train a JAX env with --runner compiled, or drop the flag)"
+            )
+        return float(self.freeze_at_return)
 
 
 # The trained run.
@@ -213,10 +239,42 @@ def restore_policy(run_dir: str | Path) -> tuple[str, Policy]:
     return config["env"], importlib.import_module(METHODS[algo]).load_policy(Path(run_dir), config)
 
 
+RUNNER_SETTINGS_ONCE_IN_CONFIG = ("freeze_at_return", "freeze_episodes")
+"""Settings that runs written before 2026-12 kept in the algorithm's config (DQN's per-seed early
+stop) and that now belong to the compiled runner's."""
+
+
+def _upgraded(config: dict[str, Any]) -> dict[str, Any]:
+    """``config.json`` of an older run in today's layout (the runner's settings in "runner")."""
+    moved = {k: config["config"][k] for k in RUNNER_SETTINGS_ONCE_IN_CONFIG if k in config.get("config", {})}
+    if not moved:
+        return config
+    settings = {k: v for k, v in config["config"].items() if k not in moved}
+    runner = dict(config.get("runner", {}))
+    if config.get("runner_kind", "compiled") == "compiled":
+        runner.update(moved)
+    return {**config, "config": settings, "runner": runner}
+
+
+def compiled_program(module: Any, env: Any, cfg: Any, runner: Any = None) -> Any:
+    """The compiled runner's program of ``module``'s agent on the JAX env ``env`` (with the per-seed
+    early stop of ``runner``, a ``RunnerConfig``, if given)."""
+    from agentax.agents.protocol import EnvSpec
+    from agentax.runners.compiled import freeze_of
+    from agentax.runners.rollout import program
+
+    agent = agent_maker(module, EnvSpec.of(env), cfg)()
+    try:
+        return program(agent, env, freeze=None if runner is None else freeze_of(runner))
+    except ValueError as error:
+        raise UsageError(f"--freeze-at-return: {error}") from None
+
+
 def _restore_learned(run_dir: Path, config: dict[str, Any]) -> Policy:
     """The greedy policy of a learning algorithm's run (its best seed), from its newest good checkpoint."""
     from agentax.agents.protocol import EnvSpec
 
+    config = _upgraded(config)
     module = algorithm(config["algo"])
     cfg = module.config_from_dict(config["config"])
     if config.get("runner_kind", "compiled") == "compiled":
@@ -224,8 +282,8 @@ def _restore_learned(run_dir: Path, config: dict[str, Any]) -> Policy:
         from agentax.runners.compiled import RunnerConfig
         from agentax.runners.compiled import restore_policy as restore_compiled
 
-        env = make_jax(config["env"])
-        return restore_compiled(run_dir, module.make_train(env, cfg), RunnerConfig(**config["runner"]))
+        env, runner = make_jax(config["env"]), RunnerConfig(**config["runner"])
+        return restore_compiled(run_dir, compiled_program(module, env, cfg, runner), runner)
     from agentax.envs import make_host_env
     from agentax.runners.host import restore_policy as restore_host
 
@@ -346,7 +404,10 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Preset, *, quiet: bool
             eval_every_chunks=preset.eval_every_chunks,
             eval_episodes=preset.eval_episodes,
             stop_at_return=stop,
+            freeze_at_return=run_args.freeze(preset, kind),
+            freeze_episodes=run_args.freeze_episodes,
         )
+        compiled_program(module, env, cfg, runner)  # refuses what it cannot build before anything is written
         settings = module.config_to_dict(cfg)
         run = RunFolder.create(
             out, run_config(algo, run_args.env, run_args.preset, "compiled", runner, settings)
@@ -368,6 +429,7 @@ def _start_host(
     from agentax.runs import Run as RunFolder
     from agentax.runs import run_config
 
+    run_args.freeze(preset, kind)  # refused here before anything is made
     if run_args.seeds != 1 and kind != compiled_atari.RUNNER_KIND:  # which says why below
         raise UsageError(
             f"the {kind} runner trains one seed per process (--seeds 1); --seeds N is compiled-only"
@@ -443,9 +505,10 @@ def _train_compiled(
     from agentax.runners.compiled import train
 
     start_time = time.perf_counter()
-    # algo, env id and config determine the program (agentax's own envs take no outside params)
+    # algo, env id, config and the freeze determine the program (agentax's own envs take no params)
     description = {key: run.config[key] for key in ("algo", "env", "config")}
-    compiled_algorithm = module.make_train(env, cfg)
+    description["freeze"] = [runner.freeze_at_return, runner.freeze_episodes]
+    compiled_algorithm = compiled_program(module, env, cfg, runner)
     result = train(
         compiled_algorithm,
         env,
@@ -469,7 +532,7 @@ def resume(run_dir: str | Path, progress: bool = True, *, quiet: bool = False) -
     from agentax.runs import latest_checkpoint, read_config
 
     run_dir = Path(run_dir)
-    config = read_config(run_dir)
+    config = _upgraded(read_config(run_dir))
     latest_checkpoint(run_dir)  # a clear error before anything starts if there is none
     algo = config["algo"]
     module = algorithm(algo)

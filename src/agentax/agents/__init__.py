@@ -2,8 +2,8 @@
 
 ``reinforce`` (the lecture's policy gradient, with an optional learned baseline), ``ppo``
 (clipped policy optimisation with GAE), ``dqn`` (deep Q-learning and its variants). Each follows
-the contract of :mod:`agentax.agents.protocol`: ``make_agent(spec, cfg)`` for the host and parallel
-runners, ``make_train(env, cfg)`` for the compiled one. :data:`ALGORITHMS` is the one registry.
+the contract of :mod:`agentax.agents.protocol`: ``make_agent(spec, cfg)``, which every runner
+drives. :data:`ALGORITHMS` is the one registry.
 """
 
 from __future__ import annotations
@@ -34,6 +34,9 @@ class Preset:
     """evaluation episodes per seed"""
     stop_at_solved: bool = False
     """stop once the evaluation reaches the env's solved threshold (the ``--stop-at-return`` default)"""
+    freeze_at_return: float | None = None
+    """compiled runner: each seed stops learning once its greedy policy's side episodes all reach
+    this (the ``--freeze-at-return`` default; ignored by the other runners unless asked for)"""
 
 
 def config_to_dict(cfg: Any) -> dict[str, Any]:

@@ -33,16 +33,11 @@ All of them together (Double, dueling, prioritized, n-step, distributional, nois
 Without a target network (``target_update_period=0``, the lecture's plain DQN) both Q_select and
 Q_target are the online network, and ``double`` changes nothing.
 
-Per-seed early stopping (``freeze_at_return``, compiled runner): greedy side episodes play alongside
-training; once their mean reaches the threshold that seed learns no more. DQN on CartPole tends to
-unlearn a solved policy (the lecture's "catastrophic forgetting"); in a batch of seeds vmapped
-together, the seeds that solved early keep their policy while the others go on.
-
 The algorithm is pure functions: ``init``, ``act`` and ``learn = make_learn(cfg)``, the last
-picking the loss pieces once, outside ``jit``. Runners own the loop: ``make_train(env, cfg)`` gives
-the compiled runner's ``init(key)`` / ``update(state)`` (collection, replay and learning of JAX envs
-in one jitted program, vmappable over seeds); ``agentax.runners.driver`` runs the same ``learn`` on
-Gymnasium envs stepped on the host.
+picking the loss pieces once, outside ``jit``. Runners own the loop: ``make_agent(spec, cfg)`` hands
+them these functions and the replay and schedule they learn with (``OffPolicy``); the compiled
+runner builds its program from them (:mod:`agentax.runners.rollout`, where the per-seed early stop
+``--freeze-at-return`` lives), the host runners drive them with a Driver.
 """
 
 from __future__ import annotations
@@ -61,13 +56,12 @@ from flax import struct
 
 from agentax import agents
 from agentax.agents import Preset
-from agentax.agents.protocol import Agent, CompiledAlgorithm, EnvSpec, Loop, OffPolicy, any_seed
-from agentax.envs.core import Discrete, Environment
+from agentax.agents.protocol import PRIORITY, Agent, EnvSpec, Loop, OffPolicy
+from agentax.envs.core import Discrete
 from agentax.errors import UsageError
 from agentax.nets import QNetwork, is_image, random_shift, support
 from agentax.policies import Policy, epsilon_greedy, linear_schedule
-from agentax.replay import ReplaySample, Transition, example_transition, nstep, prioritized, uniform
-from agentax.returns import EpisodeStats
+from agentax.replay import ReplaySample, Transition
 
 
 @dataclass(frozen=True)
@@ -135,11 +129,6 @@ class DQNConfig:
     """Stop collecting and learning after this many episodes (0: no limit; the lecture's 600)."""
     total_steps: int = 60_000
     """Env steps of the whole run (summed over envs)."""
-    freeze_at_return: float | None = None
-    """Early stopping per seed (compiled runner): stop learning once each of the greedy policy's last
-    ``freeze_episodes`` episodes, played on side envs during training, returned at least this."""
-    freeze_episodes: int = 8
-    """Greedy episodes (and side envs) behind ``freeze_at_return``."""
     distributional: bool = False
     """C51 (Bellemare et al., 2017): learn a categorical return distribution on ``num_atoms`` atoms from
     v_min to v_max (cross-entropy to the projected target; ``loss`` is then unused)."""
@@ -206,7 +195,6 @@ class DQNConfig:
             (self.num_envs >= 1, f"num_envs must be at least 1, got {self.num_envs}"),
             (self.train_frequency >= 1, f"train_frequency must be at least 1, got {self.train_frequency}"),
             (self.total_steps >= 1, f"total_steps must be at least 1, got {self.total_steps}"),
-            (self.freeze_episodes >= 1, f"freeze_episodes must be at least 1, got {self.freeze_episodes}"),
             (
                 self.schedule_unit in ("steps", "episodes"),
                 f"unknown schedule_unit {self.schedule_unit!r}; choose from steps, episodes",
@@ -353,13 +341,14 @@ DEFAULT_PRESETS: dict[str, str] = {"atari": "lecture-atari"}
 
 PRESETS: dict[str, Preset] = {
     "default": Preset(
-        DQNConfig(freeze_at_return=475.0),
+        DQNConfig(),
         "tuned for CartPole-v1: Double DQN, 3-step returns, 128 learning steps per 256 env steps; "
         "each seed stops learning once 8 greedy episodes in a row reach 475; stops when solved",
         updates_per_chunk=4,
         eval_every_chunks=1,
         eval_episodes=20,
         stop_at_solved=True,
+        freeze_at_return=475.0,
     ),
     "lecture-atari": Preset(
         LECTURE_ATARI,
@@ -609,7 +598,7 @@ def make_learn(cfg: DQNConfig) -> Callable[..., tuple[DQNState, dict]]:
     augmentation) are picked here, outside ``jit``. ``key`` draws the noise of noisy networks (one
     draw for the online network on obs and next_obs, another for the target network) and the
     augmentation's shifts; configs with neither need none. ``sample.weights`` scale each transition's
-    loss (ones for uniform replay). ``metrics`` holds ``loss``, ``q_mean`` and ``td_error``
+    loss (ones for uniform replay). ``metrics`` holds ``loss``, ``q_mean`` and ``PRIORITY``
     ``[batch]`` (the priority for prioritized replay: the TD error, or C51's cross-entropy).
     """
     use_target = cfg.target_update_period > 0
@@ -649,7 +638,7 @@ def make_learn(cfg: DQNConfig) -> Callable[..., tuple[DQNState, dict]]:
             target_params = update_target(
                 target_params, params, step, cfg.target_update_period, cfg.target_update_tau
             )
-        metrics = {"loss": loss, "q_mean": q_tm1.mean(), "td_error": td}
+        metrics = {"loss": loss, "q_mean": q_tm1.mean(), PRIORITY: td}
         return state.replace(
             params=params, target_params=target_params, opt_state=opt_state, step=step
         ), metrics
@@ -680,21 +669,8 @@ def importance_exponent_at(cfg: DQNConfig, env_steps: jax.Array) -> jax.Array:
     return linear_schedule(cfg.importance_exponent_start, 1.0, cfg.total_steps)(env_steps)
 
 
-def one_step_transition(obs: jax.Array, action: jax.Array, time_step: Any) -> Transition:
-    """The transition ``[num_envs]`` of one env step: ``next_obs`` is ``final_obs``, flags apart."""
-    return Transition(
-        obs=obs,
-        action=action.astype(jnp.int32),
-        reward=time_step.reward.astype(jnp.float32),
-        next_obs=time_step.final_obs,
-        terminated=time_step.terminated,
-        truncated=time_step.truncated,
-        num_steps=jnp.ones_like(action, dtype=jnp.int32),
-    )
-
-
 def make_agent(spec: EnvSpec, cfg: DQNConfig, *, loop: Loop = jax.lax.scan) -> Agent:
-    """DQN's pure functions for the host and parallel runners (see ``agentax.agents.protocol``).
+    """DQN's pure functions for every runner (see ``agentax.agents.protocol``).
 
     ``act``'s ``progress`` is the env steps (episodes, in the episode schedule) that set ε. ``learn``
     is one learning step, so ``loop`` goes unused: the runner loops over a learning phase's steps.
@@ -704,7 +680,8 @@ def make_agent(spec: EnvSpec, cfg: DQNConfig, *, loop: Loop = jax.lax.scan) -> A
     learn_step = make_learn(cfg)
 
     def act_epsilon_greedy(state: DQNState, obs: jax.Array, key: jax.Array, progress: jax.Array):
-        return act(state, obs, key, epsilon_at(cfg, progress)), {}
+        epsilon = epsilon_at(cfg, progress)
+        return act(state, obs, key, epsilon), {"epsilon": epsilon}
 
     experience = OffPolicy(
         num_envs=cfg.num_envs,
@@ -717,7 +694,7 @@ def make_agent(spec: EnvSpec, cfg: DQNConfig, *, loop: Loop = jax.lax.scan) -> A
         discount_factor=cfg.discount_factor,
         prioritized=cfg.prioritized,
         priority_exponent=cfg.priority_exponent,
-        importance_exponent=lambda env_steps: float(importance_exponent_at(cfg, env_steps)),
+        importance_exponent=lambda env_steps: importance_exponent_at(cfg, env_steps),
         by_episode=cfg.schedule_unit == "episodes",
         max_episodes=cfg.max_episodes,
     )
@@ -729,226 +706,7 @@ def make_agent(spec: EnvSpec, cfg: DQNConfig, *, loop: Loop = jax.lax.scan) -> A
         learn=learn_step,
         experience=experience,
         total_steps=cfg.total_steps,
-    )
-
-
-# ---------------------------------------------------------------- the compiled runner's program
-
-
-@struct.dataclass
-class TrainState:
-    """Everything one seed's compiled training carries from update to update."""
-
-    agent: DQNState
-    replay: Any  # uniform.UniformState or prioritized.PrioritizedState
-    accumulator: nstep.NStepState
-    env_state: Any
-    obs: jax.Array  # [num_envs, *obs_shape]
-    episodes: EpisodeStats  # returns, finished episodes and env steps, read by the runner
-    key: jax.Array
-    greedy: GreedyMonitor | None = None  # with freeze_at_return: the greedy side envs
-
-
-@struct.dataclass
-class GreedyMonitor:
-    """Side envs played by the greedy policy during training, for per-seed early stopping.
-
-    Their finished episodes' returns go into a ring of the last ``freeze_episodes``; once it is full
-    and every return in it reaches ``freeze_at_return`` the seed is ``frozen``: it keeps collecting (so the
-    runner's schedule is unchanged) but learns no more. Costs one extra small forward pass per step.
-    """
-
-    env_state: Any
-    obs: jax.Array  # [freeze_episodes, *obs_shape]
-    running: jax.Array  # float32 [freeze_episodes]: return of each side env's running episode
-    returns: jax.Array  # float32 [freeze_episodes]: ring of the last finished episodes' returns
-    finished: jax.Array  # int32 []: episodes finished so far
-    frozen: jax.Array  # bool []
-
-
-def monitor_step(
-    monitor: GreedyMonitor,
-    agent: DQNState,
-    key: jax.Array,
-    vmap_step: Callable,
-    params: Any,
-    threshold: float,
-) -> GreedyMonitor:
-    """One greedy step of every side env; record finished returns; freeze once every return in the
-    ring reaches ``threshold``."""
-    num = monitor.obs.shape[0]
-    action = jnp.argmax(greedy_q(agent, monitor.obs), axis=-1)
-    time_step, env_state = vmap_step(jax.random.split(key, num), monitor.env_state, action, params)
-    running = monitor.running + time_step.reward
-    done = time_step.done
-    slot = (monitor.finished + jnp.cumsum(done) - 1) % num  # ring slots of this step's finished episodes
-    returns = monitor.returns.at[jnp.where(done, slot, num)].set(running, mode="drop")
-    finished = monitor.finished + done.sum(dtype=jnp.int32)
-    solved = (finished >= num) & (returns.min() >= threshold)
-    return GreedyMonitor(
-        env_state=env_state,
-        obs=time_step.obs.astype(jnp.float32),
-        running=jnp.where(done, 0.0, running),
-        returns=returns,
-        finished=finished,
-        frozen=monitor.frozen | solved,
-    )
-
-
-@dataclass(frozen=True)
-class Replay:
-    """The replay functions a config picks: uniform or prioritized, with the same call shapes."""
-
-    init: Callable
-    add: Callable
-    sample: Callable  # (state, key, batch_size, beta) -> ReplaySample
-    update_priorities: Callable  # (state, indices, td_error) -> state
-
-
-def replay_for(cfg: DQNConfig) -> Replay:
-    if cfg.prioritized:
-        return Replay(
-            init=functools.partial(prioritized.init, priority_exponent=cfg.priority_exponent),
-            add=prioritized.add,
-            sample=prioritized.sample,
-            update_priorities=prioritized.update_priorities,
-        )
-    return Replay(
-        init=uniform.init,
-        add=uniform.add,
-        sample=lambda state, key, batch_size, beta: uniform.sample(state, key, batch_size),
-        update_priorities=lambda state, indices, td_error: state,
-    )
-
-
-def make_train(env: Environment, cfg: DQNConfig, env_params: Any = None):
-    """DQN for :func:`agentax.runners.compiled.train`: a ``CompiledAlgorithm`` on JAX env ``env``.
-
-    One ``update`` collects ``steps_per_update`` env steps (``train_frequency`` steps of ``num_envs``
-    envs, or one step in the lecture's episode schedule) into the replay buffer and then, once
-    learning has started, runs ``gradient_steps`` learning steps. ``init`` and ``update`` are pure and
-    vmap over seeds.
-    """
-    cfg.validate()
-    params = env.default_params() if env_params is None else env_params
-    num_actions = num_actions_of(env.action_space(params))
-    learn_step = make_learn(cfg)
-    replay = replay_for(cfg)
-    by_episode = cfg.schedule_unit == "episodes"
-    monitoring = cfg.freeze_at_return is not None
-    vmap_reset = jax.vmap(env.reset, in_axes=(0, None))
-    vmap_step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
-
-    def init_fn(key: jax.Array) -> TrainState:
-        key, agent_key, reset_key, monitor_key = jax.random.split(key, 4)
-        obs, env_state = vmap_reset(jax.random.split(reset_key, cfg.num_envs), params)
-        agent = init(agent_key, obs[0], num_actions, cfg)
-        one = example_transition(obs[0].astype(jnp.float32), jnp.int32(0))
-        batch = jax.tree.map(lambda x: jnp.broadcast_to(x, (cfg.num_envs, *x.shape)), one)
-        return TrainState(
-            agent=agent,
-            replay=replay.init(cfg.buffer_size, one),
-            accumulator=nstep.init(cfg.n_step, batch),
-            env_state=env_state,
-            obs=obs.astype(jnp.float32),
-            episodes=EpisodeStats.create(cfg.num_envs),
-            key=key,
-            greedy=init_monitor(monitor_key) if monitoring else None,
-        )
-
-    def init_monitor(key: jax.Array) -> GreedyMonitor:
-        obs, env_state = vmap_reset(jax.random.split(key, cfg.freeze_episodes), params)
-        zeros = jnp.zeros(cfg.freeze_episodes, jnp.float32)
-        return GreedyMonitor(env_state, obs.astype(jnp.float32), zeros, zeros, jnp.int32(0), jnp.bool_(False))
-
-    def collect_step(state: TrainState, _) -> tuple[TrainState, jax.Array]:
-        key, act_key, step_key, monitor_key = jax.random.split(state.key, 4)
-        epsilon = epsilon_at(cfg, state.episodes.completed if by_episode else state.episodes.env_steps)
-        action = act(state.agent, state.obs, act_key, epsilon)
-        time_step, env_state = vmap_step(
-            jax.random.split(step_key, cfg.num_envs), state.env_state, action, params
-        )
-        time_step = time_step.replace(
-            obs=time_step.obs.astype(jnp.float32), final_obs=time_step.final_obs.astype(jnp.float32)
-        )
-        active = state.episodes.completed < cfg.max_episodes if cfg.max_episodes else jnp.bool_(True)
-        accumulator, emitted, full = nstep.push(
-            state.accumulator, one_step_transition(state.obs, action, time_step), cfg.discount_factor
-        )
-        state = state.replace(
-            replay=replay.add(state.replay, emitted, full & active),
-            accumulator=accumulator,
-            env_state=env_state,
-            obs=time_step.obs,
-            episodes=state.episodes.record(
-                time_step.reward, time_step.done, jnp.broadcast_to(active, action.shape)
-            ),
-            key=key,
-        )
-        if monitoring:
-            greedy = monitor_step(
-                state.greedy, state.agent, monitor_key, vmap_step, params, cfg.freeze_at_return
-            )
-            state = state.replace(greedy=greedy)
-        return state, epsilon
-
-    def learn_phase(state: TrainState) -> tuple[TrainState, dict]:
-        beta = importance_exponent_at(cfg, state.episodes.env_steps)
-
-        def one(carry, _):
-            agent, replay_state, key = carry
-            # (threefry splits are prefix-stable: key and sample_key are those of a split in two)
-            key, sample_key, learn_key = jax.random.split(key, 3)
-            sample = replay.sample(replay_state, sample_key, cfg.batch_size, beta)
-            agent, metrics = learn_step(agent, sample, learn_key)
-            replay_state = replay.update_priorities(replay_state, sample.indices, metrics["td_error"])
-            return (agent, replay_state, key), (metrics["loss"], metrics["q_mean"])
-
-        key, learn_key = jax.random.split(state.key)
-        (agent, replay_state, _), (loss, q_mean) = jax.lax.scan(
-            one, (state.agent, state.replay, learn_key), length=cfg.gradient_steps
-        )
-        state = state.replace(agent=agent, replay=replay_state, key=key)
-        return state, {"loss": loss.mean(), "q_mean": q_mean.mean()}
-
-    def skip_learning(state: TrainState) -> tuple[TrainState, dict]:
-        return state, {"loss": jnp.float32(0.0), "q_mean": jnp.float32(0.0)}
-
-    def learn_where(state: TrainState, due: jax.Array) -> tuple[TrainState, dict]:
-        """Learn, keeping the result only where ``due`` (a branch taken when any seed is due)."""
-        learned, metrics = learn_phase(state)
-        skipped, zeros = skip_learning(state)
-        return jax.tree.map(lambda new, old: jnp.where(due, new, old), (learned, metrics), (skipped, zeros))
-
-    def update_fn(state: TrainState) -> tuple[TrainState, dict]:
-        episodes_before = state.episodes.completed
-        length = 1 if by_episode else cfg.train_frequency
-        state, epsilon = jax.lax.scan(collect_step, state, length=length)
-        if by_episode:
-            ended = state.episodes.completed > episodes_before
-            due = (
-                ended
-                & (state.episodes.completed % cfg.train_frequency == 0)
-                & (episodes_before >= cfg.learning_starts)
-            )
-        else:
-            due = state.episodes.env_steps >= cfg.learning_starts
-        if cfg.max_episodes:
-            due = due & (episodes_before < cfg.max_episodes)
-        extra = {}
-        if monitoring:
-            due = due & ~state.greedy.frozen
-            extra = {"frozen": state.greedy.frozen.astype(jnp.float32)}
-        state, metrics = jax.lax.cond(any_seed(due), lambda s: learn_where(s, due), skip_learning, state)
-        learning_steps = state.agent.step.astype(jnp.float32)
-        return state, {**metrics, "epsilon": epsilon[-1], "learning_steps": learning_steps, **extra}
-
-    return CompiledAlgorithm(
-        init=init_fn,
-        update=update_fn,
-        num_updates=cfg.num_updates,
-        steps_per_update=cfg.steps_per_update,
-        greedy_policy=lambda state: greedy_policy(state.agent),
+        learning_steps=lambda state: state.step,
     )
 
 
@@ -967,7 +725,6 @@ __all__ = [
     "DQNConfig",
     "DQNState",
     "PRESETS",
-    "TrainState",
     "act",
     "config_from_dict",
     "config_to_dict",
@@ -976,7 +733,6 @@ __all__ = [
     "learn",
     "make_agent",
     "make_learn",
-    "make_train",
     "preset",
     "td_error",
 ]

@@ -17,8 +17,8 @@ EnvPool's reset step, see :mod:`agentax.envs.envpool_xla`): every mean above, an
 normalisation, then runs over the valid steps only; the runner marks the step before such a step
 done, so GAE does not cross it.
 
-Pure functions: ``init``, ``act`` and ``learn`` serve every runner — ``make_train`` wraps them for
-the compiled runner (JAX envs, vmapped over seeds), ``make_agent`` for the host and parallel ones.
+Pure functions: ``init``, ``act`` and ``learn`` serve every runner through ``make_agent``; the
+compiled runner builds its rollout program from them (:mod:`agentax.runners.rollout`).
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ from flax import struct
 
 from agentax import agents
 from agentax.agents import Preset
-from agentax.agents.protocol import Agent, CompiledAlgorithm, EnvSpec, Loop, OnPolicy
-from agentax.envs.core import Box, Discrete, Environment
+from agentax.agents.protocol import Agent, EnvSpec, Loop, OnPolicy
+from agentax.envs.core import Box, Discrete
 from agentax.errors import UsageError
 from agentax.nets import (
     ACTIVATIONS,
@@ -47,7 +47,7 @@ from agentax.nets import (
 )
 from agentax.policies import Policy
 from agentax.replay import Transition
-from agentax.returns import EpisodeStats, gae, masked_mean, normalize
+from agentax.returns import gae, masked_mean, normalize
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ class PPOConfig:
     """activation of the hidden layers: elu, relu, tanh, gelu or swish"""
 
     def validate(self) -> PPOConfig:
-        """Raise a UsageError naming the first bad value (run by ``make_train`` and the CLI)."""
+        """Raise a UsageError naming the first bad value (run by ``make_agent`` and the CLI)."""
         positive = (
             "total_steps",
             "num_envs",
@@ -379,20 +379,8 @@ def learn(
     return agent, jax.tree.map(jnp.mean, metrics)
 
 
-# The compiled runner (JAX envs).
-
-
-@struct.dataclass
-class TrainState:
-    agent: PPOAgent
-    env_state: Any
-    obs: jax.Array  # (num_envs, *obs_shape)
-    key: jax.Array
-    episodes: EpisodeStats
-
-
 def make_agent(spec: EnvSpec, cfg: PPOConfig, *, loop: Loop = jax.lax.scan) -> Agent:
-    """PPO's pure functions for the host and parallel runners (see ``agentax.agents.protocol``);
+    """PPO's pure functions for every runner (see ``agentax.agents.protocol``);
     ``loop`` runs the learning steps (the runner's :func:`agentax._xla.learning_loop`)."""
     cfg.validate()
     action_dim(spec)  # a clear error for actions PPO cannot take
@@ -410,53 +398,6 @@ def make_agent(spec: EnvSpec, cfg: PPOConfig, *, loop: Loop = jax.lax.scan) -> A
         experience=OnPolicy(cfg.num_envs, cfg.num_steps),
         total_steps=cfg.total_steps,
         env_action=lambda action: env_action(action, spec),
-    )
-
-
-def make_train(env: Environment, cfg: PPOConfig, env_params: Any = None):
-    """PPO for :func:`agentax.runners.compiled.train`: a ``CompiledAlgorithm``."""
-    cfg.validate()
-    params = env.default_params() if env_params is None else env_params
-    spec = EnvSpec.of(env, params)
-
-    def init_state(key: jax.Array) -> TrainState:
-        key, agent_key, reset_key = jax.random.split(key, 3)
-        obs, env_state = jax.vmap(env.reset, in_axes=(0, None))(
-            jax.random.split(reset_key, cfg.num_envs), params
-        )
-        return TrainState(init(agent_key, spec, cfg), env_state, obs, key, EpisodeStats.create(cfg.num_envs))
-
-    def env_step(state: TrainState, _):
-        key, act_key, step_key = jax.random.split(state.key, 3)
-        action, action_log_prob, _ = act(state.agent.params, state.obs, act_key, spec, cfg)
-        ts, env_state = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
-            jax.random.split(step_key, cfg.num_envs), state.env_state, env_action(action, spec), params
-        )
-        transition = Transition(
-            obs=state.obs,
-            action=action,
-            reward=ts.reward,
-            next_obs=ts.final_obs,
-            terminated=ts.terminated,
-            truncated=ts.truncated,
-            num_steps=jnp.ones_like(ts.terminated, jnp.int32),
-            info={"log_prob": action_log_prob},
-        )
-        episodes = state.episodes.record(ts.reward, ts.done)
-        return state.replace(env_state=env_state, obs=ts.obs, key=key, episodes=episodes), transition
-
-    def update(state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
-        state, rollout = jax.lax.scan(env_step, state, None, cfg.num_steps)
-        key, learn_key = jax.random.split(state.key)
-        agent, metrics = learn(state.agent, rollout, learn_key, spec, cfg)
-        return state.replace(agent=agent, key=key), metrics
-
-    return CompiledAlgorithm(
-        init=init_state,
-        update=update,
-        num_updates=cfg.num_updates,
-        steps_per_update=cfg.steps_per_update,
-        greedy_policy=lambda state: greedy_policy(state.agent.params, spec, cfg),
     )
 
 

@@ -6,10 +6,9 @@ functions over pytrees. Its contract, written once here:
 - ``PRESETS: dict[str, Preset]`` (with ``"default"``), ``DEFAULT_PRESETS: dict[env_id, preset name]``;
   a frozen config dataclass with ``total_steps``, ``validate()``, ``config_to_dict`` /
   ``config_from_dict``;
-- ``make_agent(spec: EnvSpec, cfg) -> Agent``: the four pure functions below, closed over the env's
-  spec and the config, and the experience they learn from;
-- ``make_train(env, cfg) -> CompiledAlgorithm``: the same functions inside one jittable update, for
-  the compiled runner (JAX envs, vmapped over seeds).
+- ``make_agent(spec: EnvSpec, cfg, *, loop=jax.lax.scan) -> Agent``: the four pure functions below,
+  closed over the env's spec and the config, and the experience they learn from. Every runner drives
+  this one object; the compiled runner builds its program from it (:mod:`agentax.runners.rollout`).
 
 An :class:`Agent` is TF-Agents' agent in JAX terms:
 
@@ -28,6 +27,10 @@ key)``                 :class:`~agentax.replay.Transition` ``[T, E]``, its ``inf
 ``experience`` says which: :class:`OnPolicy` (rollouts of ``num_steps`` steps from ``num_envs``
 envs, collected with the current parameters), :class:`Episodes` (whole episodes from fresh resets,
 REINFORCE) or :class:`OffPolicy` (a replay buffer, its sample size and the learning schedule).
+What runners rely on, and nothing more: ``act``'s ``info`` entries that are scalars (DQN's
+``epsilon``) and every scalar metric of ``learn`` become columns of metrics.csv (per-sample arrays
+are not logged); an off-policy ``learn`` on prioritized replay returns the new priorities
+``[batch]`` as ``metrics[PRIORITY]``; ``OffPolicy.importance_exponent`` is traceable.
 Runners (``agentax.runners``) own the loop; an agent never imports a runner, the CLI or the run
 folder. This module is a leaf: both sides import it, it imports neither.
 """
@@ -44,6 +47,9 @@ import jax.numpy as jnp
 from agentax.envs.core import Box, Discrete
 from agentax.policies import Policy
 
+PRIORITY = "priority"
+"""The metric of an off-policy ``learn`` that holds each sampled transition's new priority ``[batch]``
+(DQN: ``|TD error|``, or C51's cross-entropy); runners write it back into prioritized replay."""
 AgentState = Any
 Experience = Any
 Loop = Callable[[Callable, Any, Any], tuple[Any, Any]]
@@ -107,8 +113,11 @@ class OffPolicy:
     discount_factor: float = 0.99
     prioritized: bool = False
     priority_exponent: float = 0.6
-    importance_exponent: Callable[[int], float] = field(default=lambda env_steps: 1.0, compare=False)
-    """β of prioritized replay's importance weights after ``env_steps``"""
+    importance_exponent: Callable[[jax.Array], jax.Array] = field(
+        default=lambda env_steps: jnp.float32(1.0), compare=False
+    )
+    """β of prioritized replay's importance weights after ``env_steps`` (traceable: a compiled loop
+    calls it on a traced count, the host runner on an int, taking ``float`` of the result)"""
     by_episode: bool = False
     max_episodes: int = 0
     """stop collecting after this many episodes (0: no limit)"""
@@ -132,6 +141,8 @@ class Agent:
     total_steps: int
     env_action: Callable[[jax.Array], jax.Array] = field(default=lambda action: action, compare=False)
     """what the env receives for a sampled action (PPO clips continuous actions to the bounds)"""
+    learning_steps: Callable[[AgentState], jax.Array] | None = field(default=None, compare=False)
+    """the learning steps a state has taken, for the runners' ``learning_steps`` column (None: not logged)"""
 
 
 ACTING_UNUSED = ("opt_state", "target_params")
@@ -143,40 +154,3 @@ def acting_view(state: AgentState) -> AgentState:
     """What actors in other processes need of an agent state: ``state`` without its optimizer state
     and target parameters (a Nature-CNN DQN's state shrinks 4x, to its parameters)."""
     return state.replace(**{name: None for name in ACTING_UNUSED if hasattr(state, name)})
-
-
-# ---------------------------------------------------------------- the compiled runner's contract
-
-TrainState = Any
-SEED_AXIS = "seeds"  # the name of the compiled runner's vmap axis over seeds
-
-
-@dataclass(frozen=True)
-class CompiledAlgorithm:
-    """What an algorithm hands the compiled runner (``agentax.runners.compiled``).
-
-    ``init(key) -> TrainState``: everything one seed's training carries (agent, env states, replay,
-    key, counters), with an ``episodes`` field (:class:`agentax.returns.EpisodeStats`);
-    ``update(state) -> (state, metrics)``: one collect-then-learn iteration, jittable, no Python
-    flags inside; ``num_updates`` iterations make the training, each ``steps_per_update`` env steps;
-    ``greedy_policy(state)``: the evaluation policy of one seed's state.
-    """
-
-    init: Callable[[jax.Array], TrainState]
-    update: Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]
-    num_updates: int
-    steps_per_update: int
-    greedy_policy: Callable[[TrainState], Policy]
-
-
-def any_seed(flag: jax.Array) -> jax.Array:
-    """Whether ``flag`` holds for any seed of the compiled runner's batch, as one unbatched bool.
-
-    Under the runner's vmap a ``lax.cond`` on a per-seed flag becomes a select that runs both
-    branches for every seed; on ``any_seed(flag)`` it stays a branch (the branch then keeps its
-    result only where ``flag`` holds). Outside the runner (no seed axis) this is ``flag`` itself.
-    """
-    try:
-        return jax.lax.psum(flag.astype(jnp.int32), SEED_AXIS) > 0
-    except NameError:  # not traced under the runner's vmap
-        return flag

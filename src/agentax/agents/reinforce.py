@@ -30,13 +30,13 @@ from flax import struct
 
 from agentax import agents
 from agentax.agents import Preset
-from agentax.agents.protocol import Agent, CompiledAlgorithm, EnvSpec, Episodes, Loop
-from agentax.envs.core import Discrete, Environment
+from agentax.agents.protocol import Agent, EnvSpec, Episodes, Loop
+from agentax.envs.core import Discrete
 from agentax.errors import UsageError
 from agentax.nets import ACTIVATIONS, MLP, PolicyNet, log_prob
 from agentax.policies import Policy
 from agentax.replay import Transition
-from agentax.returns import EpisodeStats, discounted_returns, normalize
+from agentax.returns import discounted_returns, normalize
 
 
 @dataclass(frozen=True)
@@ -170,7 +170,7 @@ def returns_to_go(reward: jax.Array, ended: jax.Array, discount_factor: float) -
 
 
 def make_agent(spec: EnvSpec, cfg: ReinforceConfig, *, loop: Loop = jax.lax.scan) -> Agent:
-    """REINFORCE's pure functions for the host and parallel runners (see ``agentax.agents.protocol``).
+    """REINFORCE's pure functions for every runner (see ``agentax.agents.protocol``).
 
     It learns from whole episodes: ``Episodes(episodes_per_update, max_steps)``, the steps after an
     episode's end masked out by ``info["valid"]``. ``learn`` is one gradient step (``loop`` unused).
@@ -202,62 +202,6 @@ def make_agent(spec: EnvSpec, cfg: ReinforceConfig, *, loop: Loop = jax.lax.scan
         learn=learn_episodes,
         experience=Episodes(cfg.episodes_per_update, cfg.max_steps),
         total_steps=cfg.total_steps,
-    )
-
-
-@struct.dataclass
-class TrainState:
-    agent: ReinforceAgent
-    key: jax.Array
-    episodes: EpisodeStats
-
-
-def make_train(env: Environment, cfg: ReinforceConfig, env_params: Any = None):
-    """REINFORCE for :func:`agentax.runners.compiled.train`: a ``CompiledAlgorithm``."""
-    cfg.validate()
-    params = env.default_params() if env_params is None else env_params
-    spec = EnvSpec.of(env, params)
-    num_actions, obs_shape = num_actions_of(spec, cfg), spec.obs_shape
-    num_episodes = cfg.episodes_per_update
-    net = policy_network(cfg, num_actions)
-
-    def init_state(key: jax.Array) -> TrainState:
-        key, agent_key = jax.random.split(key)
-        return TrainState(
-            init(agent_key, obs_shape, num_actions, cfg), key, EpisodeStats.create(num_episodes)
-        )
-
-    def update(state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
-        key, reset_key, play_key, next_key = jax.random.split(state.key, 4)
-        obs, env_state = jax.vmap(env.reset, in_axes=(0, None))(
-            jax.random.split(reset_key, num_episodes), params
-        )
-
-        def step(carry, t):
-            obs, env_state, alive, episodes, key = carry
-            key, act_key, step_key = jax.random.split(key, 3)
-            action = jax.random.categorical(act_key, net.apply(state.agent.params["policy"], obs))
-            ts, env_state = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
-                jax.random.split(step_key, num_episodes), env_state, action, params
-            )
-            ended = ts.done | (t == cfg.max_steps - 1)
-            episodes = episodes.record(ts.reward, ended, alive)
-            out = {"obs": obs, "action": action, "reward": ts.reward * alive, "ended": ended, "valid": alive}
-            return (ts.obs, env_state, alive & ~ended, episodes, key), out
-
-        alive = jnp.ones(num_episodes, bool)
-        carry = (obs, env_state, alive, state.episodes, play_key)
-        (_, _, _, episodes, _), batch = jax.lax.scan(step, carry, jnp.arange(cfg.max_steps))
-        batch["returns"] = returns_to_go(batch["reward"], batch["ended"], cfg.discount_factor)
-        agent, metrics = learn(state.agent, batch, num_actions, cfg)
-        return TrainState(agent, next_key, episodes), metrics
-
-    return CompiledAlgorithm(
-        init=init_state,
-        update=update,
-        num_updates=cfg.num_updates,
-        steps_per_update=cfg.steps_per_update,
-        greedy_policy=lambda state: greedy_policy(state.agent.params, num_actions, cfg),
     )
 
 

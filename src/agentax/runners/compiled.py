@@ -1,18 +1,10 @@
 """The compiled runner: the whole training of a JAX env under ``jit`` + ``lax.scan``, vmapped over seeds.
 
-**Protocol.** An algorithm hands the runner a :class:`~agentax.agents.protocol.CompiledAlgorithm`:
-
-- ``init(key) -> TrainState``: a pytree holding everything training needs — agent parameters and
-  optimizer state, env states and observations, a replay buffer if any, the key, counters — and an
-  ``episodes`` field, an :class:`agentax.returns.EpisodeStats` that the algorithm updates with
-  every env step it takes (``episodes.record(reward, done)``).
-- ``update(state) -> (state, metrics)``: one iteration, collect then learn; jittable, with no
-  Python flags inside (gate "learning starts" and "every k steps" with ``lax.cond``); ``metrics``
-  is a dict of scalar arrays (losses, entropy, ...).
-- ``num_updates``: how many iterations make the whole training; ``steps_per_update``: env steps
-  per iteration across the algorithm's envs (for the progress bar and the chunk size).
-- ``greedy_policy(state) -> Policy``: the evaluation policy ``(obs, key) -> action`` of one
-  seed's TrainState (acts on one observation).
+**The program** is built from the agent by :func:`agentax.runners.rollout.program`, the same
+for every algorithm: a :class:`~agentax.runners.rollout.Program` whose ``init(key)`` gives one
+seed's carry (agent state, env states, replay if any, key, and an ``episodes`` field, an
+:class:`agentax.returns.EpisodeStats` updated at every env step) and whose ``update(carry) ->
+(carry, metrics)`` is one collect-then-learn iteration, ``num_updates`` of them a training.
 
 **The runner** compiles one program, ``jax.jit(jax.vmap(chunk))``, where ``chunk`` scans
 ``update`` ``updates_per_chunk`` times (a shared, unbatched count discards the updates past the
@@ -20,12 +12,12 @@ end in a last, shorter chunk, so no second program is compiled) and then, when a
 evaluates the greedy policy with :func:`agentax.envs.core.episode_returns` on fresh evaluation
 keys — inside the same program. Seed ``k`` of a batch starting at ``seed`` uses
 ``jax.random.key(seed + k)``, so seed ``k`` run alone gives the same numbers as inside a batch.
-The program and the one that initialises the TrainState pass it as the flat list of its arrays;
+The program and the one that initialises the carry pass it as the flat list of its arrays;
 given a description of what they compute, :mod:`agentax.runners.programs` keeps them on disk, so a
 repeated run neither traces nor compiles them.
 
 Between chunks, back in Python, it logs a row (metrics.csv, TensorBoard, a rich progress bar),
-checkpoints the whole TrainState (so a resumed run continues exactly), and stops early once
+checkpoints the whole carry (so a resumed run continues exactly), and stops early once
 every seed's evaluation mean reaches ``stop_at_return`` (solved means solved on every seed).
 At the end it evaluates the greedy policies once more on fresh keys, writes eval.json and curve.png.
 
@@ -48,13 +40,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agentax.agents.protocol import SEED_AXIS, CompiledAlgorithm, TrainState, any_seed  # noqa: F401
 from agentax.curves import plot_curves, preload_plotting
 from agentax.envs.core import Environment, episode_returns
 from agentax.errors import TrainingInterrupted, UsageError
 from agentax.policies import Policy
 from agentax.runners import programs
 from agentax.runners.logger import Progress, check_finite, check_finite_tree
+from agentax.runners.rollout import SEED_AXIS, Freeze, Program
 from agentax.runs import Run, load_checkpoint
 
 EVAL_KEY_OFFSET = 1_000_003  # evaluation keys are fold_in(seed key, offset + evaluation number)
@@ -87,13 +79,18 @@ class RunnerConfig:
     """also write a checkpoint every this many chunks (0: by time only)"""
     checkpoint_every_seconds: float = 30.0
     """write a checkpoint at most this often, and whenever the loop ends (finished, solved, stopped)"""
+    freeze_at_return: float | None = None
+    """off-policy agents: each seed stops learning once each of its greedy policy's last
+    ``freeze_episodes`` episodes, played on side envs during training, returned at least this"""
+    freeze_episodes: int = 8
+    """greedy episodes (and side envs) behind ``freeze_at_return``"""
 
     def __post_init__(self):
         if self.num_seeds < 1:
             raise UsageError(f"--seeds must be at least 1, got {self.num_seeds}")
         if self.eval_every_chunks < 0:
             raise UsageError(f"eval_every_chunks must not be negative, got {self.eval_every_chunks}")
-        for name in ("updates_per_chunk", "eval_episodes"):
+        for name in ("updates_per_chunk", "eval_episodes", "freeze_episodes"):
             if getattr(self, name) < 1:
                 raise UsageError(f"{name} must be at least 1, got {getattr(self, name)}")
 
@@ -102,7 +99,7 @@ class RunnerConfig:
 class TrainResult:
     """What a training did: the final (vmapped) state, counts, the final evaluation and timings."""
 
-    state: TrainState
+    state: Any
     updates: int
     env_steps: float
     eval: dict[str, Any]
@@ -126,17 +123,24 @@ def eval_every_chunks(runner: RunnerConfig, num_updates: int) -> int:
     return max(1, -(-chunks // AUTO_EVALUATIONS))
 
 
+def freeze_of(runner: RunnerConfig) -> Freeze | None:
+    """The per-seed early stop the runner asks of the program (None: none)."""
+    if runner.freeze_at_return is None:
+        return None
+    return Freeze(runner.freeze_at_return, runner.freeze_episodes)
+
+
 def seeds_of(runner: RunnerConfig) -> np.ndarray:
     """The seeds of the runner's agents ``[num_seeds]``: agent k uses ``seed + k``, alone or in a batch."""
     return np.arange(runner.seed, runner.seed + runner.num_seeds, dtype=np.int32)
 
 
-def init_from_seeds(algorithm: CompiledAlgorithm) -> Callable[[jax.Array], TrainState]:
-    """``seeds [S] -> TrainState`` with a leading seed axis: ``algorithm.init(jax.random.key(seed))`` each."""
+def init_from_seeds(algorithm: Program) -> Callable[[jax.Array], Any]:
+    """``seeds [S] -> carry`` with a leading seed axis: ``algorithm.init(jax.random.key(seed))`` each."""
     return jax.vmap(lambda seed: algorithm.init(jax.random.key(seed)))
 
 
-def make_chunk(algorithm: CompiledAlgorithm, env: Environment, updates_per_chunk: int, eval_episodes: int):
+def make_chunk(algorithm: Program, env: Environment, updates_per_chunk: int, eval_episodes: int):
     """``chunk(state, num_active, do_eval, seed_key, evaluation) -> (state, metrics, returns, lengths)``.
 
     One seed's chunk: keeps ``num_active`` (≤ ``updates_per_chunk``) updates; ``metrics`` are their means; the
@@ -181,15 +185,15 @@ def _episode_means(stats_before, stats_after) -> np.ndarray:
 
 
 def _programs(
-    algorithm: CompiledAlgorithm,
+    algorithm: Program,
     env: Environment,
     runner: RunnerConfig,
     seeds: np.ndarray,
     description: dict[str, Any] | None,
-) -> tuple[TrainState, Callable, Callable]:
-    """``(shapes, init, chunk)``: the TrainState's shapes and the runner's two programs, vmapped over seeds.
+) -> tuple[Any, Callable, Callable]:
+    """``(shapes, init, chunk)``: the carry's shapes and the runner's two programs, vmapped over seeds.
 
-    Both take and give the TrainState as the flat list of its arrays (plain lists export, custom
+    Both take and give the Any as the flat list of its arrays (plain lists export, custom
     pytree nodes do not): ``init(seeds) -> leaves`` and ``chunk(leaves, num_active, do_eval, seeds,
     evaluation) -> (leaves, metrics, returns, lengths)``. With a ``description`` they come from
     :mod:`agentax.runners.programs`, so a repeated run neither traces nor lowers them.
@@ -229,7 +233,7 @@ def _programs(
 
 
 def train(
-    algorithm: CompiledAlgorithm,
+    algorithm: Program,
     env: Environment,
     runner: RunnerConfig,
     run: Run | None = None,
@@ -387,7 +391,7 @@ def train(
 
 
 def restore_policy(
-    run_dir, algorithm: CompiledAlgorithm, runner: RunnerConfig, seed_index: int | None = None
+    run_dir, algorithm: Program, runner: RunnerConfig, seed_index: int | None = None
 ) -> Policy:
     """The greedy policy of one seed of a run's newest checkpoint (the best seed by eval.json if None)."""
     target = jax.eval_shape(init_from_seeds(algorithm), seeds_of(runner))

@@ -31,7 +31,7 @@ import jax
 import numpy as np
 
 from agentax import _xla
-from agentax.agents.protocol import Agent, Episodes, Loop, OffPolicy, OnPolicy
+from agentax.agents.protocol import PRIORITY, Agent, Episodes, Loop, OffPolicy, OnPolicy
 from agentax.envs import make_host_env
 from agentax.evaluate import host_episode_returns
 from agentax.nets import is_image
@@ -282,13 +282,13 @@ class OffPolicyLearner:
             if self.dataset is None:
                 self.dataset = self.replay.as_dataset(experience.batch_size, experience.gradient_steps)
             return self.learn_many(state, next(self.dataset), key)
-        beta = experience.importance_exponent(env_steps)
+        beta = float(experience.importance_exponent(env_steps))
         losses, q_means = [], []
         for step_key in jax.random.split(key, experience.gradient_steps):
             sample = self.replay.sample(experience.batch_size, beta)
             state, metrics = self.learn(state, sample, step_key)
             metrics = jax.device_get(metrics)
-            self.replay.update_priorities(sample.indices, metrics["td_error"])
+            self.replay.update_priorities(sample.indices, metrics[PRIORITY])
             losses.append(metrics["loss"])
             q_means.append(metrics.get("q_mean", metrics["loss"]))
         return state, {"loss": np.mean(losses), "q_mean": np.mean(q_means)}

@@ -1,0 +1,411 @@
+"""Programs from the Agent: the compiled runner's iteration, built once for every algorithm.
+
+:func:`program` takes any :class:`~agentax.agents.protocol.Agent` and a JAX env and returns a
+:class:`Program`: ``init(key) -> carry`` and ``update(carry) -> (carry, metrics)``, pure and
+jittable, which :mod:`agentax.runners.compiled` scans, vmaps over seeds and evaluates. What the
+iteration does follows from ``agent.experience``:
+
+=================  ==============================================================================
+``OnPolicy``       a rollout of ``num_steps`` steps from ``num_envs`` envs with ``agent.act``, then
+                   ``agent.learn`` on the trajectory ``[T, E]`` (PPO)
+``Episodes``       ``num_envs`` whole episodes from fresh resets, steps after an episode's end marked
+                   in ``info["valid"]``, then ``agent.learn`` (REINFORCE)
+``OffPolicy``      ``train_frequency`` env steps (one in the episode schedule) into the jittable
+                   replay through an n-step accumulator, then, where the learning gates open, a
+                   phase of ``gradient_steps`` learning steps on sampled batches, with priorities
+                   written back for prioritized replay (DQN)
+=================  ==============================================================================
+
+The gates are the host runner's (:func:`agentax.runners.host.learning_started`), written with
+``lax.cond``: learning starts after ``learning_starts`` env steps (or episodes), runs every
+``train_frequency`` episodes in the episode schedule, and ends with ``max_episodes``. With
+:class:`Freeze` a seed stops learning once its greedy policy, played on side envs, keeps reaching a
+return (a compiled-runner option: the other runners refuse it).
+
+What the runner reads of the agent's answers is written down in the protocol: ``act``'s scalar
+``info`` entries (DQN's ``epsilon``) and every scalar metric of ``learn`` become columns, a
+prioritized ``learn`` returns ``metrics["priority"]`` ``[batch]``, and ``importance_exponent`` is
+a traced scalar. Each program splits its keys as the algorithm's own loop did before this module
+(PPO ``(key, act, step)`` per step, DQN ``(key, act, step, monitor)``), so a seed's numbers are the
+same as they were; the carries keep their field names, so older checkpoints load.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from agentax.agents.protocol import PRIORITY, Agent, Episodes, OffPolicy, OnPolicy
+from agentax.envs.core import Environment, EnvParams, Policy, TimeStep
+from agentax.replay import Transition, example_transition, nstep, prioritized, uniform
+from agentax.returns import EpisodeStats
+
+SEED_AXIS = "seeds"  # the name of the compiled runner's vmap axis over seeds
+
+
+def any_seed(flag: jax.Array) -> jax.Array:
+    """Whether ``flag`` holds for any seed of the compiled runner's batch, as one unbatched bool.
+
+    Under the runner's vmap a ``lax.cond`` on a per-seed flag becomes a select that runs both
+    branches for every seed; on ``any_seed(flag)`` it stays a branch (the branch then keeps its
+    result only where ``flag`` holds). Outside the runner (no seed axis) this is ``flag`` itself.
+    """
+    try:
+        return jax.lax.psum(flag.astype(jnp.int32), SEED_AXIS) > 0
+    except NameError:  # not traced under the runner's vmap
+        return flag
+
+
+@dataclass(frozen=True)
+class Program:
+    """One seed's training as the compiled runner runs it: ``num_updates`` calls of ``update``,
+    each ``steps_per_update`` env steps; ``greedy_policy(carry)`` is the evaluation policy."""
+
+    init: Callable[[jax.Array], Any]
+    update: Callable[[Any], tuple[Any, dict[str, jax.Array]]]
+    num_updates: int
+    steps_per_update: int
+    greedy_policy: Callable[[Any], Policy]
+
+
+@dataclass(frozen=True)
+class Freeze:
+    """Per-seed early stopping: ``episodes`` side envs play the greedy policy during training; once
+    each of their last ``episodes`` finished episodes returned at least ``at_return``, the seed
+    keeps collecting (the schedule is unchanged) but learns no more."""
+
+    at_return: float
+    episodes: int = 8
+
+
+@dataclass(frozen=True)
+class VectorEnv:
+    """``num_envs`` copies of a JAX env with its params, batched by ``vmap``."""
+
+    env: Environment
+    params: EnvParams
+    num_envs: int
+
+    def reset(self, key: jax.Array) -> tuple[jax.Array, Any]:
+        return jax.vmap(self.env.reset, in_axes=(0, None))(jax.random.split(key, self.num_envs), self.params)
+
+    def step(self, key: jax.Array, state: Any, action: jax.Array) -> tuple[TimeStep, Any]:
+        keys = jax.random.split(key, self.num_envs)
+        return jax.vmap(self.env.step, in_axes=(0, 0, 0, None))(keys, state, action, self.params)
+
+
+def transition_of(obs: jax.Array, action: jax.Array, time_step: TimeStep, info: Any = None) -> Transition:
+    """The transition ``[num_envs]`` of one env step: ``next_obs`` is the observation the step
+    really reached (``final_obs``), ``terminated`` and ``truncated`` apart."""
+    return Transition(
+        obs=obs,
+        action=action,
+        reward=time_step.reward,
+        next_obs=time_step.final_obs,
+        terminated=time_step.terminated,
+        truncated=time_step.truncated,
+        num_steps=jnp.ones_like(time_step.terminated, jnp.int32),
+        info=info,
+    )
+
+
+def scalars(metrics: dict[str, jax.Array]) -> dict[str, jax.Array]:
+    """The scalar entries of ``metrics`` (what a row can hold), as float32."""
+    return {k: jnp.asarray(v, jnp.float32) for k, v in metrics.items() if jnp.ndim(v) == 0}
+
+
+def program(
+    agent: Agent, env: Environment, env_params: EnvParams = None, *, freeze: Freeze | None = None
+) -> Program:
+    """The compiled runner's :class:`Program` for ``agent`` on the JAX env ``env``."""
+    params = env.default_params() if env_params is None else env_params
+    experience = agent.experience
+    if isinstance(experience, OffPolicy):
+        return off_policy_program(agent, VectorEnv(env, params, experience.num_envs), freeze)
+    if freeze is not None:
+        raise ValueError(f"freezing seeds needs an off-policy agent's learning gates, not {agent.name}'s")
+    if isinstance(experience, Episodes):
+        return episodes_program(agent, VectorEnv(env, params, experience.num_envs))
+    return on_policy_program(agent, VectorEnv(env, params, experience.num_envs))
+
+
+# ---------------------------------------------------------------- on-policy rollouts (PPO)
+
+
+@struct.dataclass
+class OnPolicyCarry:
+    agent: Any
+    env_state: Any
+    obs: jax.Array  # [num_envs, *obs_shape]
+    key: jax.Array
+    episodes: EpisodeStats
+
+
+def on_policy_program(agent: Agent, envs: VectorEnv) -> Program:
+    experience: OnPolicy = agent.experience
+
+    def init(key: jax.Array) -> OnPolicyCarry:
+        key, agent_key, reset_key = jax.random.split(key, 3)
+        obs, env_state = envs.reset(reset_key)
+        return OnPolicyCarry(agent.init(agent_key), env_state, obs, key, EpisodeStats.create(envs.num_envs))
+
+    def env_step(carry: OnPolicyCarry, _) -> tuple[OnPolicyCarry, Transition]:
+        key, act_key, step_key = jax.random.split(carry.key, 3)
+        action, info = agent.act(carry.agent, carry.obs, act_key, carry.episodes.env_steps)
+        time_step, env_state = envs.step(step_key, carry.env_state, agent.env_action(action))
+        transition = transition_of(carry.obs, action, time_step, info)
+        episodes = carry.episodes.record(time_step.reward, time_step.done)
+        return carry.replace(env_state=env_state, obs=time_step.obs, key=key, episodes=episodes), transition
+
+    def update(carry: OnPolicyCarry) -> tuple[OnPolicyCarry, dict[str, jax.Array]]:
+        carry, trajectory = jax.lax.scan(env_step, carry, None, experience.num_steps)
+        key, learn_key = jax.random.split(carry.key)
+        agent_state, metrics = agent.learn(carry.agent, trajectory, learn_key)
+        return carry.replace(agent=agent_state, key=key), scalars(metrics)
+
+    steps = envs.num_envs * experience.num_steps
+    return Program(
+        init, update, max(1, agent.total_steps // steps), steps, lambda c: agent.greedy_policy(c.agent)
+    )
+
+
+# ---------------------------------------------------------------- whole episodes (REINFORCE)
+
+
+@struct.dataclass
+class EpisodesCarry:
+    agent: Any
+    key: jax.Array
+    episodes: EpisodeStats
+
+
+def episodes_program(agent: Agent, envs: VectorEnv) -> Program:
+    experience: Episodes = agent.experience
+
+    def init(key: jax.Array) -> EpisodesCarry:
+        key, agent_key = jax.random.split(key)
+        return EpisodesCarry(agent.init(agent_key), key, EpisodeStats.create(envs.num_envs))
+
+    def update(carry: EpisodesCarry) -> tuple[EpisodesCarry, dict[str, jax.Array]]:
+        learn_key, reset_key, play_key, key = jax.random.split(carry.key, 4)
+        obs, env_state = envs.reset(reset_key)
+
+        def env_step(step_carry, t):
+            obs, env_state, alive, episodes, key = step_carry
+            key, act_key, step_key = jax.random.split(key, 3)
+            action, info = agent.act(carry.agent, obs, act_key, episodes.env_steps)
+            time_step, env_state = envs.step(step_key, env_state, agent.env_action(action))
+            ended = time_step.done | (t == experience.max_steps - 1)
+            episodes = episodes.record(time_step.reward, ended, alive)
+            transition = transition_of(obs, action, time_step, {**info, "valid": alive})
+            return (time_step.obs, env_state, alive & ~ended, episodes, key), transition
+
+        alive = jnp.ones(envs.num_envs, bool)
+        step_carry = (obs, env_state, alive, carry.episodes, play_key)
+        (_, _, _, episodes, _), trajectory = jax.lax.scan(
+            env_step, step_carry, jnp.arange(experience.max_steps)
+        )
+        agent_state, metrics = agent.learn(carry.agent, trajectory, learn_key)
+        return EpisodesCarry(agent_state, key, episodes), scalars(metrics)
+
+    steps = envs.num_envs * experience.max_steps
+    return Program(
+        init, update, max(1, agent.total_steps // steps), steps, lambda c: agent.greedy_policy(c.agent)
+    )
+
+
+# ---------------------------------------------------------------- replay and learning gates (DQN)
+
+
+@struct.dataclass
+class GreedyMonitor:
+    """The side envs of :class:`Freeze`, played by the greedy policy."""
+
+    env_state: Any
+    obs: jax.Array  # [episodes, *obs_shape]
+    running: jax.Array  # float32 [episodes]: return of each side env's running episode
+    returns: jax.Array  # float32 [episodes]: ring of the last finished episodes' returns
+    finished: jax.Array  # int32 []: episodes finished so far
+    frozen: jax.Array  # bool []
+
+
+@struct.dataclass
+class OffPolicyCarry:
+    agent: Any
+    replay: Any  # uniform.UniformState or prioritized.PrioritizedState
+    accumulator: nstep.NStepState
+    env_state: Any
+    obs: jax.Array  # float32 [num_envs, *obs_shape]
+    episodes: EpisodeStats
+    key: jax.Array
+    greedy: GreedyMonitor | None = None
+
+
+@dataclass(frozen=True)
+class Replay:
+    """The jittable replay an ``OffPolicy`` experience asks for: uniform or prioritized, one call shape."""
+
+    init: Callable  # (capacity, example) -> state
+    add: Callable  # (state, batch, valid) -> state
+    sample: Callable  # (state, key, batch_size, beta) -> ReplaySample
+    update_priorities: Callable  # (state, indices, priority) -> state
+
+
+def replay_for(experience: OffPolicy) -> Replay:
+    if experience.prioritized:
+        return Replay(
+            init=functools.partial(prioritized.init, priority_exponent=experience.priority_exponent),
+            add=prioritized.add,
+            sample=prioritized.sample,
+            update_priorities=prioritized.update_priorities,
+        )
+    return Replay(
+        init=uniform.init,
+        add=uniform.add,
+        sample=lambda state, key, batch_size, beta: uniform.sample(state, key, batch_size),
+        update_priorities=lambda state, indices, priority: state,
+    )
+
+
+def off_policy_program(agent: Agent, envs: VectorEnv, freeze: Freeze | None = None) -> Program:
+    experience: OffPolicy = agent.experience
+    replay = replay_for(experience)
+    by_episode = experience.by_episode
+    side_envs = None if freeze is None else VectorEnv(envs.env, envs.params, freeze.episodes)
+
+    def init(key: jax.Array) -> OffPolicyCarry:
+        key, agent_key, reset_key, monitor_key = jax.random.split(key, 4)
+        obs, env_state = envs.reset(reset_key)
+        one = example_transition(obs[0].astype(jnp.float32), jnp.int32(0))
+        batch = jax.tree.map(lambda x: jnp.broadcast_to(x, (envs.num_envs, *x.shape)), one)
+        return OffPolicyCarry(
+            agent=agent.init(agent_key),
+            replay=replay.init(experience.capacity, one),
+            accumulator=nstep.init(experience.n_step, batch),
+            env_state=env_state,
+            obs=obs.astype(jnp.float32),
+            episodes=EpisodeStats.create(envs.num_envs),
+            key=key,
+            greedy=None if freeze is None else init_monitor(monitor_key),
+        )
+
+    def init_monitor(key: jax.Array) -> GreedyMonitor:
+        obs, env_state = side_envs.reset(key)
+        zeros = jnp.zeros(freeze.episodes, jnp.float32)
+        return GreedyMonitor(env_state, obs.astype(jnp.float32), zeros, zeros, jnp.int32(0), jnp.bool_(False))
+
+    def monitor_step(monitor: GreedyMonitor, agent_state: Any, key: jax.Array) -> GreedyMonitor:
+        """One greedy step of every side env; freeze once every return in the ring reaches the mark."""
+        num = freeze.episodes
+        policy_keys = jax.random.split(jax.random.fold_in(key, 1), num)
+        action = jax.vmap(agent.greedy_policy(agent_state))(monitor.obs, policy_keys)
+        time_step, env_state = side_envs.step(key, monitor.env_state, action)
+        running = monitor.running + time_step.reward
+        done = time_step.done
+        slot = (monitor.finished + jnp.cumsum(done) - 1) % num  # ring slots of this step's finished episodes
+        returns = monitor.returns.at[jnp.where(done, slot, num)].set(running, mode="drop")
+        finished = monitor.finished + done.sum(dtype=jnp.int32)
+        solved = (finished >= num) & (returns.min() >= freeze.at_return)
+        return GreedyMonitor(
+            env_state=env_state,
+            obs=time_step.obs.astype(jnp.float32),
+            running=jnp.where(done, 0.0, running),
+            returns=returns,
+            finished=finished,
+            frozen=monitor.frozen | solved,
+        )
+
+    def collect_step(carry: OffPolicyCarry, _) -> tuple[OffPolicyCarry, dict[str, jax.Array]]:
+        key, act_key, step_key, monitor_key = jax.random.split(carry.key, 4)
+        progress = carry.episodes.completed if by_episode else carry.episodes.env_steps
+        action, info = agent.act(carry.agent, carry.obs, act_key, progress)
+        time_step, env_state = envs.step(step_key, carry.env_state, agent.env_action(action))
+        time_step = time_step.replace(
+            obs=time_step.obs.astype(jnp.float32), final_obs=time_step.final_obs.astype(jnp.float32)
+        )
+        active = (
+            carry.episodes.completed < experience.max_episodes if experience.max_episodes else jnp.bool_(True)
+        )
+        one_step = transition_of(carry.obs, action.astype(jnp.int32), time_step)
+        accumulator, emitted, full = nstep.push(
+            carry.accumulator,
+            one_step.replace(reward=one_step.reward.astype(jnp.float32)),
+            experience.discount_factor,
+        )
+        carry = carry.replace(
+            replay=replay.add(carry.replay, emitted, full & active),
+            accumulator=accumulator,
+            env_state=env_state,
+            obs=time_step.obs,
+            episodes=carry.episodes.record(
+                time_step.reward, time_step.done, jnp.broadcast_to(active, action.shape)
+            ),
+            key=key,
+        )
+        if freeze is not None:
+            carry = carry.replace(greedy=monitor_step(carry.greedy, carry.agent, monitor_key))
+        return carry, scalars(info)
+
+    def learn_phase(carry: OffPolicyCarry) -> tuple[OffPolicyCarry, dict[str, jax.Array]]:
+        beta = experience.importance_exponent(carry.episodes.env_steps)
+
+        def one(inner, _):
+            agent_state, replay_state, key = inner
+            # (threefry splits are prefix-stable: key and sample_key are those of a split in two)
+            key, sample_key, learn_key = jax.random.split(key, 3)
+            sample = replay.sample(replay_state, sample_key, experience.batch_size, beta)
+            agent_state, metrics = agent.learn(agent_state, sample, learn_key)
+            if experience.prioritized:
+                replay_state = replay.update_priorities(replay_state, sample.indices, metrics[PRIORITY])
+            return (agent_state, replay_state, key), scalars(metrics)
+
+        key, learn_key = jax.random.split(carry.key)
+        (agent_state, replay_state, _), metrics = jax.lax.scan(
+            one, (carry.agent, carry.replay, learn_key), length=experience.gradient_steps
+        )
+        return carry.replace(agent=agent_state, replay=replay_state, key=key), jax.tree.map(jnp.mean, metrics)
+
+    def learn_where(carry: OffPolicyCarry, due: jax.Array) -> tuple[OffPolicyCarry, dict[str, jax.Array]]:
+        """Learn, keeping the result only where ``due`` (a branch taken when any seed is due)."""
+        learned = learn_phase(carry)
+        return jax.tree.map(lambda new, old: jnp.where(due, new, old), learned, skip_learning(carry))
+
+    def skip_learning(carry: OffPolicyCarry) -> tuple[OffPolicyCarry, dict[str, jax.Array]]:
+        shapes = jax.eval_shape(learn_phase, carry)[1]
+        return carry, jax.tree.map(lambda m: jnp.zeros(m.shape, m.dtype), shapes)
+
+    def update(carry: OffPolicyCarry) -> tuple[OffPolicyCarry, dict[str, jax.Array]]:
+        episodes_before = carry.episodes.completed
+        length = 1 if by_episode else experience.train_frequency
+        carry, act_info = jax.lax.scan(collect_step, carry, length=length)
+        if by_episode:
+            ended = carry.episodes.completed > episodes_before
+            due = (
+                ended
+                & (carry.episodes.completed % experience.train_frequency == 0)
+                & (episodes_before >= experience.learning_starts)
+            )
+        else:
+            due = carry.episodes.env_steps >= experience.learning_starts
+        if experience.max_episodes:
+            due = due & (episodes_before < experience.max_episodes)
+        extra = {}
+        if freeze is not None:
+            due = due & ~carry.greedy.frozen
+            extra = {"frozen": carry.greedy.frozen.astype(jnp.float32)}
+        carry, metrics = jax.lax.cond(any_seed(due), lambda c: learn_where(c, due), skip_learning, carry)
+        if agent.learning_steps is not None:
+            extra["learning_steps"] = agent.learning_steps(carry.agent).astype(jnp.float32)
+        last_act = jax.tree.map(lambda x: x[-1], act_info)
+        return carry, {**metrics, **last_act, **extra}
+
+    steps = envs.num_envs * (1 if by_episode else experience.train_frequency)
+    return Program(
+        init, update, max(1, agent.total_steps // steps), steps, lambda c: agent.greedy_policy(c.agent)
+    )
