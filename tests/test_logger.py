@@ -5,6 +5,7 @@ how to continue."""
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import functools
 import re
 
@@ -20,6 +21,7 @@ from agentax.envs import make_host_env
 from agentax.errors import TrainingDiverged
 from agentax.runners import host
 from agentax.runners.host import HostRunnerConfig, checkpoint_target
+from agentax.runners.logger import time_left
 from agentax.runs import Run, checkpoints, load_checkpoint, read_config, read_metrics, run_config
 
 DIVERGED = re.compile(
@@ -154,3 +156,13 @@ def test_ctrl_c_says_how_to_resume_and_resume_works(tmp_path, capsys, monkeypatc
     assert "evaluation: mean return" in capsys.readouterr().out
     assert [row["env_steps"] for row in read_metrics(out)] == [256 * i for i in range(1, 9)]
     assert [p.name for p in checkpoints(out)] == ["ckpt-6.msgpack", "ckpt-7.msgpack", "ckpt-8.msgpack"]
+
+
+def test_the_progress_bar_says_how_long_a_run_has_left_and_when_it_ends():
+    """Breakout at 142 steps/s after 8,192 of 10,000,000 env steps: (10,000,000 - 8,192) / 142 =
+    70,364.8 s, so 19 h 32 min 45 s left, ending the next morning."""
+    noon = datetime.datetime(2026, 12, 1, 12, 0).timestamp()
+    assert time_left(10_000_000, 8_192, 142.0, now=noon) == "left 19:32:45, ends Dec 02 07:32"
+    assert time_left(1_000, 400, 60.0, now=noon) == "left 0:00:10, ends 12:00"
+    assert time_left(1_000, 1_000, 60.0, now=noon) == "left 0:00:00, ends 12:00"
+    assert time_left(1_000, 0, 0.0) == time_left(1_000, 0, float("nan")) == ""  # no speed yet

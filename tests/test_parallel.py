@@ -311,3 +311,16 @@ def test_ctrl_c_ends_a_parallel_run_with_no_thread_and_no_handler_left(tmp_path)
     assert signal.getsignal(signal.SIGINT) is previous  # the run's handler is gone with it
     assert not actor_threads()
     assert 2 <= metrics.read_text().count("\n") < 20  # it stopped soon after the signal
+
+
+@pytest.mark.timeout(120)
+def test_the_default_actors_fit_a_preset_of_one_env(tmp_path):
+    """Issue 18 item 7: ``--runner parallel`` on a one-env preset (DQN's Atari presets) takes one
+    actor instead of refusing "1 envs do not split evenly over 2 actors"; two envs get two."""
+    import agentax
+
+    quick = dict(runner="parallel", total_steps=512, learning_starts=64, progress=False, stop_at_return=None)
+    one = agentax.train("dqn", num_envs=1, out=tmp_path / "one", **quick)
+    two = agentax.train("dqn", num_envs=2, out=tmp_path / "two", **quick)
+    assert (one.config["runner"]["actors"], two.config["runner"]["actors"]) == (1, 2)
+    assert one.metrics[-1]["env_steps"] >= 512 and two.metrics[-1]["env_steps"] >= 512

@@ -39,6 +39,24 @@ def test_bad_input_is_one_line_and_exit_code_2(argv, message, capsys):
     assert message in err and err.count("\n") == 1, err
 
 
+def test_an_out_that_is_a_file_and_seeds_past_memory_are_one_line_and_nothing_written(tmp_path, capsys):
+    """Issue 18 items 4 and 5: ``--out`` naming a file (or a folder under one), and more seeds than
+    memory holds (refused up front, with what they would need, instead of hanging)."""
+    blocker = tmp_path / "notes.txt"
+    blocker.write_text("mine")
+    for out in (blocker, blocker / "run"):
+        assert main(["train", "ppo", "--out", str(out), "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert f"cannot make the run folder there ({blocker} is a file, not a folder)" in err, err
+        assert err.count("\n") == 1
+    assert blocker.read_text() == "mine"
+    out = tmp_path / "many"
+    assert main(["train", "ppo", "--seeds", "100000000", "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "--seeds 100,000,000 needs about" in err and "seeds fit" in err and err.count("\n") == 1, err
+    assert not out.exists()
+
+
 def test_resuming_a_folder_without_a_run(tmp_path, capsys):
     assert main(["train", "--resume", str(tmp_path)]) == 2
     assert "holds no run" in capsys.readouterr().err

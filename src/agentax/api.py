@@ -66,8 +66,9 @@ class RunArgs:
     (any env, one step after the other), parallel (actor
     threads beside a learner), ray (the parallel runner's actors as Ray actor processes, on any node
     of a cluster); auto: compiled for agentax's JAX envs, else host"""
-    actors: int = 2
-    """parallel and ray runners: actors (the envs are split evenly between them)"""
+    actors: int | None = None
+    """parallel and ray runners: actors (the envs are split evenly between them); default 2, or 1
+    when the preset's envs do not split in two (DQN's Atari presets step one env)"""
     envs_per_actor: int | None = None
     """parallel and ray runners: envs per actor (sets the algorithm's number of envs to actors × this)"""
     policy_lag: int = 1
@@ -368,6 +369,10 @@ def runner_kind(run_args: RunArgs) -> str:
 # Training: the one code path of agentax.train and `agentax train`.
 
 
+DEFAULT_ACTORS = 2
+"""Actors of the parallel and Ray runners when ``--actors`` is not given (and the envs split in two)."""
+
+
 def agent_maker(module: Any, spec: Any, cfg: Any) -> Any:
     """``make()``: the algorithm's agent for ``spec``, learning in the loop this platform runs best
     (a picklable callable: Ray's actor processes build the agent with it)."""
@@ -393,7 +398,7 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Preset, *, quiet: bool
     kind = runner_kind(run_args)
     if kind == "compiled":
         from agentax.envs import make_jax
-        from agentax.runners.compiled import RunnerConfig
+        from agentax.runners.compiled import RunnerConfig, check_fits
 
         env = make_jax(run_args.env)
         stop = parse_stop(run_args.stop_at_return, preset, env)
@@ -407,7 +412,8 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Preset, *, quiet: bool
             freeze_at_return=run_args.freeze(preset, kind),
             freeze_episodes=run_args.freeze_episodes,
         )
-        compiled_program(module, env, cfg, runner)  # refuses what it cannot build before anything is written
+        # refused before anything is written: what the program cannot do, more seeds than memory holds
+        check_fits(compiled_program(module, env, cfg, runner), runner)
         settings = module.config_to_dict(cfg)
         run = RunFolder.create(
             out, run_config(algo, run_args.env, run_args.preset, "compiled", runner, settings)
@@ -436,7 +442,8 @@ def _start_host(
         )
     if kind in ("parallel", "ray") and run_args.envs_per_actor is not None:
         envs = "num_envs" if hasattr(cfg, "num_envs") else "episodes_per_update"
-        cfg = dataclasses.replace(cfg, **{envs: run_args.actors * run_args.envs_per_actor}).validate()
+        actors = run_args.actors or DEFAULT_ACTORS
+        cfg = dataclasses.replace(cfg, **{envs: actors * run_args.envs_per_actor}).validate()
     atari = {"env_backend": run_args.env_backend, "sticky_actions": run_args.sticky_actions}
     probe = make_host_env(
         run_args.env, 1, backend=run_args.env_backend, sticky_actions=run_args.sticky_actions
@@ -454,7 +461,8 @@ def _start_host(
         **atari,
     }
     if kind in ("parallel", "ray"):
-        parallel = {"actors": run_args.actors, "policy_lag": run_args.policy_lag}
+        actors = run_args.actors or (DEFAULT_ACTORS if agent.experience.num_envs % DEFAULT_ACTORS == 0 else 1)
+        parallel = {"actors": actors, "policy_lag": run_args.policy_lag}
         if kind == "ray":
             from agentax.runners.ray import RayRunnerConfig
 
@@ -585,7 +593,7 @@ def train(
     out: str | Path | None = None,
     seed: int = 0,
     runner: str = "auto",
-    actors: int = 2,
+    actors: int | None = None,
     policy_lag: int = 1,
     stop_at_return: float | str | None = "auto",
     progress: bool = True,

@@ -285,7 +285,12 @@ class Run:
             )
         if not {"algo", "env"} <= config.keys():
             raise ValueError("a run's config needs 'algo' and 'env' keys")
-        (path / "checkpoints").mkdir(parents=True, exist_ok=True)
+        try:
+            (path / "checkpoints").mkdir(parents=True, exist_ok=True)
+        except (FileExistsError, NotADirectoryError, PermissionError) as error:
+            blocker = next((p for p in (path, *path.parents) if p.exists() and not p.is_dir()), None)
+            why = f"{blocker} is a file, not a folder" if blocker else error.strerror.lower()
+            raise UsageError(f"--out {path}: cannot make the run folder there ({why})") from None
         write_json(path / "config.json", config)
         return cls(path, config)
 

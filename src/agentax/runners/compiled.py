@@ -44,6 +44,7 @@ from agentax.curves import plot_curves, preload_plotting
 from agentax.envs.core import Environment, episode_returns
 from agentax.errors import TrainingInterrupted, UsageError
 from agentax.policies import Policy
+from agentax.replay.frames import available_memory
 from agentax.runners import programs
 from agentax.runners.logger import Progress, check_finite, check_finite_tree
 from agentax.runners.rollout import SEED_AXIS, Freeze, Program
@@ -121,6 +122,24 @@ def eval_every_chunks(runner: RunnerConfig, num_updates: int) -> int:
         return 1
     chunks = -(-num_updates // runner.updates_per_chunk)
     return max(1, -(-chunks // AUTO_EVALUATIONS))
+
+
+def check_fits(algorithm: Program, runner: RunnerConfig) -> None:
+    """A ``UsageError`` when the seeds' training state cannot fit in this machine's memory (refused
+    up front: a vmap over more seeds than memory holds would swap or stall before its first chunk).
+
+    Counts the carry of one seed (parameters, optimizer state, env states, replay) times the seeds,
+    twice: the program's buffers and the host copy a checkpoint makes."""
+    one_seed = jax.eval_shape(algorithm.init, jax.random.key(0))
+    per_seed = sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(one_seed) if hasattr(x, "dtype"))
+    need, have = 2 * per_seed * runner.num_seeds, available_memory()
+    if have is not None and need > have:
+        fitting = max(have // max(2 * per_seed, 1), 0)
+        raise UsageError(
+            f"--seeds {runner.num_seeds:,} needs about {need / 1e9:,.1f} GB for the agents' training "
+            f"state ({per_seed:,} bytes a seed, twice), but only {have / 1e9:.1f} GB of memory is "
+            f"available; at most about {fitting:,} seeds fit"
+        )
 
 
 def freeze_of(runner: RunnerConfig) -> Freeze | None:

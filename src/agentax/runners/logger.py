@@ -15,6 +15,7 @@ A non-finite loss or parameter stops the run with :class:`~agentax.errors.Traini
 
 from __future__ import annotations
 
+import datetime
 import math
 import sys
 import time
@@ -52,6 +53,25 @@ def _diverged(what: str, env_steps: float, last_checkpoint: str | None) -> str:
     return f"{what} at env step {env_steps:,.0f}: {DIVERGED_HINT}{kept}"
 
 
+def time_left(
+    total_steps: float, done_steps: float, steps_per_second: float, now: float | None = None
+) -> str:
+    """``"left 19:30:05, ends 17:42"``: the time the rest of a run takes at ``steps_per_second`` and
+    the wall-clock time it ends (with its date when that is not today), or ``""`` before a speed is
+    known. Every long run shows it on its progress bar."""
+    remaining = max(total_steps - done_steps, 0.0)
+    if not steps_per_second > 0 or not math.isfinite(steps_per_second):
+        return ""
+    seconds = round(remaining / steps_per_second)
+    hours, rest = divmod(seconds, 3600)
+    left = f"{hours}:{rest // 60:02d}:{rest % 60:02d}"
+    start = time.time() if now is None else now
+    end = datetime.datetime.fromtimestamp(start + seconds)
+    same_day = end.date() == datetime.datetime.fromtimestamp(start).date()
+    when = end.strftime("%H:%M") if same_day else end.strftime("%b %d %H:%M")
+    return f"left {left}, ends {when}"
+
+
 class Progress:
     """A rich progress bar over env steps, with the latest return and runner figures (a no-op if off)."""
 
@@ -70,17 +90,22 @@ class Progress:
             TextColumn("return {task.fields[ret]}"),
             TextColumn("{task.fields[extra]}"),
             TimeElapsedColumn(),
+            TextColumn("{task.fields[left]}"),
             console=Console(file=sys.stderr),
         )
         self.task = self.bar.add_task(
-            "train", total=total_steps, completed=done_steps, speed="-", ret="-", extra=""
+            "train", total=total_steps, completed=done_steps, speed="-", ret="-", extra="", left=""
         )
+        self.total_steps = total_steps
         self.bar.start()
 
     def update(self, env_steps: float, speed: float, mean_return: float, extra: str = "") -> None:
         if self.bar is not None:
             ret = "-" if math.isnan(mean_return) else f"{mean_return:.1f}"
-            self.bar.update(self.task, completed=env_steps, speed=f"{speed:,.0f}", ret=ret, extra=extra)
+            left = time_left(self.total_steps, env_steps, speed)
+            self.bar.update(
+                self.task, completed=env_steps, speed=f"{speed:,.0f}", ret=ret, extra=extra, left=left
+            )
 
     def close(self) -> None:
         if self.bar is not None:
