@@ -159,3 +159,36 @@ def test_killed_run_resumes_to_the_full_number_of_steps(tmp_path):
     rows = read_metrics(out)
     assert [r["env_steps"] for r in rows] == [float(total * k // 6) for k in range(1, 7)]
     assert json.loads((out / "eval.json").read_text())["episodes"] == 20
+
+
+@pytest.mark.timeout(240)
+def test_sigterm_checkpoints_says_how_to_continue_and_exits_143(tmp_path):
+    """Issue 18 item 2: SIGTERM (``kill``, a scheduler) ends a run as Ctrl-C does, and the first
+    checkpoint comes with the first row, so a run stopped in its first seconds resumes too."""
+    out = tmp_path / "run"
+    env = {**os.environ, "AGENTAX_JAX_CACHE": str(tmp_path / "cache")}
+    total = 60 * 512
+    command = [sys.executable, "-m", "agentax.cli", "train", "ppo", "--preset", "default"]
+    command += ["--total-steps", str(total), "--stop-at-return", "none", "--out", str(out), "--no-progress"]
+    process = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 150
+        while not list((out / "checkpoints").glob("ckpt-*.msgpack")) and process.poll() is None:
+            assert time.monotonic() < deadline, "no checkpoint appeared"  # (before: only after 30 s)
+            time.sleep(0.02)
+        process.send_signal(signal.SIGTERM)
+        _, err = process.communicate(timeout=60)
+    finally:
+        process.kill()
+    assert process.returncode == 143, err[-2000:]
+    assert f"agentax train: terminated; continue with: agentax train --resume {out}" in err
+    assert not (out / "eval.json").exists(), "the run finished before SIGTERM reached it"
+    done = subprocess.run(
+        [sys.executable, "-m", "agentax.cli", "train", "--resume", str(out), "--no-progress"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=150,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert read_metrics(out)[-1]["env_steps"] == total

@@ -9,13 +9,20 @@ start-up stays fast. The errors of :mod:`agentax.errors` become one line on stde
 - :class:`~agentax.errors.TrainingInterrupted` (Ctrl-C in a training): ``agentax CMD: interrupted;
   continue with: agentax train --resume RUN_DIR``, exit code 130 (128 + SIGINT, as a shell reports it);
   any other ``KeyboardInterrupt``: ``agentax CMD: interrupted``, exit code 130.
+- SIGTERM (what ``kill`` and schedulers send) is handled as Ctrl-C is — the run checkpoints and
+  says how to continue — and exits with 143 (128 + SIGTERM).
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import shlex
+import signal
 import sys
+import threading
+from collections.abc import Iterator
+from typing import Any
 
 from agentax.errors import TrainingDiverged, TrainingInterrupted, UsageError
 
@@ -66,6 +73,33 @@ def main(argv: list[str] | None = None) -> int:
         print(f"agentax: error: unknown command {name!r}; choose from {', '.join(COMMANDS)}", file=sys.stderr)
         return 2
     command = importlib.import_module(f"agentax.cli.{name}")
+    with terminate_as_interrupt() as signals:
+        code = _run(name, command, args, signals)
+    return 128 + signal.SIGTERM if signals and code == 130 else code
+
+
+@contextlib.contextmanager
+def terminate_as_interrupt() -> Iterator[list[int]]:
+    """While inside, SIGTERM raises SIGINT, so a run stops as on Ctrl-C (each runner already ends
+    cleanly on it: a checkpoint, its threads and actors joined); the list holds the signals seen."""
+    seen: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield seen
+        return
+
+    def forward(signum, frame):
+        seen.append(signum)
+        signal.raise_signal(signal.SIGINT)
+
+    previous = signal.signal(signal.SIGTERM, forward)
+    try:
+        yield seen
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _run(name: str, command: Any, args: list[str], signals: list[int]) -> int:
+    """``command.main(args)``, its errors as one line and an exit code (see the module docstring)."""
     try:
         return command.main(args) or 0
     except UsageError as error:
@@ -75,13 +109,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"agentax {name}: error: {error}", file=sys.stderr)
         return 3
     except TrainingInterrupted as interrupt:  # a KeyboardInterrupt, so caught before that one
-        message = "interrupted"
+        message = "terminated" if signals else "interrupted"
         if interrupt.run_dir is not None:
             message += f"; continue with: agentax train --resume {shlex.quote(str(interrupt.run_dir))}"
         print(f"agentax {name}: {message}", file=sys.stderr)
         return 130
     except KeyboardInterrupt:
-        print(f"agentax {name}: interrupted", file=sys.stderr)
+        print(f"agentax {name}: {'terminated' if signals else 'interrupted'}", file=sys.stderr)
         return 130
 
 

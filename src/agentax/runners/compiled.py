@@ -359,7 +359,10 @@ def train(
                 run.log(row)
                 ending = last or solved_env_steps is not None or chunks_this_call == max_chunks
                 every = runner.checkpoint_every_chunks
-                due = time.perf_counter() - checkpoint_time >= runner.checkpoint_every_seconds
+                due = (
+                    last_checkpoint is None
+                    or time.perf_counter() - checkpoint_time >= runner.checkpoint_every_seconds
+                )
                 if ending or due or (every and chunk_number % every == 0):
                     check_finite_tree(state, env_steps, last_checkpoint)
                     last_checkpoint = run.save_checkpoint(updates, state, meta).name

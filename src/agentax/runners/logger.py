@@ -186,11 +186,13 @@ class RunLogger:
         return row
 
     def checkpoint(self, step: int, tree: Any, meta: dict[str, Any], *, force: bool = False) -> bool:
-        """Save ``tree`` if ``checkpoint_every_seconds`` passed since the last (or ``force``); only
-        finite parameters are saved (else ``TrainingDiverged``). Returns whether it saved."""
+        """Save ``tree`` at the first row, then once ``checkpoint_every_seconds`` passed since the
+        last (or ``force``), so a run stopped early can always resume; only finite parameters are
+        saved (else ``TrainingDiverged``). Returns whether it saved."""
         now = time.perf_counter()
+        first = self.last_checkpoint is None
         if self.run is None or not (
-            force or now - self.last_checkpoint_time >= self.checkpoint_every_seconds
+            force or first or now - self.last_checkpoint_time >= self.checkpoint_every_seconds
         ):
             return False
         check_finite_tree(tree, meta.get("env_steps", 0), self.last_checkpoint)
