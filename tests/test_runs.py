@@ -1,6 +1,8 @@
 """The run folder: config, metrics, checkpoints (atomic, no pickle, clear errors), eval.json, curves."""
 
+import errno
 import json
+import os
 
 import jax
 import jax.numpy as jnp
@@ -9,6 +11,7 @@ import numpy as np
 import pytest
 
 from agentax.api import restore_policy
+from agentax.cli import main
 from agentax.curves import plot_curves
 from agentax.errors import UsageError
 from agentax.runs import (
@@ -186,3 +189,37 @@ def test_restore_policy_rejects_unknown_algorithms_and_empty_folders(tmp_path):
         restore_policy(tmp_path / "r")
     with pytest.raises(UsageError, match="no config.json"):
         restore_policy(tmp_path)
+
+
+@pytest.mark.timeout(180)
+def test_a_full_disk_while_checkpointing_is_one_line_and_keeps_the_last_checkpoint(
+    tmp_path, monkeypatch, capsys
+):
+    """Issue 18 item 3, by fault injection: the disk fills at the second checkpoint (the forced one
+    at the end). One line names the file, the bytes it needed and the checkpoint that is kept, no
+    temporary file stays behind, and the exit code is 4."""
+    real_fsync, checkpoint_writes = os.fsync, []
+
+    def fsync(fd):
+        if "ckpt-" in os.readlink(f"/proc/self/fd/{fd}"):
+            checkpoint_writes.append(fd)
+            if len(checkpoint_writes) >= 2:
+                raise OSError(errno.ENOSPC, "No space left on device")
+        return real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    out = tmp_path / "run"
+    argv = ["train", "ppo", "--preset", "default", "--total-steps", str(60 * 512), "--stop-at-return", "none"]
+    assert main([*argv, "--out", str(out), "--no-progress"]) == 4
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    kept = checkpoints(out)
+    assert len(kept) == 1 and len(checkpoint_writes) == 2
+    assert last.startswith(
+        f"agentax train: error: no space left on the device for {out}/checkpoints/ckpt-"
+    ), last
+    assert "bytes needed); its temporary file is gone" in last
+    assert (
+        f"the last complete checkpoint, {kept[0]}, is kept: free space, then agentax train --resume {out}"
+        in last
+    )
+    assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]

@@ -16,6 +16,23 @@ class TrainingDiverged(RuntimeError):
     """
 
 
+class StorageFull(OSError):
+    """The disk (or quota) filled while writing ``path`` (exit code 4): nothing half-written stays
+    behind, and the message names the bytes the file needed and what is still complete."""
+
+    def __init__(self, path: object, needed: int, kept: str | None = None):
+        message = (
+            f"no space left on the device for {path} ({needed:,} bytes needed); its temporary file is gone"
+        )
+        if kept:
+            message += f"; {kept}"
+        super().__init__(message)
+        self.path, self.needed = path, needed
+
+    def __str__(self) -> str:
+        return self.args[0]
+
+
 class TrainingInterrupted(KeyboardInterrupt):
     """Ctrl-C during a training (exit code 130); ``run_dir`` is what ``agentax train --resume`` continues."""
 

@@ -28,6 +28,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import datetime
+import errno
 import io
 import json
 import math
@@ -38,7 +39,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from agentax.errors import UsageError
+from agentax.errors import StorageFull, UsageError
 from agentax.evaluate import EvalStats
 from agentax.report import aggregate
 
@@ -85,13 +86,24 @@ def default_run_dir(algo: str, env_id: str, root: str | Path = "runs") -> Path:
 
 
 def write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary name in the same folder, then rename it over ``path``."""
+    """Write ``data`` to a temporary name in the same folder, then rename it over ``path``; on any
+    error the temporary file goes (a full disk is :class:`~agentax.errors.StorageFull`)."""
     tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as error:
+        tmp.unlink(missing_ok=True)
+        if error.errno in NO_SPACE:
+            raise StorageFull(path, len(data)) from None
+        raise
+
+
+NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
+"""The errors of a full disk or quota."""
 
 
 def write_json(path: Path, obj: Any) -> None:
@@ -341,10 +353,23 @@ class Run:
 
         More than one is kept so that :func:`load_checkpoint` has an older one to fall back on.
         """
-        path = save_tree(self.path / "checkpoints" / f"{CHECKPOINT_PREFIX}{updates}.msgpack", tree, meta)
+        try:
+            path = save_tree(self.path / "checkpoints" / f"{CHECKPOINT_PREFIX}{updates}.msgpack", tree, meta)
+        except StorageFull as full:
+            raise StorageFull(full.path, full.needed, self.last_complete()) from None
         for old in checkpoints(self.path)[:-keep]:
             old.unlink(missing_ok=True)
         return path
+
+    def last_complete(self) -> str:
+        """What a failed write leaves to resume from, as a phrase for its error message."""
+        kept = checkpoints(self.path)
+        if not kept:
+            return "the run has no checkpoint yet"
+        return (
+            f"the last complete checkpoint, {kept[-1]}, is kept: free space, then agentax train "
+            f"--resume {self.path}"
+        )
 
     def write_eval(self, per_seed_returns: np.ndarray, per_seed_lengths: np.ndarray, **extra: Any) -> dict:
         """Write eval.json from returns ``[num_seeds, episodes]``: pooled stats on top, per seed below.

@@ -6,11 +6,13 @@ start-up stays fast. The errors of :mod:`agentax.errors` become one line on stde
 
 - :class:`~agentax.errors.UsageError` (bad input): ``agentax CMD: error: MESSAGE``, exit code 2;
 - :class:`~agentax.errors.TrainingDiverged` (a NaN or infinite loss): the same line, exit code 3;
+- :class:`~agentax.errors.StorageFull` (the disk filled while writing): the same line, naming the
+  bytes needed and the last complete checkpoint, exit code 4;
 - :class:`~agentax.errors.TrainingInterrupted` (Ctrl-C in a training): ``agentax CMD: interrupted;
   continue with: agentax train --resume RUN_DIR``, exit code 130 (128 + SIGINT, as a shell reports it);
   any other ``KeyboardInterrupt``: ``agentax CMD: interrupted``, exit code 130.
-- SIGTERM (what ``kill`` and schedulers send) is handled as Ctrl-C is — the run checkpoints and
-  says how to continue — and exits with 143 (128 + SIGTERM).
+- SIGTERM (what ``kill`` and schedulers send) is handled as Ctrl-C is — the run stops at its next
+  safe point and says how to continue — and exits with 143 (128 + SIGTERM).
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import threading
 from collections.abc import Iterator
 from typing import Any
 
-from agentax.errors import TrainingDiverged, TrainingInterrupted, UsageError
+from agentax.errors import StorageFull, TrainingDiverged, TrainingInterrupted, UsageError
 
 COMMANDS: dict[str, str] = {
     "envs": "list the environments with their observation and action spaces",
@@ -108,6 +110,9 @@ def _run(name: str, command: Any, args: list[str], signals: list[int]) -> int:
     except TrainingDiverged as error:
         print(f"agentax {name}: error: {error}", file=sys.stderr)
         return 3
+    except StorageFull as error:
+        print(f"agentax {name}: error: {error}", file=sys.stderr)
+        return 4
     except TrainingInterrupted as interrupt:  # a KeyboardInterrupt, so caught before that one
         message = "terminated" if signals else "interrupted"
         if interrupt.run_dir is not None:

@@ -3,12 +3,15 @@ and read without pickle. The frame buffer's own ``frames.load`` reads the same f
 
 from __future__ import annotations
 
+import errno
 import os
 import zipfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from agentax.errors import StorageFull
 
 
 def save_replay(buffer: Any, path: str | Path, compresslevel: int = 1) -> Path:
@@ -19,14 +22,23 @@ def save_replay(buffer: Any, path: str | Path, compresslevel: int = 1) -> Path:
     well as at level 6 for a fraction of the time."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp")
-    with buffer.lock, open(tmp, "wb") as f:
-        with zipfile.ZipFile(f, "w", zipfile.ZIP_DEFLATED, compresslevel=compresslevel) as archive:
-            for name, array in buffer.state_dict().items():
-                with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
-                    np.lib.format.write_array(member, np.asanyarray(array), allow_pickle=False)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    needed = 0  # at most: the arrays uncompressed
+    try:
+        with buffer.lock, open(tmp, "wb") as f:
+            arrays = {name: np.asanyarray(array) for name, array in buffer.state_dict().items()}
+            needed = sum(array.nbytes for array in arrays.values())
+            with zipfile.ZipFile(f, "w", zipfile.ZIP_DEFLATED, compresslevel=compresslevel) as archive:
+                for name, array in arrays.items():
+                    with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
+                        np.lib.format.write_array(member, array, allow_pickle=False)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as error:
+        tmp.unlink(missing_ok=True)
+        if error.errno in (errno.ENOSPC, errno.EDQUOT):
+            raise StorageFull(path, needed) from None
+        raise
     return path
 
 

@@ -33,6 +33,7 @@ import numpy as np
 from agentax import _xla
 from agentax.agents.protocol import PRIORITY, Agent, Episodes, Loop, OffPolicy, OnPolicy
 from agentax.envs import make_host_env
+from agentax.errors import StorageFull
 from agentax.evaluate import host_episode_returns
 from agentax.nets import is_image
 from agentax.policies import Policy, with_random_actions
@@ -364,7 +365,10 @@ class ReplayCheckpoints:
     def after_checkpoint(self, updates: int, force: bool) -> None:
         if not self.enabled or not (force or time.perf_counter() - self.saved_at >= self.every_seconds):
             return
-        save_replay(self.replay, self.run.path / "checkpoints" / f"{self.PREFIX}{updates}.npz")
+        try:
+            save_replay(self.replay, self.run.path / "checkpoints" / f"{self.PREFIX}{updates}.npz")
+        except StorageFull as full:
+            raise StorageFull(full.path, full.needed, self.run.last_complete()) from None
         self.saved_at = time.perf_counter()
         for old in self.files()[:-2]:
             old.unlink(missing_ok=True)
