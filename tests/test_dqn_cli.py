@@ -1,6 +1,10 @@
 """``agentax train dqn``: a tiny run with every variant flag, its run folder, evaluate, bad input."""
 
 import json
+import os
+import subprocess
+import sys
+import textwrap
 
 import numpy as np
 import pytest
@@ -90,3 +94,59 @@ def test_a_gymnasium_env_trains_through_the_host_driver(tmp_path):
     env.close()
     assert float(np.mean(returns)) == pytest.approx(evaluation["mean_return"], rel=1e-6)
     assert evaluation["episodes"] == episodes
+
+
+CRASH_AT = textwrap.dedent(
+    """
+    import os, sys
+    from agentax.cli import main
+
+    stage, argv = sys.argv[1], sys.argv[2:]
+    renames, real_replace = {"replay": 0, "ckpt": 0}, os.replace
+
+    def replace(src, dst):
+        kind = next((k for k in renames if f"/{k}-" in str(dst)), None)
+        if kind == "ckpt" and stage == "checkpoint_half_written" and renames["ckpt"] == 1:
+            os._exit(9)  # the second checkpoint's file written under its temporary name, not renamed
+        real_replace(src, dst)
+        if kind is not None:
+            renames[kind] += 1
+            if stage == "replay_written" and kind == "replay" and renames[kind] == 2:
+                os._exit(9)  # the second replay is in place, its checkpoint not yet begun
+            if stage == "first_committed" and kind == "ckpt" and renames[kind] == 1:
+                os._exit(9)  # the first checkpoint committed (the issue's kill -9 after it)
+
+    os.replace = replace
+    sys.exit(main(argv))
+    """
+)
+
+
+@pytest.mark.timeout(240)
+@pytest.mark.parametrize("stage", ["first_committed", "replay_written", "checkpoint_half_written"])
+def test_a_kill_at_each_stage_of_a_checkpoint_resumes_with_the_replay_of_its_checkpoint(tmp_path, stage):
+    """Issue 18 item 1, by fault injection (the process exits at a chosen rename, as ``kill -9``
+    would leave it): the replay is written before the checkpoint that commits it, so whatever the
+    stage, the resumed run starts from a checkpoint with its own replay and ends holding every
+    transition an uninterrupted run holds (1-step returns, a buffer larger than the run)."""
+    out, total = tmp_path / "run", 3_072
+    env = {**os.environ, "AGENTAX_JAX_CACHE": str(tmp_path / "cache")}
+    argv = ["train", "dqn", "--runner", "host", "--total-steps", str(total), "--stop-at-return", "none"]
+    argv += ["--n-step", "1", "--out", str(out), "--no-progress"]
+    killed = subprocess.run(
+        [sys.executable, "-c", CRASH_AT, stage, *argv], env=env, capture_output=True, timeout=150
+    )
+    assert killed.returncode == 9, killed.stderr[-2000:]
+    assert not (out / "eval.json").exists()
+    resumed = subprocess.run(
+        [sys.executable, "-m", "agentax.cli", "train", "--resume", str(out), "--no-progress"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=150,
+    )
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert "refills" not in resumed.stderr, resumed.stderr  # it came back with a replay
+    last = read_metrics(out)[-1]
+    assert last["env_steps"] == total and last["replay_size"] == total
+    assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]  # the half-written one is gone

@@ -44,6 +44,7 @@ from agentax.evaluate import EvalStats
 from agentax.report import aggregate
 
 CHECKPOINT_PREFIX = "ckpt-"
+REPLAY_PREFIX = "replay-"
 
 # TensorBoard groups, as CleanRL's charts/ and losses/: metrics.csv keeps the plain names.
 TENSORBOARD_GROUPS: dict[str, str] = {
@@ -217,11 +218,23 @@ def _plain_struct(x: Any) -> jax.ShapeDtypeStruct:
     return jax.ShapeDtypeStruct(np.shape(x), x.dtype)
 
 
-def checkpoints(run_dir: str | Path) -> list[Path]:
-    """The run's checkpoint files, oldest first."""
+def checkpoints(run_dir: str | Path, with_replay: bool = False) -> list[Path]:
+    """The run's checkpoint files, oldest first; ``with_replay``: only those whose replay buffer
+    (:func:`replay_beside`) was saved with them."""
     folder = Path(run_dir) / "checkpoints"
     found = folder.glob(f"{CHECKPOINT_PREFIX}*.msgpack") if folder.is_dir() else []
-    return sorted(found, key=lambda p: int(p.stem.removeprefix(CHECKPOINT_PREFIX)))
+    found = sorted(found, key=lambda p: int(p.stem.removeprefix(CHECKPOINT_PREFIX)))
+    return [p for p in found if replay_beside(p).is_file()] if with_replay else found
+
+
+def replay_beside(checkpoint: Path) -> Path:
+    """The replay buffer saved with ``checkpoints/ckpt-<updates>.msgpack``: ``replay-<updates>.npz``.
+
+    It is written first and the checkpoint after it, so the checkpoint is the commit point: a
+    checkpoint whose replay file exists has its complete replay (both are renamed into place), and a
+    replay without its checkpoint (the run stopped between the two) is never used."""
+    updates = checkpoint.stem.removeprefix(CHECKPOINT_PREFIX)
+    return checkpoint.with_name(f"{REPLAY_PREFIX}{updates}.npz")
 
 
 def latest_checkpoint(run_dir: str | Path) -> Path:
@@ -232,8 +245,12 @@ def latest_checkpoint(run_dir: str | Path) -> Path:
     return found[-1]
 
 
-def load_checkpoint(run_dir: str | Path, target: Any) -> tuple[Any, dict[str, Any], Path]:
-    """The newest checkpoint that loads into ``target``: ``(tree, meta, path)``.
+def load_checkpoint(
+    run_dir: str | Path, target: Any, with_replay: bool = False
+) -> tuple[Any, dict[str, Any], Path]:
+    """The newest checkpoint that loads into ``target``: ``(tree, meta, path)``; with
+    ``with_replay``, the newest that has its replay buffer beside it, when one has (a note on
+    stderr says which newer checkpoints it passes over, and when none has, that the replay refills).
 
     A damaged file (cut short by a full disk, overwritten, from another configuration) is skipped
     with one warning line on stderr and the next older one is tried; :meth:`Run.save_checkpoint`
@@ -246,6 +263,18 @@ def load_checkpoint(run_dir: str | Path, target: Any) -> tuple[Any, dict[str, An
     found = checkpoints(run_dir)
     if not found:
         latest_checkpoint(run_dir)  # raises the "has no checkpoint" UsageError
+    if with_replay:
+        paired = checkpoints(run_dir, with_replay=True)
+        if paired and paired[-1] != found[-1]:
+            newer = len(found) - found.index(paired[-1]) - 1
+            print(
+                f"note: resuming from {paired[-1].name}, the newest checkpoint saved with its replay "
+                f"buffer ({newer} newer without one passed over)",
+                file=sys.stderr,
+            )
+        elif not paired:
+            print("note: no checkpoint was saved with its replay buffer yet; it refills", file=sys.stderr)
+        found = paired or found
     reason = ""
     for i, path in enumerate(reversed(found)):
         try:
@@ -358,7 +387,8 @@ class Run:
         except StorageFull as full:
             raise StorageFull(full.path, full.needed, self.last_complete()) from None
         for old in checkpoints(self.path)[:-keep]:
-            old.unlink(missing_ok=True)
+            if not replay_beside(old).is_file():  # those with their replay go with it (ReplayCheckpoints)
+                old.unlink(missing_ok=True)
         return path
 
     def last_complete(self) -> str:

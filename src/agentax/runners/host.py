@@ -20,7 +20,6 @@ saved) from seeds that depend on how far the run had come.
 from __future__ import annotations
 
 import math
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -50,7 +49,7 @@ from agentax.runners.driver import (
     first_time_step,
 )
 from agentax.runners.logger import RunLogger
-from agentax.runs import Run, load_checkpoint
+from agentax.runs import CHECKPOINT_PREFIX, REPLAY_PREFIX, Run, checkpoints, load_checkpoint, replay_beside
 
 
 @dataclass(frozen=True)
@@ -344,43 +343,43 @@ class Evaluator:
 
 
 class ReplayCheckpoints:
-    """The replay buffer beside the agent's checkpoints: ``checkpoints/replay-<updates>.npz``,
-    compressed and written atomically (no pickle), after an agent checkpoint at most every
-    ``every_seconds`` and whenever the run ends; the two newest are kept. A resumed run loads the
-    newest one not after its agent checkpoint (users of SB3, RLlib and TF-Agents report learning
-    collapsing after a restore without the buffer)."""
+    """The replay buffer saved with the agent's checkpoints: ``checkpoints/replay-<updates>.npz``
+    beside ``ckpt-<updates>.msgpack``, compressed and written atomically (no pickle), with the first
+    checkpoint, then at most every ``every_seconds``, and whenever the run ends. It is written
+    *before* its checkpoint, which commits the pair (:func:`agentax.runs.replay_beside`); a resumed
+    run starts from the newest checkpoint that has its replay and loads exactly that one, never an
+    older or a missing replay in silence (users of SB3, RLlib and TF-Agents report learning
+    collapsing after a restore without the buffer). The two newest pairs are kept."""
 
-    PREFIX = "replay-"
+    KEEP = 2
 
     def __init__(self, run: Run | None, replay: Any, enabled: bool, every_seconds: float):
         self.run, self.replay = run, replay
         self.enabled = enabled and run is not None
-        self.every_seconds, self.saved_at = every_seconds, time.perf_counter()
+        self.every_seconds, self.saved_at = every_seconds, None
 
-    def files(self) -> list[Path]:
-        folder = self.run.path / "checkpoints"
-        found = folder.glob(f"{self.PREFIX}*.npz")
-        return sorted(found, key=lambda p: int(p.stem.removeprefix(self.PREFIX)))
-
-    def after_checkpoint(self, updates: int, force: bool) -> None:
-        if not self.enabled or not (force or time.perf_counter() - self.saved_at >= self.every_seconds):
+    def before_checkpoint(self, updates: int, force: bool) -> None:
+        """Save the replay of checkpoint ``updates`` when due (``force``: now); its checkpoint follows."""
+        first = self.saved_at is None  # the first checkpoint has its replay too (small then)
+        if not self.enabled or not (
+            force or first or time.perf_counter() - self.saved_at >= self.every_seconds
+        ):
             return
+        checkpoint = self.run.path / "checkpoints" / f"{CHECKPOINT_PREFIX}{updates}.msgpack"
         try:
-            save_replay(self.replay, self.run.path / "checkpoints" / f"{self.PREFIX}{updates}.npz")
+            save_replay(self.replay, replay_beside(checkpoint))
         except StorageFull as full:
             raise StorageFull(full.path, full.needed, self.run.last_complete()) from None
         self.saved_at = time.perf_counter()
-        for old in self.files()[:-2]:
-            old.unlink(missing_ok=True)
+        paired = {replay_beside(p) for p in checkpoints(self.run.path, with_replay=True)[-self.KEEP :]}
+        for old in (self.run.path / "checkpoints").glob(f"{REPLAY_PREFIX}*.npz"):
+            if old not in paired and old != replay_beside(checkpoint):
+                old.unlink(missing_ok=True)  # older pairs, and a replay whose checkpoint never came
 
-    def restore(self, updates: int) -> None:
-        if not self.enabled:
-            return
-        usable = [p for p in self.files() if int(p.stem.removeprefix(self.PREFIX)) <= updates]
-        if not usable:
-            print("note: no saved replay buffer to resume with; it refills", file=sys.stderr)
-            return
-        restore_replay(self.replay, usable[-1])
+    def restore(self, checkpoint: Path) -> None:
+        """Load the replay saved with ``checkpoint`` (the one :func:`restore` resumed from), if any."""
+        if self.enabled and replay_beside(checkpoint).is_file():
+            restore_replay(self.replay, replay_beside(checkpoint))
 
 
 def checkpoint_target(agent: Agent) -> Any:
@@ -388,11 +387,13 @@ def checkpoint_target(agent: Agent) -> Any:
     return jax.eval_shape(lambda key: (agent.init(key), key), jax.random.key(0))
 
 
-def restore(agent: Agent, run: Run) -> tuple[Any, jax.Array, dict[str, Any]]:
-    """``(agent state, learner key, meta)`` of the run's newest loadable checkpoint; trims metrics.csv."""
-    (state, learner_key), meta, _ = load_checkpoint(run.path, checkpoint_target(agent))
+def restore(agent: Agent, run: Run, with_replay: bool = False) -> tuple[Any, jax.Array, dict[str, Any]]:
+    """``(agent state, learner key, meta)`` of the run's newest loadable checkpoint (``with_replay``:
+    of the newest saved with its replay buffer, see :class:`ReplayCheckpoints`); trims metrics.csv.
+    ``meta["checkpoint"]`` is the file it came from."""
+    (state, learner_key), meta, path = load_checkpoint(run.path, checkpoint_target(agent), with_replay)
     run.truncate_metrics(meta["env_steps"])
-    return state, learner_key, meta
+    return state, learner_key, {**meta, "checkpoint": path}
 
 
 def train(
@@ -408,8 +409,9 @@ def train(
     _xla.let_xla_use_every_cpu()
     init_key, learner_key, actors_key = agent_keys(runner.seed)
     meta: dict[str, Any] = {"env_steps": 0, "updates": 0, "episodes": 0, "elapsed": 0.0}
+    replayed = isinstance(agent.experience, OffPolicy) and runner.checkpoint_replay
     if resume:
-        state, learner_key, meta = restore(agent, run)
+        state, learner_key, meta = restore(agent, run, with_replay=replayed)
     else:
         state = agent.init(init_key)
     updates, done_steps = int(meta["updates"]), int(meta["env_steps"])
@@ -433,7 +435,7 @@ def train(
             run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
         )
         if resume:
-            replay_checkpoints.restore(updates)
+            replay_checkpoints.restore(meta["checkpoint"])
     logger = RunLogger(
         run,
         agent.total_steps,
@@ -492,9 +494,10 @@ def train(
                     "episodes": actor.episodes.count,
                     "elapsed": logger.wall_seconds(),
                 }
-                saved = logger.checkpoint(updates, (state, learner_key), meta, force=finished or solved)
-                if saved and isinstance(experience, OffPolicy):
-                    replay_checkpoints.after_checkpoint(updates, force=finished or solved)
+                before = replay_checkpoints.before_checkpoint if isinstance(experience, OffPolicy) else None
+                logger.checkpoint(
+                    updates, (state, learner_key), meta, force=finished or solved, before=before
+                )
                 if solved:
                     break
         finally:

@@ -19,6 +19,7 @@ import datetime
 import math
 import sys
 import time
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -185,10 +186,19 @@ class RunLogger:
         )
         return row
 
-    def checkpoint(self, step: int, tree: Any, meta: dict[str, Any], *, force: bool = False) -> bool:
+    def checkpoint(
+        self,
+        step: int,
+        tree: Any,
+        meta: dict[str, Any],
+        *,
+        force: bool = False,
+        before: Callable[[int, bool], Any] | None = None,
+    ) -> bool:
         """Save ``tree`` at the first row, then once ``checkpoint_every_seconds`` passed since the
         last (or ``force``), so a run stopped early can always resume; only finite parameters are
-        saved (else ``TrainingDiverged``). Returns whether it saved."""
+        saved (else ``TrainingDiverged``). ``before(step, force)`` runs first when it saves: what must be on
+        disk before the checkpoint commits (the replay buffer). Returns whether it saved."""
         now = time.perf_counter()
         first = self.last_checkpoint is None
         if self.run is None or not (
@@ -196,6 +206,8 @@ class RunLogger:
         ):
             return False
         check_finite_tree(tree, meta.get("env_steps", 0), self.last_checkpoint)
+        if before is not None:
+            before(step, force)
         path = self.run.save_checkpoint(step, tree, meta)
         self.last_checkpoint, self.last_checkpoint_time = path.name, now
         return True

@@ -31,6 +31,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -368,7 +369,8 @@ def train(
     meta: dict[str, Any] = {"env_steps": 0, "updates": 0, "episodes": 0, "elapsed": 0.0}
     state = agent.init(init_key)
     if resume:
-        state, learner_key, meta = restore(agent, run)
+        replayed = isinstance(agent.experience, OffPolicy) and runner.checkpoint_replay
+        state, learner_key, meta = restore(agent, run, with_replay=replayed)
     updates, done_steps = int(meta["updates"]), int(meta["env_steps"])
     coordinator = Coordinator()
     make_fleet = fleet or thread_fleet(agent, env_id, runner)
@@ -388,6 +390,7 @@ def train(
         )
         loop = _off_policy if isinstance(agent.experience, OffPolicy) else _on_policy
         rows = _Rows(runner, logger, evaluator, done_steps)
+        rows.resumed_from = meta.get("checkpoint")
         with logger, interrupted_at_a_safe_point(coordinator):
             state, updates, env_steps = loop(
                 agent, runner, fleet, threads, coordinator, rows, state, learner_key, updates, done_steps
@@ -412,6 +415,7 @@ class _Rows:
         self.meter: Meter | None = None  # set once the actor threads exist
         self.replay: Any = None  # off-policy: its size in the rows
         self.replay_checkpoints: ReplayCheckpoints | None = None
+        self.resumed_from: Path | None = None  # the checkpoint a resumed run started from
         self.next_log = done_steps + runner.log_every_steps
         self.steps_at_log, self.time_at_log = done_steps, time.perf_counter()
 
@@ -440,9 +444,8 @@ class _Rows:
             "episodes": 0,
             "elapsed": self.logger.wall_seconds(),
         }
-        saved = self.logger.checkpoint(updates, (state, learner_key), meta, force=final or solved)
-        if saved and self.replay_checkpoints is not None:
-            self.replay_checkpoints.after_checkpoint(updates, force=final or solved)
+        before = None if self.replay_checkpoints is None else self.replay_checkpoints.before_checkpoint
+        self.logger.checkpoint(updates, (state, learner_key), meta, force=final or solved, before=before)
         return solved
 
 
@@ -509,8 +512,8 @@ def _off_policy(agent, runner, fleet, threads, coordinator, rows, state, learner
     rows.replay_checkpoints = ReplayCheckpoints(
         rows.logger.run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
     )
-    if updates:  # a resumed run
-        rows.replay_checkpoints.restore(updates)
+    if rows.resumed_from is not None:
+        rows.replay_checkpoints.restore(rows.resumed_from)
     chunk = experience.train_frequency * (experience.num_envs // runner.actors)
     limiter = RateLimiter(
         coordinator,
