@@ -155,8 +155,8 @@ def test_training_on_each_backend_writes_the_run_and_resume_finishes_it(
 
     checkpoint = RunLogger.checkpoint
 
-    def checkpoint_then_interrupt(self, step, tree, meta, *, force=False):
-        checkpoint(self, step, tree, meta, force=True)
+    def checkpoint_then_interrupt(self, step, tree, meta, *, force=False, before=None):
+        checkpoint(self, step, tree, meta, force=True, before=before)
         raise KeyboardInterrupt  # Ctrl-C right after the first checkpoint (2,048 env steps)
 
     monkeypatch.setattr(RunLogger, "checkpoint", checkpoint_then_interrupt)
