@@ -24,12 +24,16 @@ class MLP(nn.Module):
     hidden: Sequence[int]
     activation: str = "elu"
     out: int | None = None
+    layer_norm: bool = False
+    """LayerNorm between each dense layer and its activation (PQN's regularizer: it keeps TD learning
+    stable without a target network)"""
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         act = ACTIVATIONS[self.activation]
         for width in self.hidden:
-            x = act(nn.Dense(width)(x))
+            x = nn.Dense(width)(x)
+            x = act(nn.LayerNorm()(x) if self.layer_norm else x)
         if self.out is not None:
             x = nn.Dense(self.out)(x)
         return x

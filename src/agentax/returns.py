@@ -113,6 +113,33 @@ def gae(
     return advantages, advantages + values
 
 
+def q_lambda_returns(
+    rewards: jax.Array,
+    next_q: jax.Array,
+    terminated: jax.Array,
+    done: jax.Array,
+    discount_factor: float | jax.Array,
+    q_lambda: float | jax.Array,
+) -> jax.Array:
+    """Peng's Q(λ) targets over a rollout, as PQN learns from them (Gallici et al., 2025): ``[T, ...]``.
+
+    ``next_q[t] = max_a Q(s'_t, a)`` of the observation step t really reached (its final
+    observation at a truncation, so a truncated step bootstraps from it); ``terminated`` zeroes the
+    bootstrap, ``done`` (terminated or truncated) keeps the λ-trace inside the episode, and the last
+    step bootstraps from its own ``next_q``::
+
+        G_t = r_t + γ (1 − terminated_t) [q'_t + λ (1 − done_t) (G_{t+1} − q'_t)],   G_T = q'_{T−1}
+
+    λ = 0 gives one-step Q-learning targets, λ = 1 the Monte-Carlo return within each episode.
+    Since (1 − terminated)(1 − done) = 1 − done, this is a discounted return of
+    ``r_t + γ (1 − terminated_t)(1 − λ (1 − done_t)) q'_t`` with discount ``γ λ (1 − done_t)``.
+    """
+    not_terminated = 1.0 - terminated.astype(next_q.dtype)
+    not_done = 1.0 - done.astype(next_q.dtype)
+    one_step = rewards + discount_factor * not_terminated * (1.0 - q_lambda * not_done) * next_q
+    return discounted_returns(one_step, discount_factor * q_lambda * not_done, next_q[-1])
+
+
 def n_step_return(
     reward: jax.Array, terminated: jax.Array, truncated: jax.Array, discount_factor: float
 ) -> tuple[jax.Array, jax.Array]:

@@ -1,7 +1,8 @@
 """Learning agents, one module per algorithm family: pure ``init`` / ``act`` / ``learn`` functions.
 
 ``reinforce`` (the lecture's policy gradient, with an optional learned baseline), ``ppo``
-(clipped policy optimisation with GAE), ``dqn`` (deep Q-learning and its variants). Each follows
+(clipped policy optimisation with GAE), ``dqn`` (deep Q-learning and its variants), ``pqn`` (deep
+Q-learning from vectorized rollouts, Q(λ) targets, no replay or target network). Each follows
 the contract of :mod:`agentax.agents.protocol`: ``make_agent(spec, cfg)``, which every runner
 drives. :data:`ALGORITHMS` is the one registry.
 """
@@ -58,6 +59,7 @@ ALGORITHMS: dict[str, str] = {
     "reinforce": "agentax.agents.reinforce",
     "ppo": "agentax.agents.ppo",
     "dqn": "agentax.agents.dqn",
+    "pqn": "agentax.agents.pqn",
 }
 """Every learning algorithm: its name on the command line and in config.json → its module."""
 
