@@ -129,7 +129,10 @@ def check_fits(algorithm: Program, runner: RunnerConfig) -> None:
     up front: a vmap over more seeds than memory holds would swap or stall before its first chunk).
 
     Counts the carry of one seed (parameters, optimizer state, env states, replay) times the seeds,
-    twice: the program's buffers and the host copy a checkpoint makes."""
+    twice: the program's buffers and the host copy a checkpoint makes. One seed is not checked (its
+    settings are the algorithm's to refuse), so the default run pays no extra trace."""
+    if runner.num_seeds == 1:
+        return
     one_seed = jax.eval_shape(algorithm.init, jax.random.key(0))
     per_seed = sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(one_seed) if hasattr(x, "dtype"))
     need, have = 2 * per_seed * runner.num_seeds, available_memory()
