@@ -37,7 +37,6 @@ from agentax.agents.protocol import Agent, EnvSpec, Loop, OnPolicy
 from agentax.envs.core import Box, Discrete
 from agentax.errors import UsageError
 from agentax.nets import (
-    ACTIVATIONS,
     ActorCritic,
     entropy,
     gaussian_entropy,
@@ -91,25 +90,19 @@ class PPOConfig:
 
     def validate(self) -> PPOConfig:
         """Raise a UsageError naming the first bad value (run by ``make_agent`` and the CLI)."""
-        positive = (
-            "total_steps",
-            "num_envs",
-            "num_steps",
-            "learning_rate",
-            "num_minibatches",
-            "update_epochs",
+        agents.check_fields(
+            self,
+            positive=(
+                "total_steps",
+                "num_envs",
+                "num_steps",
+                "learning_rate",
+                "num_minibatches",
+                "update_epochs",
+            ),
+            unit_interval=("discount_factor", "gae_lambda"),
+            non_negative=("clip_eps", "ent_coef", "vf_coef", "max_grad_norm"),
         )
-        for name in positive:
-            if getattr(self, name) <= 0:
-                raise UsageError(f"{name} must be positive, got {getattr(self, name)}")
-        for name in ("discount_factor", "gae_lambda"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise UsageError(f"{name} must lie in [0, 1], got {getattr(self, name)}")
-        for name in ("clip_eps", "ent_coef", "vf_coef", "max_grad_norm"):
-            if getattr(self, name) < 0:
-                raise UsageError(f"{name} must not be negative, got {getattr(self, name)}")
-        if self.activation not in ACTIVATIONS:
-            raise UsageError(f"unknown activation {self.activation!r}; choose from {', '.join(ACTIVATIONS)}")
         if (self.num_envs * self.num_steps) % self.num_minibatches:
             raise UsageError(
                 f"num_envs × num_steps = {self.num_envs * self.num_steps} does not split into "

@@ -31,7 +31,7 @@ from agentax.agents import Preset
 from agentax.agents.protocol import Agent, EnvSpec, Loop, OnPolicy
 from agentax.envs.core import Discrete
 from agentax.errors import UsageError
-from agentax.nets import ACTIVATIONS, MLP
+from agentax.nets import MLP
 from agentax.policies import Policy, epsilon_greedy, linear_schedule
 from agentax.replay import Transition
 from agentax.returns import q_lambda_returns
@@ -73,21 +73,25 @@ class PQNConfig:
 
     def validate(self) -> PQNConfig:
         """Raise a UsageError naming the first bad value."""
-        for name in (
-            "total_steps",
-            "num_envs",
-            "num_steps",
-            "learning_rate",
-            "num_minibatches",
-            "update_epochs",
-        ):
-            if getattr(self, name) <= 0:
-                raise UsageError(f"{name} must be positive, got {getattr(self, name)}")
-        for name in ("discount_factor", "q_lambda", "epsilon_start", "epsilon_end", "exploration_fraction"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise UsageError(f"{name} must lie in [0, 1], got {getattr(self, name)}")
-        if self.activation not in ACTIVATIONS:
-            raise UsageError(f"unknown activation {self.activation!r}; choose from {', '.join(ACTIVATIONS)}")
+        agents.check_fields(
+            self,
+            positive=(
+                "total_steps",
+                "num_envs",
+                "num_steps",
+                "learning_rate",
+                "num_minibatches",
+                "update_epochs",
+            ),
+            unit_interval=(
+                "discount_factor",
+                "q_lambda",
+                "epsilon_start",
+                "epsilon_end",
+                "exploration_fraction",
+            ),
+            non_negative=("max_grad_norm",),
+        )
         if self.steps_per_update % self.num_minibatches:
             raise UsageError(
                 f"num_envs × num_steps ({self.steps_per_update}) must split into num_minibatches "

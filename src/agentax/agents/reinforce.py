@@ -33,7 +33,7 @@ from agentax.agents import Preset
 from agentax.agents.protocol import Agent, EnvSpec, Episodes, Loop
 from agentax.envs.core import Discrete
 from agentax.errors import UsageError
-from agentax.nets import ACTIVATIONS, MLP, PolicyNet, log_prob
+from agentax.nets import MLP, PolicyNet, log_prob
 from agentax.policies import Policy
 from agentax.replay import Transition
 from agentax.returns import discounted_returns, normalize
@@ -66,13 +66,8 @@ class ReinforceConfig:
 
     def validate(self) -> ReinforceConfig:
         """Raise a UsageError naming the first bad value."""
-        for name in ("total_steps", "episodes_per_update", "max_steps", "learning_rate"):
-            if getattr(self, name) <= 0:
-                raise UsageError(f"{name} must be positive, got {getattr(self, name)}")
-        if not 0.0 <= self.discount_factor <= 1.0:
-            raise UsageError(f"discount_factor must lie in [0, 1], got {self.discount_factor}")
-        if self.activation not in ACTIVATIONS:
-            raise UsageError(f"unknown activation {self.activation!r}; choose from {', '.join(ACTIVATIONS)}")
+        positive = ("total_steps", "episodes_per_update", "max_steps", "learning_rate")
+        agents.check_fields(self, positive, unit_interval=("discount_factor",))
         return self
 
     @property
