@@ -1,5 +1,10 @@
 """The documentation site builds with ``mkdocs build --strict`` (a broken link, a missing page or an
-unresolved API reference fails), and the CLI reference names every command."""
+unresolved API reference fails), and the CLI reference names every command.
+
+The README is the front door and mkdocs does not build it, so its checks are here: it stays short,
+its links and anchors resolve, every ``agentax`` command it (or a docs page) shows is a real command
+with real flags, its headline figures are the ones on the pages it links to for how they were
+measured, and the test count it states is the suite's."""
 
 from __future__ import annotations
 
@@ -16,6 +21,8 @@ from agentax.cli import COMMANDS
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
+README = ROOT / "README.md"
+README_MAX_LINES = 200  # read in three minutes
 
 
 def _nav_files(nav) -> list[str]:
@@ -74,3 +81,135 @@ def test_site_builds_strict(tmp_path: Path):
     for command in COMMANDS:
         assert f"usage: agentax {command}" in cli, f"the built CLI reference lacks agentax {command} --help"
     assert "agentax.agents.protocol" in (site / "api" / "index.html").read_text()
+
+
+def _markdown(path: Path) -> str:
+    """A page's Markdown with its ``--8<-- "FILE"`` snippets (paths from the repository root) inlined."""
+    text = path.read_text()
+    return re.sub(r'^--8<-- "([^"]+)"$', lambda m: (ROOT / m.group(1)).read_text(), text, flags=re.MULTILINE)
+
+
+def _anchors(path: Path) -> set[str]:
+    """The ids that MkDocs' toc extension gives the headings of a Markdown page."""
+    from markdown.extensions.toc import slugify
+
+    text = re.sub(r"^```.*?^```", "", _markdown(path), flags=re.MULTILINE | re.DOTALL)
+    headings = re.findall(r"^#{1,6} (.+?)\s*$", text, re.MULTILINE)
+    return {slugify(re.sub(r"[`*_]", "", heading), "-") for heading in headings}
+
+
+def _section(text: str, heading: str) -> str:
+    match = re.search(rf"^## {re.escape(heading)}\n(.*?)(?=^## |\Z)", text, re.MULTILINE | re.DOTALL)
+    assert match, f"README.md has no section '## {heading}'"
+    return match.group(1)
+
+
+def test_readme_is_a_front_door():
+    lines = len(README.read_text().splitlines())
+    assert lines <= README_MAX_LINES, f"README.md has {lines} lines; the details belong on a docs page"
+    text = README.read_text()
+    assert text.index("make demo") < text.index("## "), "README.md does not open with make demo"
+    for heading in ("What works", "Headline figures", "Where to go next"):
+        _section(text, heading)
+
+
+def test_readme_links_resolve():
+    """Every relative link and image of the README names a file, and a #fragment one of its headings."""
+    links = re.findall(r"\]\(([^)\s]+)\)", README.read_text())
+    assert links
+    for link in links:
+        if "://" in link:
+            continue
+        target, _, anchor = link.partition("#")
+        path = ROOT / target
+        assert path.exists(), f"README.md links {link}: {target} is missing"
+        if anchor:
+            assert anchor in _anchors(path), f"README.md links {link}: {target} has no heading #{anchor}"
+
+
+def _commands(text: str) -> list[str]:
+    """The ``agentax ...`` commands a page shows: in inline code, and lines of its shell (or bare) code
+    blocks, comments cut off."""
+    found, prose, fence = [], [], None  # fence: the open block's language ("" for a bare one)
+    for line in text.splitlines():
+        if line.startswith("```"):
+            fence = line[3:].strip() if fence is None else None
+            prose.append("")
+        elif fence is None:
+            prose.append(line)
+        elif fence in ("", "bash", "sh", "console") and line.startswith("agentax "):
+            found.append(line.split(" #")[0])
+    found += re.findall(r"`(agentax [^`]+)`", "\n".join(prose))
+    return [command.strip() for command in found]
+
+
+def test_the_commands_shown_exist(monkeypatch: pytest.MonkeyPatch):
+    """Every ``agentax`` command in the README and the docs pages names a command of the CLI, and
+    each of its flags is in that command's --help (``ppo|dqn``, ``play/evaluate``: the first)."""
+    import importlib.util
+
+    monkeypatch.setenv("COLUMNS", "100")  # command_help sets it; put it back after
+    spec = importlib.util.spec_from_file_location("docs_hooks", DOCS / "hooks.py")
+    hooks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hooks)
+    helps: dict[tuple[str, ...], str] = {}
+
+    def help_of(*args: str) -> str:
+        if args not in helps:
+            helps[args] = hooks.command_help(list(args))
+        return helps[args]
+
+    pages = [README, *sorted(p for p in DOCS.rglob("*.md") if p.name != "cli.md")]
+    checked = 0
+    for page in pages:
+        for command in _commands(page.read_text()):
+            words = command.split()
+            name = re.split(r"[|/]", words[1])[0]
+            if name.startswith("-") or any(word.endswith(":") for word in words[:3]):  # --version; a message
+                continue
+            where = f"{page.relative_to(ROOT)} shows `{command}`"
+            assert name in COMMANDS, f"{where}: there is no agentax {name}"
+            text = help_of(name)
+            if name in ("train", "search") and len(words) > 2 and not words[2].startswith(("-", "[")):
+                sub = re.split(r"[|/]", words[2])[0]
+                if sub.isidentifier():
+                    text += help_of(name, sub)
+            for flag in re.findall(r"(?<![\w-])--[a-z][a-z0-9-]*", command):
+                assert re.search(rf"{flag}\b", text), f"{where}: agentax {name} has no {flag}"
+            checked += 1
+    assert checked > 50
+
+
+def test_readme_headline_figures_are_where_they_link():
+    """Each headline figure of the README appears on the docs page its row links to (where the page
+    says how it was measured): the front door repeats figures, it does not make them."""
+    rows = [
+        line
+        for line in _section(README.read_text(), "Headline figures").splitlines()
+        if line.startswith("| [")
+    ]
+    assert len(rows) >= 8
+    for row in rows:
+        link = re.search(r"\]\(([^)#\s]+)(?:#[^)\s]*)?\)", row).group(1)
+        page = _markdown(ROOT / link)
+        figures = re.findall(r"\d[\d,]*(?:\.\d+)?", re.sub(r"\]\([^)]*\)", "]", row))
+        missing = [figure for figure in figures if figure not in page]
+        assert not missing, f"README.md's headline row {row[:60]}...: {missing} not on {link}"
+
+
+@pytest.mark.timeout(180)
+def test_readme_states_the_suites_test_count():
+    """The number of tests the README says ``make test`` runs is what pytest collects with make
+    test's marker expression (collection only: a few seconds)."""
+    recipe = re.search(r"^test:.*\n\t(.*)$", (ROOT / "Makefile").read_text(), re.MULTILINE).group(1)
+    marker = re.search(r'-m "([^"]+)"', recipe).group(1)
+    command = [sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:xdist", "-m", marker]
+    result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=170)
+    match = re.search(r"^(\d+)(?:/\d+)? tests? collected", result.stdout, re.MULTILINE)
+    assert match, result.stdout[-2000:] + result.stderr[-2000:]
+    collected = int(match.group(1))
+    stated = re.findall(r"\b(\d+) (?:tests|passed)\b", README.read_text())
+    assert stated, "README.md does not say how many tests make test runs"
+    assert {int(n) for n in stated} == {collected}, (
+        f"README.md says {sorted(set(stated))} tests; make test collects {collected}"
+    )
