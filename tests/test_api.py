@@ -120,7 +120,7 @@ def test_train_is_a_plain_function_beside_the_runners_package():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     assert done.stdout.splitlines() == [
-        "called: unknown algorithm 'alchemy'; choose from reinforce, ppo, dqn",
+        "called: unknown algorithm 'alchemy'; choose from reinforce, ppo, dqn, pqn",
         "HostRunnerConfig ParallelRunnerConfig",
     ]
 

@@ -39,6 +39,7 @@ def main(argv: list[str]) -> int:
 
     from agentax import _xla
     from agentax.agents import ppo
+    from agentax.api import compiled_program
     from agentax.cli.evaluate import stats_table
     from agentax.envs import make_jax
     from agentax.evaluate import evaluate
@@ -68,8 +69,9 @@ def main(argv: list[str]) -> int:
     console = Console()
     console.print(f"[bold]Training PPO on {env.id}[/] (preset cartpole-fast) into {out}")
     start = time.perf_counter()
-    algorithm = ppo.make_train(env, preset.config)
+    algorithm = compiled_program(ppo, env, preset.config)
     description = {key: config[key] for key in ("algo", "env", "config")}  # names the stored programs
+    description["freeze"] = [None, runner.freeze_episodes]  # as agentax train's, so they share programs
     run = Run.create(out, config)
     result = train(algorithm, env, runner, run, progress=args.progress, program_description=description)
     seconds = time.perf_counter() - start
