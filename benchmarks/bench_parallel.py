@@ -107,9 +107,9 @@ def ppo_agent(total_steps: int, preset: str = "cartpole-fast"):
 
 def _actor(agent, num_envs: int):
     from agentax.envs import make_host_env
-    from agentax.runners import host
+    from agentax.runners import host, session
 
-    init_key, _, actors_key = host.agent_keys(0)
+    init_key, _, actors_key = session.agent_keys(0)
     env = make_host_env(ENV_ID, num_envs, training=True)
     actor = host.Actor(agent, env, host.actor_seed(0, 0, 0), host.fold_actor_key(actors_key, 0, 0))
     return actor, agent.init(init_key)
@@ -135,9 +135,9 @@ def learn_alone_off_policy(agent, replay, phases: int):
     """The learner alone: ``phases`` learning phases on a filled buffer, no env."""
     import jax
 
-    from agentax.runners import host
+    from agentax.runners import host, session
 
-    init_key, learner_key, _ = host.agent_keys(0)
+    init_key, learner_key, _ = session.agent_keys(0)
     state = agent.init(init_key)
     with Clock() as clock:
         learner = host.OffPolicyLearner(agent, replay)
@@ -162,9 +162,9 @@ def collect_alone_on_policy(agent, iterations: int):
 def learn_alone_on_policy(agent, trajectory, iterations: int):
     import jax
 
-    from agentax.runners import host
+    from agentax.runners import session
 
-    init_key, learner_key, _ = host.agent_keys(0)
+    init_key, learner_key, _ = session.agent_keys(0)
     state = agent.init(init_key)
     with Clock() as clock:
         learn = jax.jit(agent.learn)

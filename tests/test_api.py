@@ -14,8 +14,7 @@ import agentax
 import agentax.runners.compiled
 from agentax.cli import main
 from agentax.errors import UsageError
-from agentax.runners.compiled import TrainResult
-from agentax.runners.host import HostResult
+from agentax.runners.session import TrainResult
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = {"total_steps": 2048, "learning_rate": 2e-3}  # 8 updates of cartpole-fast's 8 envs × 32 steps
@@ -99,14 +98,14 @@ def test_host_runner_through_the_api(tmp_path):
     run = agentax.train(
         "ppo", env="CartPole-v1", runner="host", out=tmp_path / "h", progress=False, total_steps=512
     )
-    assert isinstance(run.result, HostResult) and run.runner_kind == "host"
+    assert isinstance(run.result, TrainResult) and run.runner_kind == "host"
     assert run.evaluate(episodes=5, seed=2) == agentax.load(run.path).evaluate(episodes=5, seed=2)
 
 
 def test_train_is_a_plain_function_beside_the_runners_package():
     """``agentax.train`` is :func:`agentax.api.train`; the runners are the package ``agentax.runners``,
     so importing a runner module never rebinds the name (in a fresh interpreter, either order)."""
-    assert agentax.train is agentax.api.train and agentax.runners.compiled.TrainResult is TrainResult
+    assert agentax.train is agentax.api.train and agentax.runners.session.TrainResult is TrainResult
     with pytest.raises(UsageError, match="unknown algorithm"):
         agentax.train("alchemy")
     code = (

@@ -60,7 +60,8 @@ def tiny_run(run_dir: Path, algo: str = "ppo", backend: str = "ale", sticky_acti
     from agentax.agents.protocol import EnvSpec
     from agentax.cli.train import parse
     from agentax.envs import make_host_env
-    from agentax.runners.host import HostRunnerConfig, agent_keys
+    from agentax.runners.host import HostRunnerConfig
+    from agentax.runners.session import agent_keys
     from agentax.runs import Run, run_config
 
     module = algorithm(algo)

@@ -15,7 +15,7 @@ from agentax.api import restore_policy
 from agentax.cli import main
 from agentax.envs import make_host_env
 from agentax.evaluate import host_episode_returns
-from agentax.runners import host
+from agentax.runners import session
 from agentax.runs import load_checkpoint, read_metrics
 
 
@@ -86,7 +86,7 @@ def test_a_gymnasium_env_trains_through_the_host_driver(tmp_path):
     episodes = config["runner"]["eval_episodes"]
     env = make_host_env("Acrobot-v1", min(episodes, 8))  # as the runner's evaluator
     agent = dqn.make_agent(EnvSpec.of(env), dqn.config_from_dict(config["config"]))
-    (state, _), meta, _ = load_checkpoint(out, host.checkpoint_target(agent))
+    (state, _), meta, _ = load_checkpoint(out, session.checkpoint_target(agent))
     assert int(state.step) == meta["updates"] == 128 and meta["env_steps"] == 1024
     # The reloaded policy replays the final evaluation (seed + 123,457) to eval.json's returns.
     _, policy = restore_policy(out)

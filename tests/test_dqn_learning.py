@@ -12,7 +12,7 @@ from agentax.api import compiled_program
 from agentax.envs import make_jax
 from agentax.envs.gym import GymnasiumEnv
 from agentax.evaluate import host_episode_returns
-from agentax.runners import host
+from agentax.runners import host, session
 from agentax.runners.compiled import RunnerConfig, train
 from agentax.runs import Run, load_checkpoint, run_config
 
@@ -96,7 +96,7 @@ def test_lecture_schedule_counts_episodes(tmp_path):
     )
     result = host.train(agent, "CartPole-v0", runner, run)
     assert result.updates == int(result.state.step) == 5
-    _, meta, _ = load_checkpoint(run.path, host.checkpoint_target(agent))
+    _, meta, _ = load_checkpoint(run.path, session.checkpoint_target(agent))
     assert meta["episodes"] == 55 and meta["updates"] == 5 and meta["env_steps"] == result.env_steps
     assert 55 * 8 < result.env_steps < 55 * 60
 

@@ -20,8 +20,9 @@ from agentax.cli import main
 from agentax.envs import make_host_env
 from agentax.errors import TrainingDiverged
 from agentax.runners import host
-from agentax.runners.host import HostRunnerConfig, checkpoint_target
+from agentax.runners.host import HostRunnerConfig
 from agentax.runners.logger import time_left
+from agentax.runners.session import checkpoint_target
 from agentax.runs import Run, checkpoints, load_checkpoint, read_config, read_metrics, run_config
 
 DIVERGED = re.compile(

@@ -40,6 +40,7 @@ from agentax.agents import Preset, algorithm
 from agentax.errors import UsageError
 from agentax.evaluate import EvalStats
 from agentax.policies import Policy
+from agentax.runners import RUNNERS
 
 
 @dataclass(frozen=True)
@@ -110,8 +111,8 @@ class RunArgs:
         if self.freeze_at_return == "none":
             return None
         if self.freeze_at_return == "auto":
-            return preset.freeze_at_return if kind == "compiled" else None
-        if kind != "compiled":
+            return None if RUNNERS[kind].host_loop else preset.freeze_at_return
+        if RUNNERS[kind].host_loop:
             raise UsageError(
                 f"--freeze-at-return stops seeds inside the compiled runner's program; the {kind} "
                 "runner cannot (train a JAX env with --runner compiled, or drop the flag)"
@@ -128,8 +129,8 @@ class Run:
     ``policy`` is the greedy policy (the best seed by the final evaluation); ``evaluate`` plays it
     on fresh episodes; ``metrics`` are the rows of metrics.csv; ``final_eval`` is eval.json (the
     evaluation at the end of training); ``plot`` and ``video`` write the learning curve and one
-    episode. ``result`` is the runner's :class:`~agentax.runners.compiled.TrainResult` or
-    :class:`~agentax.runners.host.HostResult` when this process trained the run, else ``None``.
+    episode. ``result`` is the runner's :class:`~agentax.runners.session.TrainResult` when this
+    process trained the run, else ``None``.
     (Not to be confused with :class:`agentax.runs.Run`, the writer a runner logs through.)
     """
 
@@ -252,7 +253,7 @@ def _upgraded(config: dict[str, Any]) -> dict[str, Any]:
         return config
     settings = {k: v for k, v in config["config"].items() if k not in moved}
     runner = dict(config.get("runner", {}))
-    if config.get("runner_kind", "compiled") == "compiled":
+    if not RUNNERS[config.get("runner_kind", "compiled")].host_loop:
         runner.update(moved)
     return {**config, "config": settings, "runner": runner}
 
@@ -273,30 +274,36 @@ def compiled_program(module: Any, env: Any, cfg: Any, runner: Any = None) -> Any
 
 def _restore_learned(run_dir: Path, config: dict[str, Any]) -> Policy:
     """The greedy policy of a learning algorithm's run (its best seed), from its newest good checkpoint."""
-    from agentax.agents.protocol import EnvSpec
 
     config = _upgraded(config)
     module = algorithm(config["algo"])
     cfg = module.config_from_dict(config["config"])
-    if config.get("runner_kind", "compiled") == "compiled":
+    spec = RUNNERS[config.get("runner_kind", "compiled")]
+    if not spec.host_loop:
         from agentax.envs import make_jax
         from agentax.runners.compiled import RunnerConfig
         from agentax.runners.compiled import restore_policy as restore_compiled
 
         env, runner = make_jax(config["env"]), RunnerConfig(**config["runner"])
         return restore_compiled(run_dir, compiled_program(module, env, cfg, runner), runner)
-    from agentax.envs import make_host_env
     from agentax.runners.host import restore_policy as restore_host
 
     runner = config.get("runner", {})
-    options = {
-        "backend": runner.get("env_backend", "auto"),
-        "sticky_actions": runner.get("sticky_actions", 0.25),
-    }
-    env = make_host_env(config["env"], 1, **options)
-    spec = EnvSpec.of(env)
-    env.close()
-    return restore_host(run_dir, module.make_agent(spec, cfg))
+    env_spec, _ = host_env_spec(
+        config["env"], runner.get("env_backend", "auto"), runner.get("sticky_actions", 0.25)
+    )
+    return restore_host(run_dir, module.make_agent(env_spec, cfg))
+
+
+def host_env_spec(env_id: str, backend: str, sticky_actions: float) -> tuple[Any, Any]:
+    """``(EnvSpec, Gymnasium's EnvSpec or None)`` of ``env_id`` as the host runners make it."""
+    from agentax.agents.protocol import EnvSpec
+    from agentax.envs import make_host_env
+
+    probe = make_host_env(env_id, 1, backend=backend, sticky_actions=sticky_actions)
+    specs = EnvSpec.of(probe), getattr(getattr(probe, "vector_env", None), "spec", None)
+    probe.close()
+    return specs
 
 
 # Choosing the settings (shared with ``agentax train``).
@@ -350,14 +357,12 @@ def runner_kind(run_args: RunArgs) -> str:
     """The runner a training uses: ``--runner``, or compiled for a JAX env and host for others."""
     if run_args.runner == "auto":
         return "compiled" if _is_jax_env(run_args.env) else "host"
-    from agentax.runners import RUNNERS
+    from agentax.runners import CHOICES
 
-    if run_args.runner not in RUNNERS:
-        raise UsageError(f"unknown runner {run_args.runner!r}; choose from {', '.join(RUNNERS)}")
+    if run_args.runner not in CHOICES:
+        raise UsageError(f"unknown runner {run_args.runner!r}; choose from {', '.join(CHOICES)}")
     if run_args.runner == "compiled" and _is_atari(run_args.env):
-        from agentax.runners.compiled_atari import RUNNER_KIND
-
-        return RUNNER_KIND  # PPO's rollout and EnvPool's step in one program, one seed per process
+        return "compiled-atari"  # PPO's rollout and EnvPool's step in one program, one seed per process
     if run_args.runner == "compiled" and not _is_jax_env(run_args.env):
         raise UsageError(
             f"the compiled runner needs one of agentax's JAX envs ({', '.join(_jax_env_ids())}); "
@@ -427,8 +432,7 @@ def _start_host(
     algo: str, module: Any, run_args: RunArgs, cfg: Any, preset: Preset, kind: str, out: Path, quiet: bool
 ) -> Run:
     """The host, parallel, ray or compiled Atari runner: one seed per process."""
-    from agentax.agents.protocol import EnvSpec, OffPolicy
-    from agentax.envs import make_host_env
+    from agentax.agents.protocol import OffPolicy
     from agentax.runners import compiled_atari
     from agentax.runners.host import HostRunnerConfig
     from agentax.runners.parallel import ParallelRunnerConfig
@@ -436,7 +440,7 @@ def _start_host(
     from agentax.runs import run_config
 
     run_args.freeze(preset, kind)  # refused here before anything is made
-    if run_args.seeds != 1 and kind != compiled_atari.RUNNER_KIND:  # which says why below
+    if run_args.seeds != 1 and RUNNERS[kind].envs == "any":  # (the compiled Atari check says why)
         raise UsageError(
             f"the {kind} runner trains one seed per process (--seeds 1); --seeds N is compiled-only"
         )
@@ -445,11 +449,7 @@ def _start_host(
         actors = run_args.actors or DEFAULT_ACTORS
         cfg = dataclasses.replace(cfg, **{envs: actors * run_args.envs_per_actor}).validate()
     atari = {"env_backend": run_args.env_backend, "sticky_actions": run_args.sticky_actions}
-    probe = make_host_env(
-        run_args.env, 1, backend=run_args.env_backend, sticky_actions=run_args.sticky_actions
-    )
-    spec, env_spec = EnvSpec.of(probe), getattr(getattr(probe, "vector_env", None), "spec", None)
-    probe.close()
+    spec, env_spec = host_env_spec(run_args.env, run_args.env_backend, run_args.sticky_actions)
     remake = agent_maker(module, spec, cfg)
     agent = remake()  # refuses what the agent cannot train before anything is written
     stop = parse_stop(run_args.stop_at_return, preset, env_spec)
@@ -476,7 +476,7 @@ def _start_host(
             where += f", policy lag {runner.policy_lag}"
     else:
         runner, where = HostRunnerConfig(**common), "host"
-        if kind == compiled_atari.RUNNER_KIND:
+        if RUNNERS[kind].envs == "atari":
             compiled_atari.check(agent, run_args.env, runner, run_args.seeds)
             where = "compiled, EnvPool inside the program"
     run = RunFolder.create(
@@ -489,20 +489,16 @@ def _start_host(
 def _train_host(
     agent: Any, remake: Any, kind: str, runner: Any, run: Any, *, resume: bool, progress: bool
 ) -> Run:
-    """The host, parallel or ray runner; ``remake()`` builds ``agent`` again (in Ray's actor processes)."""
-    from agentax.runners import host, parallel
-
+    """A runner that steps its envs outside one program; ``remake()`` builds ``agent`` again (in the
+    actor processes of a runner that has them)."""
     start_time = time.perf_counter()
-    options = {"resume": resume, "progress": progress}
-    if kind == "ray":
-        from agentax.runners import ray
-
-        result = ray.train(agent, run.config["env"], runner, run, make_agent=remake, **options)
-    else:
-        from agentax.runners import compiled_atari
-
-        trains = {"parallel": parallel.train, compiled_atari.RUNNER_KIND: compiled_atari.train}
-        result = trains.get(kind, host.train)(agent, run.config["env"], runner, run, **options)
+    spec = RUNNERS[kind]
+    options = {
+        "resume": resume,
+        "progress": progress,
+        **({"make_agent": remake} if spec.remakes_agent else {}),
+    }
+    result = spec.load().train(agent, run.config["env"], runner, run, **options)
     seconds = time.perf_counter() - start_time
     return Run(run.path, run.config, result, seconds, greedy=agent.greedy_policy(result.state))
 
@@ -548,30 +544,22 @@ def resume(run_dir: str | Path, progress: bool = True, *, quiet: bool = False) -
     _xla.enable_compilation_cache()
     kind = config.get("runner_kind", "compiled")
     _announce(f"resuming {algo} on {config['env']} ({kind} runner) from {run_dir}", quiet)
+    if kind not in RUNNERS:
+        raise UsageError(
+            f"{run_dir}/config.json names an unknown runner {kind!r}; known: {', '.join(RUNNERS)}"
+        )
     try:
-        if kind in ("host", "parallel", "ray", "compiled-atari"):
-            from agentax.agents.protocol import EnvSpec
-            from agentax.envs import make_host_env
-            from agentax.runners.host import HostRunnerConfig
-            from agentax.runners.parallel import ParallelRunnerConfig
-            from agentax.runners.ray import RayRunnerConfig
-
-            configs = {"parallel": ParallelRunnerConfig, "ray": RayRunnerConfig}
-            runner = configs.get(kind, HostRunnerConfig)(**config["runner"])
-            probe = make_host_env(
-                config["env"], 1, backend=runner.env_backend, sticky_actions=runner.sticky_actions
-            )
-            spec = EnvSpec.of(probe)
-            probe.close()
-            remake = agent_maker(module, spec, cfg)
-            run = RunFolder.open(run_dir)
-            return _train_host(remake(), remake, kind, runner, run, resume=True, progress=progress)
-        from agentax.envs import make_jax
-        from agentax.runners.compiled import RunnerConfig
-
-        runner = RunnerConfig(**config["runner"])
+        runner = RUNNERS[kind].config_type()(**config["runner"])
     except (KeyError, TypeError) as error:
         raise UsageError(f"{run_dir}/config.json has no valid 'runner' settings ({error})") from None
+    if RUNNERS[kind].host_loop:
+        env_spec, _ = host_env_spec(config["env"], runner.env_backend, runner.sticky_actions)
+        remake = agent_maker(module, env_spec, cfg)
+        return _train_host(
+            remake(), remake, kind, runner, RunFolder.open(run_dir), resume=True, progress=progress
+        )
+    from agentax.envs import make_jax
+
     env = make_jax(config["env"])
     return _train_compiled(module, env, cfg, runner, RunFolder.open(run_dir), resume=True, progress=progress)
 

@@ -27,6 +27,7 @@ from agentax import api
 from agentax.agents import ALGORITHMS, algorithm
 from agentax.api import RunArgs
 from agentax.errors import UsageError
+from agentax.runners import RUNNERS
 
 
 def _option(argv: list[str], name: str, default: str) -> str:
@@ -99,7 +100,7 @@ def resume(run_dir: Path, progress: bool = True) -> int:
 
 
 def _print(run: api.Run) -> int:
-    compiled = run.runner_kind == "compiled"
+    compiled = not RUNNERS[run.runner_kind].host_loop  # its timings: compile and training
     report(run.result.eval, run.path, run.seconds, run.result if compiled else None)
     return 0
 

@@ -32,7 +32,7 @@ import json
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -40,14 +40,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agentax.curves import plot_curves, preload_plotting
+from agentax.curves import preload_plotting
 from agentax.envs.core import Environment, episode_returns
-from agentax.errors import TrainingInterrupted, UsageError
+from agentax.errors import UsageError
 from agentax.policies import Policy
 from agentax.replay.frames import available_memory
 from agentax.runners import programs
-from agentax.runners.logger import Progress, check_finite, check_finite_tree
+from agentax.runners.logger import RunLogger
 from agentax.runners.rollout import SEED_AXIS, Freeze, Program
+from agentax.runners.session import TrainResult
 from agentax.runs import Run, load_checkpoint
 
 EVAL_KEY_OFFSET = 1_000_003  # evaluation keys are fold_in(seed key, offset + evaluation number)
@@ -94,21 +95,6 @@ class RunnerConfig:
         for name in ("updates_per_chunk", "eval_episodes", "freeze_episodes"):
             if getattr(self, name) < 1:
                 raise UsageError(f"{name} must be at least 1, got {getattr(self, name)}")
-
-
-@dataclass
-class TrainResult:
-    """What a training did: the final (vmapped) state, counts, the final evaluation and timings."""
-
-    state: Any
-    updates: int
-    env_steps: float
-    eval: dict[str, Any]
-    rows: list[dict[str, float]] = field(default_factory=list)
-    solved_env_steps: float | None = None
-    solved_seconds: float | None = None
-    compile_seconds: float = 0.0
-    train_seconds: float = 0.0
 
 
 AUTO_EVALUATIONS = 10
@@ -300,17 +286,20 @@ def train(
         return jax.tree.unflatten(state_tree, leaves), metrics, returns, lengths
 
     updates, evaluations = int(meta["updates"]), int(meta["evaluations"])
-    elapsed_before = float(meta["elapsed"])
     stats = jax.device_get(state.episodes)
     env_steps = float(np.mean(stats.env_steps))
-    bar = Progress(progress, algorithm.num_updates * algorithm.steps_per_update, env_steps)
-    last_checkpoint, checkpoint_time = None, time.perf_counter()
-    rows: list[dict[str, float]] = []
+    logger = RunLogger(
+        run,
+        algorithm.num_updates * algorithm.steps_per_update,
+        done_steps=env_steps,
+        progress=progress,
+        checkpoint_every_seconds=runner.checkpoint_every_seconds,
+        elapsed_before=float(meta["elapsed"]),
+    )
     solved_env_steps, solved_seconds = meta.get("solved_env_steps"), meta.get("solved_seconds")
     chunks_this_call = 0
     eval_every = eval_every_chunks(runner, algorithm.num_updates)
-    loop_start = time.perf_counter()
-    try:
+    with logger:
         while updates < algorithm.num_updates and solved_env_steps is None:
             if max_chunks is not None and chunks_this_call >= max_chunks:
                 break
@@ -328,24 +317,19 @@ def train(
             steps_before, env_steps = env_steps, float(np.mean(new_stats.env_steps))
             per_seed = _episode_means(stats, new_stats)
             stats = new_stats
-            mean_return = float(np.nanmean(per_seed)) if np.isfinite(per_seed).any() else math.nan
-            eval_mean = float(np.mean(eval_returns)) if do_eval else math.nan
-            wall = elapsed_before + time.perf_counter() - loop_start
             row = {
                 "env_steps": env_steps,
                 "updates": updates,
-                "mean_return": mean_return,
+                "mean_return": float(np.nanmean(per_seed)) if np.isfinite(per_seed).any() else math.nan,
                 **{f"return_seed{k}": float(r) for k, r in enumerate(per_seed)},
-                "eval_return": eval_mean,
+                "eval_return": float(np.mean(eval_returns)) if do_eval else math.nan,
                 **{
                     f"eval_seed{k}": float(np.mean(r)) if do_eval else math.nan
                     for k, r in enumerate(eval_returns)
                 },
                 "steps_per_second": (env_steps - steps_before) / max(seconds, 1e-9),
-                "wall_seconds": wall,
-                **{name: float(np.mean(value)) for name, value in metrics.items()},
             }
-            rows.append(row)
+            row = logger.log(row, metrics)
             target = runner.stop_at_return
             if do_eval and target is not None and min(map(np.mean, eval_returns)) >= target:  # every seed
                 solved_env_steps, solved_seconds = env_steps, time.perf_counter() - start
@@ -353,39 +337,21 @@ def train(
                 "updates": updates,
                 "evaluations": evaluations,
                 "env_steps": env_steps,
-                "elapsed": wall,
+                "elapsed": row["wall_seconds"],
                 "solved_env_steps": solved_env_steps,
                 "solved_seconds": solved_seconds,
             }
-            check_finite(metrics, env_steps, last_checkpoint)
-            if run is not None:
-                run.log(row)
-                ending = last or solved_env_steps is not None or chunks_this_call == max_chunks
-                every = runner.checkpoint_every_chunks
-                due = (
-                    last_checkpoint is None
-                    or time.perf_counter() - checkpoint_time >= runner.checkpoint_every_seconds
-                )
-                if ending or due or (every and chunk_number % every == 0):
-                    check_finite_tree(state, env_steps, last_checkpoint)
-                    last_checkpoint = run.save_checkpoint(updates, state, meta).name
-                    checkpoint_time = time.perf_counter()
-            bar.update(env_steps, row["steps_per_second"], mean_return)
-    except KeyboardInterrupt:
-        if run is None:
-            raise
-        run.close()
-        raise TrainingInterrupted(str(run.path)) from None
-    finally:
-        bar.close()
-    train_seconds = time.perf_counter() - loop_start
+            every = runner.checkpoint_every_chunks
+            ending = last or solved_env_steps is not None or chunks_this_call == max_chunks
+            logger.checkpoint(updates, state, meta, force=ending or bool(every and chunk_number % every == 0))
+    train_seconds = time.perf_counter() - logger.start
 
     result = TrainResult(
         state=state,
         updates=updates,
         env_steps=env_steps,
         eval={},
-        rows=rows,
+        rows=logger.rows,
         solved_env_steps=solved_env_steps,
         solved_seconds=solved_seconds,
         compile_seconds=compile_seconds,
@@ -396,22 +362,16 @@ def train(
 
     state, _, returns, lengths = call(state, 0, True, evaluations)
     result.state = state
-    returns, lengths = np.asarray(returns), np.asarray(lengths)
-    if run is not None:
-        result.eval = run.write_eval(
-            returns,
-            lengths,
-            env_steps=env_steps,
-            updates=updates,
-            solved_env_steps=solved_env_steps,
-            solved_seconds=solved_seconds,
-            compile_seconds=compile_seconds,
-            train_seconds=train_seconds,
-        )
-        plot_curves([run.path], run.path / "curve.png")
-        run.close()
-    else:
-        result.eval = {"mean_return": float(returns.mean()), "per_seed_mean": returns.mean(axis=1).tolist()}
+    result.eval = logger.finish(
+        np.asarray(returns),
+        np.asarray(lengths),
+        env_steps=env_steps,
+        updates=updates,
+        solved_env_steps=solved_env_steps,
+        solved_seconds=solved_seconds,
+        compile_seconds=compile_seconds,
+        train_seconds=train_seconds,
+    )
     return result
 
 

@@ -29,7 +29,6 @@ whole games on the host adapter, greedy with 1 % random actions).
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import jax
@@ -43,7 +42,7 @@ from agentax.envs.envpool_xla import EpisodeTracker, XlaAtari, track
 from agentax.errors import UsageError
 from agentax.replay import Transition
 from agentax.runners import host
-from agentax.runners.logger import RunLogger
+from agentax.runners.session import Session, TrainResult
 from agentax.runs import Run
 
 RUNNER_KIND = "compiled-atari"
@@ -161,18 +160,20 @@ def train(
     resume: bool = False,
     progress: bool = False,
     num_seeds: int = 1,
-) -> host.HostResult:
+) -> TrainResult:
     """Train an on-policy ``agent`` (PPO) on an Atari game, env and learning in one program per
     iteration; log, checkpoint and evaluate into ``run`` as :func:`agentax.runners.host.train` does."""
     check(agent, env_id, runner, num_seeds)
     _xla.let_xla_use_every_cpu()
-    init_key, learner_key, actors_key = host.agent_keys(runner.seed)
-    meta: dict[str, Any] = {"env_steps": 0, "updates": 0, "games": 0, "elapsed": 0.0}
-    if resume:
-        state, learner_key, meta = host.restore(agent, run)
-    else:
-        state = agent.init(init_key)
-    updates, env_steps, games_done = int(meta["updates"]), int(meta["env_steps"]), int(meta.get("games", 0))
+    evaluator = host.Evaluator(agent, host.env_factory(env_id, runner), runner.eval_episodes)
+    session = Session(agent, run, runner, evaluator, resume=resume)
+    state, learner_key, updates, env_steps = (
+        session.state,
+        session.learner_key,
+        session.updates,
+        session.env_steps,
+    )
+    games_done = int(session.meta.get("games", 0))
     experience: OnPolicy = agent.experience
     env = XlaAtari(
         env_id,
@@ -180,23 +181,11 @@ def train(
         seed=host.actor_seed(runner.seed, 0, updates),
         sticky_actions=runner.sticky_actions,
     )
-    collector = start_collector(env, host.fold_actor_key(actors_key, 0, updates), env_steps)
+    collector = start_collector(env, host.fold_actor_key(session.actors_key, 0, updates), env_steps)
     update = jax.jit(make_update(agent, env), donate_argnums=(0, 1))
-    evaluator = host.Evaluator(agent, host.env_factory(env_id, runner), runner.eval_episodes)
-    logger = RunLogger(
-        run,
-        agent.total_steps,
-        done_steps=env_steps,
-        progress=progress,
-        description=f"{agent.name} {env_id} (compiled)",
-        checkpoint_every_seconds=runner.checkpoint_every_seconds,
-        elapsed_before=float(meta["elapsed"]),
-    )
     total_updates = host.num_updates(agent)
     scores: list[float] = []
-    next_log = env_steps + runner.log_every_steps
-    steps_at_log, time_at_log = env_steps, time.perf_counter()
-    with logger:
+    with session.begin(f"{agent.name} {env_id} (compiled)", progress):
         try:
             while updates < total_updates:
                 state, collector, learner_key, metrics, games = update(state, collector, learner_key)
@@ -206,30 +195,13 @@ def train(
                 games_done += len(finished)
                 scores += [score for score, _ in finished]
                 last = updates >= total_updates
-                if env_steps < next_log and not last:
+                if not session.row_due(env_steps, last):
                     continue
-                next_log += runner.log_every_steps
-                now = time.perf_counter()
-                row = host.row_of(
-                    env_steps, updates, scores, (env_steps - steps_at_log) / max(now - time_at_log, 1e-9)
-                )
-                row["frames"] = FRAME_SKIP * env_steps
+                args = (state, learner_key, env_steps, updates, scores, metrics)
+                extra, counts = {"frames": FRAME_SKIP * env_steps}, {"games": games_done}
                 scores = []
-                solved = host.evaluated_if_stopping(row, runner, evaluator, state)
-                logger.log(row, jax.device_get(metrics))
-                steps_at_log, time_at_log = env_steps, time.perf_counter()
-                meta = {
-                    "env_steps": env_steps,
-                    "updates": updates,
-                    "games": games_done,
-                    "elapsed": logger.wall_seconds(),
-                }
-                logger.checkpoint(updates, (state, learner_key), meta, force=last or solved)
-                if solved:
+                if session.log_row(*args, final=last, extra=extra, counts=counts):
                     break
         finally:
             env.close()
-    returns, lengths = evaluator(state, seed=runner.seed + 123_457)
-    evaluator.close()
-    evaluation = logger.finish(returns[None], lengths[None], env_steps=env_steps, updates=updates)
-    return host.HostResult(state, updates, env_steps, evaluation, logger.rows)
+    return session.finish(state, env_steps, updates)

@@ -19,10 +19,9 @@ saved) from seeds that depend on how far the run had come.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +47,7 @@ from agentax.runners.driver import (
     TrajectoryObserver,
     first_time_step,
 )
-from agentax.runners.logger import RunLogger
+from agentax.runners.session import Session, TrainResult, checkpoint_target
 from agentax.runs import CHECKPOINT_PREFIX, REPLAY_PREFIX, Run, checkpoints, load_checkpoint, replay_beside
 
 
@@ -76,27 +75,10 @@ class HostRunnerConfig:
     """off-policy: save the replay at most this often (it can hold gigabytes), and at the end"""
 
 
-@dataclass
-class HostResult:
-    """What a host or parallel training did: the agent state, counts, rows and the final evaluation."""
-
-    state: Any
-    updates: int
-    env_steps: int
-    eval: dict[str, Any]
-    rows: list[dict[str, float]] = field(default_factory=list)
-
-
 def env_factory(env_id: str, runner: Any) -> Callable[..., Any]:
     """``make(num_envs, training=False)``: the run's envs, with the runner's Atari options."""
     options = {"backend": runner.env_backend, "sticky_actions": runner.sticky_actions}
     return lambda num_envs, training=False: make_host_env(env_id, num_envs, training=training, **options)
-
-
-def agent_keys(seed: int) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """``(init_key, learner_key, actors_key)`` of a run (see :func:`fold_actor_key`)."""
-    init_key, learner_key, actors_key = jax.random.split(jax.random.key(seed), 3)
-    return init_key, learner_key, actors_key
 
 
 def fold_actor_key(actors_key: jax.Array, index: int, updates: int) -> jax.Array:
@@ -382,20 +364,6 @@ class ReplayCheckpoints:
             restore_replay(self.replay, replay_beside(checkpoint))
 
 
-def checkpoint_target(agent: Agent) -> Any:
-    """The shapes of a host checkpoint: ``(agent state, learner key)``."""
-    return jax.eval_shape(lambda key: (agent.init(key), key), jax.random.key(0))
-
-
-def restore(agent: Agent, run: Run, with_replay: bool = False) -> tuple[Any, jax.Array, dict[str, Any]]:
-    """``(agent state, learner key, meta)`` of the run's newest loadable checkpoint (``with_replay``:
-    of the newest saved with its replay buffer, see :class:`ReplayCheckpoints`); trims metrics.csv.
-    ``meta["checkpoint"]`` is the file it came from."""
-    (state, learner_key), meta, path = load_checkpoint(run.path, checkpoint_target(agent), with_replay)
-    run.truncate_metrics(meta["env_steps"])
-    return state, learner_key, {**meta, "checkpoint": path}
-
-
 def train(
     agent: Agent,
     env_id: str,
@@ -404,28 +372,23 @@ def train(
     *,
     resume: bool = False,
     progress: bool = False,
-) -> HostResult:
+) -> TrainResult:
     """Train ``agent`` on ``env_id`` (any Gymnasium id or agentax env), one step after the other."""
     _xla.let_xla_use_every_cpu()
-    init_key, learner_key, actors_key = agent_keys(runner.seed)
-    meta: dict[str, Any] = {"env_steps": 0, "updates": 0, "episodes": 0, "elapsed": 0.0}
-    replayed = isinstance(agent.experience, OffPolicy) and runner.checkpoint_replay
-    if resume:
-        state, learner_key, meta = restore(agent, run, with_replay=replayed)
-    else:
-        state = agent.init(init_key)
-    updates, done_steps = int(meta["updates"]), int(meta["env_steps"])
+    experience = agent.experience
     make_env = env_factory(env_id, runner)
+    evaluator = Evaluator(agent, make_env, runner.eval_episodes)
+    replayed = isinstance(experience, OffPolicy) and runner.checkpoint_replay
+    session = Session(agent, run, runner, evaluator, resume=resume, with_replay=replayed)
+    state, learner_key, updates = session.state, session.learner_key, session.updates
     actor = Actor(
         agent,
-        make_env(agent.experience.num_envs, training=True),
+        make_env(experience.num_envs, training=True),
         actor_seed(runner.seed, 0, updates),
-        fold_actor_key(actors_key, 0, updates),
-        done_steps,
+        fold_actor_key(session.actors_key, 0, updates),
+        session.env_steps,
     )
-    actor.episodes.count = int(meta["episodes"])
-    evaluator = Evaluator(agent, make_env, runner.eval_episodes)
-    experience = agent.experience
+    actor.episodes.count = int(session.meta.get("episodes", 0))
     learn = jax.jit(agent.learn)
     if isinstance(experience, OffPolicy):
         replay = replay_for(agent, actor.obs_shape, runner.seed)
@@ -434,26 +397,16 @@ def train(
         replay_checkpoints = ReplayCheckpoints(
             run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
         )
+        session.before_checkpoint = replay_checkpoints.before_checkpoint
         if resume:
-            replay_checkpoints.restore(meta["checkpoint"])
-    logger = RunLogger(
-        run,
-        agent.total_steps,
-        done_steps=done_steps,
-        progress=progress,
-        description=f"{agent.name} {env_id}",
-        checkpoint_every_seconds=runner.checkpoint_every_seconds,
-        elapsed_before=float(meta["elapsed"]),
-    )
+            replay_checkpoints.restore(session.meta["checkpoint"])
     metrics: dict[str, Any] = {}
     # the returns of each row: from what was learned (on-policy, so a parallel run with lag 0 logs
     # the same), else from the actor (off-policy, or whole Atari games, which only the env knows)
     learned_returns = FinishedReturns()
     from_actor = isinstance(experience, OffPolicy) or actor.keeps_scores
     drain_returns = actor.finished_returns if from_actor else learned_returns.drain
-    next_log = done_steps + runner.log_every_steps
-    steps_at_log, time_at_log = done_steps, time.perf_counter()
-    with logger:
+    with session.begin(f"{agent.name} {env_id}", progress):
         try:
             while not collection_over(agent, actor.steps.count, actor.episodes.count, updates):
                 learner_key, learn_key = jax.random.split(learner_key)
@@ -472,64 +425,21 @@ def train(
                         updates += experience.gradient_steps
                 env_steps = actor.steps.count
                 finished = collection_over(agent, env_steps, actor.episodes.count, updates)
-                if env_steps < next_log and not finished:
+                if not session.row_due(env_steps, finished):
                     continue
-                next_log += runner.log_every_steps
-                metrics = jax.device_get(metrics)  # waits for the last learning step: speeds count it
-                now = time.perf_counter()
-                row = row_of(
-                    env_steps,
-                    updates,
-                    drain_returns(),
-                    (env_steps - steps_at_log) / max(now - time_at_log, 1e-9),
+                extra = (
+                    {"replay_size": replay.size, "replay_bytes": replay.nbytes}
+                    if isinstance(experience, OffPolicy)
+                    else {}
                 )
-                if isinstance(experience, OffPolicy):
-                    row.update(replay_size=replay.size, replay_bytes=replay.nbytes)
-                solved = evaluated_if_stopping(row, runner, evaluator, state)
-                logger.log(row, jax.device_get(metrics))
-                steps_at_log, time_at_log = env_steps, time.perf_counter()
-                meta = {
-                    "env_steps": env_steps,
-                    "updates": updates,
-                    "episodes": actor.episodes.count,
-                    "elapsed": logger.wall_seconds(),
-                }
-                before = replay_checkpoints.before_checkpoint if isinstance(experience, OffPolicy) else None
-                logger.checkpoint(
-                    updates, (state, learner_key), meta, force=finished or solved, before=before
-                )
-                if solved:
+                counts = {"episodes": actor.episodes.count}
+                returns = drain_returns()
+                args = (state, learner_key, env_steps, updates, returns, metrics)
+                if session.log_row(*args, final=finished, extra=extra, counts=counts):
                     break
         finally:
             actor.close()
-    returns, lengths = evaluator(state, seed=runner.seed + 123_457)
-    evaluator.close()
-    evaluation = logger.finish(returns[None], lengths[None], env_steps=actor.steps.count, updates=updates)
-    return HostResult(state, updates, actor.steps.count, evaluation, logger.rows)
-
-
-def evaluated_if_stopping(row: dict[str, float], runner: Any, evaluator: Evaluator, state: Any) -> bool:
-    """When the run may stop early, evaluate the greedy policy into ``row["eval_return"]``; whether
-    it reached ``runner.stop_at_return``."""
-    if runner.stop_at_return is None:
-        return False
-    row["eval_return"] = float(np.mean(evaluator(state)[0]))
-    return row["eval_return"] >= runner.stop_at_return
-
-
-def row_of(
-    env_steps: int, updates: int, finished_returns: list[float], steps_per_second: float
-) -> dict[str, float]:
-    """A runner's bookkeeping for one metrics row (the agent's metrics join it in the logger)."""
-    mean_return = float(np.mean(finished_returns)) if finished_returns else math.nan
-    return {
-        "env_steps": env_steps,
-        "updates": updates,
-        "mean_return": mean_return,
-        "return_seed0": mean_return,
-        "eval_return": math.nan,
-        "steps_per_second": steps_per_second,
-    }
+    return session.finish(state, actor.steps.count, updates)
 
 
 def restore_policy(run_dir: Path, agent: Agent) -> Policy:

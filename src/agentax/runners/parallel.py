@@ -31,7 +31,6 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import jax
@@ -44,23 +43,18 @@ from agentax.runners.driver import FinishedReturns, ReplayObserver
 from agentax.runners.host import (
     Actor,
     Evaluator,
-    HostResult,
     HostRunnerConfig,
     OffPolicyLearner,
     ReplayCheckpoints,
     actor_seed,
-    agent_keys,
     collection_over,
     env_factory,
-    evaluated_if_stopping,
     fold_actor_key,
     num_updates,
     record_returns,
     replay_for,
-    restore,
-    row_of,
 )
-from agentax.runners.logger import RunLogger
+from agentax.runners.session import Session, TrainResult
 from agentax.runs import Run
 
 POLL_SECONDS = 0.05  # how often a blocked thread looks whether the run has stopped
@@ -360,40 +354,36 @@ def train(
     resume: bool = False,
     progress: bool = False,
     fleet: MakeFleet | None = None,
-) -> HostResult:
+) -> TrainResult:
     """Train ``agent`` on ``env_id`` with ``runner.actors`` actors and a learner; the actors are
     threads of this process (:func:`thread_fleet`) unless ``fleet`` makes them elsewhere."""
     _xla.let_xla_use_every_cpu()  # XLA runs an actor's and the learner's programs side by side
     runner.check(agent)
-    init_key, learner_key, actors_key = agent_keys(runner.seed)
-    meta: dict[str, Any] = {"env_steps": 0, "updates": 0, "episodes": 0, "elapsed": 0.0}
-    state = agent.init(init_key)
-    if resume:
-        replayed = isinstance(agent.experience, OffPolicy) and runner.checkpoint_replay
-        state, learner_key, meta = restore(agent, run, with_replay=replayed)
-    updates, done_steps = int(meta["updates"]), int(meta["env_steps"])
+    evaluator = Evaluator(agent, env_factory(env_id, runner), runner.eval_episodes)
+    replayed = isinstance(agent.experience, OffPolicy) and runner.checkpoint_replay
+    session = Session(agent, run, runner, evaluator, resume=resume, with_replay=replayed)
+    state, updates, done_steps = session.state, session.updates, session.env_steps
     coordinator = Coordinator()
     make_fleet = fleet or thread_fleet(agent, env_id, runner)
     threads: list[ActorThread] = []
-    evaluator = Evaluator(agent, env_factory(env_id, runner), runner.eval_episodes)
     fleet = None
     try:
-        fleet = make_fleet(coordinator, updates, done_steps, actors_key)
-        logger = RunLogger(
-            run,
-            agent.total_steps,
-            done_steps=done_steps,
-            progress=progress,
-            description=f"{agent.name} {env_id} ({fleet.description})",
-            checkpoint_every_seconds=runner.checkpoint_every_seconds,
-            elapsed_before=float(meta["elapsed"]),
-        )
+        fleet = make_fleet(coordinator, updates, done_steps, session.actors_key)
+        logger = session.begin(f"{agent.name} {env_id} ({fleet.description})", progress)
         loop = _off_policy if isinstance(agent.experience, OffPolicy) else _on_policy
-        rows = _Rows(runner, logger, evaluator, done_steps)
-        rows.resumed_from = meta.get("checkpoint")
+        rows = _Rows(session)
         with logger, interrupted_at_a_safe_point(coordinator):
             state, updates, env_steps = loop(
-                agent, runner, fleet, threads, coordinator, rows, state, learner_key, updates, done_steps
+                agent,
+                runner,
+                fleet,
+                threads,
+                coordinator,
+                rows,
+                state,
+                session.learner_key,
+                updates,
+                done_steps,
             )
     finally:
         coordinator.stop.set()
@@ -401,52 +391,29 @@ def train(
             thread.join(timeout=10)
         if fleet is not None:
             fleet.close()
-    returns, lengths = evaluator(state, seed=runner.seed + 123_457)
-    evaluator.close()
-    evaluation = logger.finish(returns[None], lengths[None], env_steps=env_steps, updates=updates)
-    return HostResult(state, updates, env_steps, evaluation, logger.rows)
+    return session.finish(state, env_steps, updates)
 
 
 class _Rows:
-    """The learner's side of logging: a row every ``log_every_steps`` env steps, checkpoints, stopping."""
+    """The learner's side of logging: the session's rows, with the actors' figures and the replay's size."""
 
-    def __init__(self, runner, logger: RunLogger, evaluator: Evaluator, done_steps: int):
-        self.runner, self.logger, self.evaluator = runner, logger, evaluator
+    def __init__(self, session: Session):
+        self.session = session
         self.meter: Meter | None = None  # set once the actor threads exist
         self.replay: Any = None  # off-policy: its size in the rows
-        self.replay_checkpoints: ReplayCheckpoints | None = None
-        self.resumed_from: Path | None = None  # the checkpoint a resumed run started from
-        self.next_log = done_steps + runner.log_every_steps
-        self.steps_at_log, self.time_at_log = done_steps, time.perf_counter()
 
     def maybe_log(
         self, state, learner_key, env_steps, collected, updates, learner_wait, returns, metrics, final
     ):
         """Log (and checkpoint) when due; returns True once the run has reached ``stop_at_return``.
         ``returns()`` drains the returns of the episodes finished since the last row."""
-        if env_steps < self.next_log and not final:
+        if not self.session.row_due(env_steps, final):
             return False
-        self.next_log += self.runner.log_every_steps
-        metrics = jax.device_get(metrics)  # waits for the last learning step: speeds count it
-        now = time.perf_counter()
-        row = row_of(
-            env_steps, updates, returns(), (env_steps - self.steps_at_log) / max(now - self.time_at_log, 1e-9)
-        )
-        row.update(self.meter.row(collected, updates, learner_wait))
+        extra = self.meter.row(collected, updates, learner_wait)
         if self.replay is not None:
-            row.update(replay_size=self.replay.size, replay_bytes=self.replay.nbytes)
-        solved = evaluated_if_stopping(row, self.runner, self.evaluator, state)
-        self.logger.log(row, jax.device_get(metrics))
-        self.steps_at_log, self.time_at_log = env_steps, time.perf_counter()
-        meta = {
-            "env_steps": env_steps,
-            "updates": updates,
-            "episodes": 0,
-            "elapsed": self.logger.wall_seconds(),
-        }
-        before = None if self.replay_checkpoints is None else self.replay_checkpoints.before_checkpoint
-        self.logger.checkpoint(updates, (state, learner_key), meta, force=final or solved, before=before)
-        return solved
+            extra.update(replay_size=self.replay.size, replay_bytes=self.replay.nbytes)
+        args = (state, learner_key, env_steps, updates, returns(), metrics)
+        return self.session.log_row(*args, final=final, extra=extra, counts={"episodes": 0})
 
 
 def _on_policy(agent, runner, fleet, threads, coordinator, rows, state, learner_key, updates, done_steps):
@@ -509,11 +476,13 @@ def _off_policy(agent, runner, fleet, threads, coordinator, rows, state, learner
     actors = fleet.actors
     replay = replay_for(agent, actors[0].obs_shape, runner.seed)
     rows.replay = replay
-    rows.replay_checkpoints = ReplayCheckpoints(
-        rows.logger.run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
+    session = rows.session
+    checkpoints = ReplayCheckpoints(
+        session.run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
     )
-    if rows.resumed_from is not None:
-        rows.replay_checkpoints.restore(rows.resumed_from)
+    session.before_checkpoint = checkpoints.before_checkpoint
+    if "checkpoint" in session.meta:  # a resumed run
+        checkpoints.restore(session.meta["checkpoint"])
     chunk = experience.train_frequency * (experience.num_envs // runner.actors)
     limiter = RateLimiter(
         coordinator,

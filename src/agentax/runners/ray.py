@@ -47,9 +47,10 @@ from agentax.envs import make_host_env
 from agentax.errors import UsageError
 from agentax.replay import Transition
 from agentax.runners.driver import EnvironmentSteps, TrajectoryObserver
-from agentax.runners.host import Actor, HostResult, actor_seed, fold_actor_key
+from agentax.runners.host import Actor, actor_seed, fold_actor_key
 from agentax.runners.parallel import POLL_SECONDS, Coordinator, Fleet, ParallelRunnerConfig
 from agentax.runners.parallel import train as train_parallel
+from agentax.runners.session import TrainResult
 from agentax.runs import Run
 
 RESTART_SEED_STRIDE = 104_729
@@ -362,7 +363,7 @@ def train(
     make_agent: Callable[[], Agent],
     resume: bool = False,
     progress: bool = False,
-) -> HostResult:
+) -> TrainResult:
     """Train ``agent`` on ``env_id`` with ``runner.actors`` Ray actors and a learner in this process.
     ``make_agent()`` builds the same agent in each actor process (a picklable callable, such as
     ``functools.partial(ppo.make_agent, spec, cfg)``)."""
