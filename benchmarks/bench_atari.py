@@ -248,9 +248,9 @@ def agentax_learn_step(num_actions: int, samples: list):
     jitted, per ``step()`` call, waited for."""
     import jax
 
-    from agentax.agents import dqn
+    from agentax.agents import dqn, presets
 
-    cfg = dqn.PRESETS["nature"].config
+    cfg = presets.preset("dqn", "nature").config
     state = dqn.init(jax.random.key(0), samples[0].transition.obs[0], num_actions, cfg)
     placed = [jax.device_put(s) for s in samples]
     start = time.perf_counter()
@@ -450,14 +450,14 @@ PPO_RUNNERS = {
 def ppo_rate(runner: str) -> dict:
     """PPO's atari preset, 8 envs x 128 steps per update, on ``runner`` (a key of ``PPO_RUNNERS``):
     agent steps/s after the first update."""
-    from agentax.agents import ppo
+    from agentax.agents import ppo, presets
     from agentax.agents.protocol import EnvSpec
     from agentax.api import agent_maker
     from agentax.envs import make_host_env
     from agentax.runners import compiled_atari, host
     from agentax.runners import parallel as parallel_runner
 
-    cfg = dataclasses.replace(ppo.PRESETS["atari"].config, total_steps=1_024 * (PPO_UPDATES + 1))
+    cfg = dataclasses.replace(presets.preset("ppo", "atari").config, total_steps=1_024 * (PPO_UPDATES + 1))
     env = make_host_env(ENV_ID, 1, sticky_actions=0.0)
     agent = agent_maker(ppo, EnvSpec.of(env), cfg)()
     env.close()
@@ -633,8 +633,8 @@ def _notes(sb3, dqn_runs, ppo_runs, load_before, extra) -> str:
         f"cycled (device arrays), each call waited for; {LEARN_SECONDS:g} s each after compiling (compile "
         f"s apart), timed in {LEARN_ROUNDS} turns of agentax and the reference alternating, pinned to one "
         "CPU (`pinned_to_one_cpu`, as agentax's other benches). agentax: "
-        "`jax.jit(dqn.make_learn(PRESETS['nature'].config))` (Huber, no Double, 1-step, the target "
-        "synced every 1,000 steps inside the step, no gradient clipping, metrics out); the reference: "
+        "`jax.jit(dqn.make_learn(presets.preset('dqn', 'nature').config))` (Huber, no Double, 1-step, the "
+        "target synced every 1,000 steps inside the step, no gradient clipping, metrics out); the reference: "
         "a flax Nature CNN (default init), the TD target from a target network's parameters passed in "
         "(its sync, a copy every 1,000 steps, left out), Huber, `optax.adam(1e-4)`.",
         f"**Frame replay**: `FrameReplayBuffer(100_000, 8, n_step=1)`, {REPLAY_FILL:,} transitions "

@@ -62,11 +62,11 @@ def _pinned():
 
 
 def compiled_row(num_seeds: int) -> list:
-    from agentax.agents import dqn
+    from agentax.agents import dqn, presets
     from agentax.envs import make_jax
     from agentax.runners.compiled import RunnerConfig, train
 
-    preset = dqn.PRESETS["default"]
+    preset = presets.preset("dqn", "default")
     env = make_jax("CartPole-v1")
     runner = RunnerConfig(
         seed=0,
@@ -93,12 +93,12 @@ def compiled_row(num_seeds: int) -> list:
 
 
 def host_row() -> list:
-    from agentax.agents import dqn
+    from agentax.agents import dqn, presets
     from agentax.agents.protocol import EnvSpec
     from agentax.envs import make_host_env
     from agentax.runners.host import HostRunnerConfig, train
 
-    cfg = dqn.PRESETS["default"].config
+    cfg = presets.preset("dqn", "default").config
     env = make_host_env("CartPole-v1", 1)
     agent = dqn.make_agent(EnvSpec.of(env), cfg)
     env.close()

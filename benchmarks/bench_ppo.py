@@ -105,11 +105,11 @@ def whole_process(seeds: int, cache: Path) -> dict:
 
 def throughput(seeds: int) -> tuple[float, float]:
     """Env steps per second of the compiled runner (all seeds), and its compile seconds."""
-    from agentax.agents import ppo
+    from agentax.agents import ppo, presets
     from agentax.envs import make_jax
     from agentax.runners.compiled import RunnerConfig, train
 
-    env, preset = make_jax("CartPole-v1"), ppo.PRESETS["cartpole-fast"]
+    env, preset = make_jax("CartPole-v1"), presets.preset("ppo", "cartpole-fast")
     runner = RunnerConfig(num_seeds=seeds, updates_per_chunk=preset.updates_per_chunk, eval_every_chunks=1000)
     with _pinned():
         result = train(ppo.make_train(env, preset.config), env, runner)
@@ -118,12 +118,12 @@ def throughput(seeds: int) -> tuple[float, float]:
 
 def host_reference() -> dict:
     """The same PPO preset on Gymnasium's CartPole-v1 through the host loop, stopping when solved."""
-    from agentax.agents import ppo
+    from agentax.agents import ppo, presets
     from agentax.agents.protocol import EnvSpec
     from agentax.envs import make_host_env
     from agentax.runners.host import HostRunnerConfig, train
 
-    cfg = ppo.PRESETS["cartpole-fast"].config
+    cfg = presets.preset("ppo", "cartpole-fast").config
     env = make_host_env("CartPole-v1", 1)
     agent = ppo.make_agent(EnvSpec.of(env), cfg)
     env.close()

@@ -24,13 +24,13 @@ HANG_PROGRAM = textwrap.dedent(
     import dataclasses, os
     import agentax  # jax's CPU client will be made on one CPU (agentax._xla.create_cpu_client_on_one_cpu)
     import jax
-    from agentax.agents import ppo
+    from agentax.agents import ppo, presets
     from agentax.envs import make_jax
     from agentax.runners.compiled import RunnerConfig, train
 
     jax.numpy.ones(3).block_until_ready()  # the client, and its threads, exist before the runner
     env = make_jax("CartPole-v1")
-    cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=12 * 256)
+    cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=12 * 256)
     runner = RunnerConfig(num_seeds=8, updates_per_chunk=2, eval_episodes=4)
     result = train(ppo.make_train(env, cfg), env, runner)
     masks, pool = set(), 0

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from agentax.agents import ppo
+from agentax.agents import ppo, presets
 from agentax.envs import make_jax
 from agentax.errors import UsageError
 from agentax.nets import gaussian_entropy, gaussian_log_prob
@@ -45,13 +45,15 @@ def test_config_validation_names_the_bad_value():
         ppo.PPOConfig(learning_rate=-1.0).validate()
     with pytest.raises(UsageError, match="minibatches"):
         ppo.PPOConfig(num_envs=3, num_steps=5, num_minibatches=2).validate()
-    with pytest.raises(UsageError, match="unknown PPO preset"):
-        ppo.preset("nope")
+    with pytest.raises(UsageError, match="unknown ppo preset"):
+        presets.preset("ppo", "nope")
 
 
 def test_one_update_moves_the_policy_and_reports_finite_losses():
     env = make_jax("CartPole-v1")
-    cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, num_envs=4, num_steps=16, update_epochs=10)
+    cfg = dataclasses.replace(
+        presets.preset("ppo", "cartpole-fast").config, num_envs=4, num_steps=16, update_epochs=10
+    )
     algorithm = ppo.make_train(env, cfg)
     state = algorithm.init(jax.random.key(0))
     _, first = jax.jit(algorithm.update)(state)
@@ -64,7 +66,7 @@ def test_one_update_moves_the_policy_and_reports_finite_losses():
 @pytest.mark.timeout(240)
 def test_ppo_learns_cartpole():
     env = make_jax("CartPole-v1")
-    cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=30_720)
+    cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=30_720)
     result = train(
         ppo.make_train(env, cfg), env, RunnerConfig(seed=1, updates_per_chunk=30, eval_episodes=10)
     )

@@ -24,7 +24,7 @@ from typing import Annotated, Any
 import tyro
 
 from agentax import api
-from agentax.agents import ALGORITHMS, algorithm
+from agentax.agents import ALGORITHMS, presets_of
 from agentax.api import RunArgs
 from agentax.errors import UsageError
 
@@ -44,7 +44,7 @@ def parse(algo: str, argv: list[str]) -> tuple[RunArgs, Any, Any]:
     preset_name, preset = api.choose_preset(
         algo, _option(argv, "--env", RunArgs.env), _option(argv, "--preset", "auto")
     )
-    presets = algorithm(algo).PRESETS
+    presets = presets_of(algo)
     config_type = type(preset.config)
 
     Args = dataclasses.make_dataclass(
