@@ -291,15 +291,16 @@ def test_every_registered_algorithm_follows_the_protocol(name):
         )
 
 
-def test_presets_cover_the_registry_and_no_algorithm_imports_them():
-    """The tuned configs live in agents/presets.py, which imports the algorithms' configs; an
-    algorithm module importing it back would close a cycle."""
+def test_presets_cover_the_registry_and_no_algorithm_imports_them_or_tyro():
+    """The tuned configs live in agents/presets.py, which imports the algorithms' configs (an
+    algorithm module importing it back would close a cycle); CLI flags and aliases live in the CLI."""
     assert list(PRESETS) == list(ALGORITHMS) and set(DEFAULT_PRESETS) <= set(ALGORITHMS)
     assert PRESETS["reinforce"]["lecture"] is PRESETS["reinforce"]["default"]  # one config, two names
     sources = package_sources()
     for module in ALGORITHM_MODULES:
         imported = {name for _, name in imports_of(sources[module][0], module)}
         assert "agentax.agents.presets" not in imported, module
+        assert not any(within(name, "tyro") for name in imported), module
 
 
 def test_train_help_lists_exactly_the_registered_algorithms(capsys):

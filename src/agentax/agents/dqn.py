@@ -51,12 +51,11 @@ from __future__ import annotations
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Annotated, Any
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import optax
-import tyro
 from flax import struct
 
 from agentax.agents.protocol import Agent, CompiledAlgorithm, EnvSpec, Loop, OffPolicy, any_seed
@@ -82,7 +81,7 @@ class DQNConfig:
     """The dueling head's baseline: "max" (Q = V + A − max A, the lecture) or "mean" (A − mean A)."""
     double: bool = True
     """Double DQN: the online network picks the next action, the target network values it."""
-    target_update_period: Annotated[int, tyro.conf.arg(aliases=("--target-update",))] = 256
+    target_update_period: int = 256
     """Learning steps between target-network updates; 0: no target network (bootstrap from online)."""
     target_update_tau: float = 1.0
     """Share of the online weights mixed into the target at each update: 1 copies, 0.01 is Polyak."""
@@ -106,7 +105,7 @@ class DQNConfig:
     """Replay capacity: the most recent transitions kept."""
     n_step: int = 3
     """Rewards summed per transition before bootstrapping (1: one-step TD)."""
-    prioritized: Annotated[bool, tyro.conf.arg(aliases=("--per",))] = False
+    prioritized: bool = False
     """Prioritized replay: sample ∝ (|δ| + ε)^ζ and weight the loss by importance weights."""
     priority_exponent: float = 0.6
     """ζ: how strongly sampling follows the priorities (0: uniform)."""
