@@ -26,7 +26,6 @@ Rows, all measured in this run, one after the other:
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import dataclasses
 import json
@@ -67,14 +66,6 @@ BENCH_IMPORTS = "import stable_baselines3, torch, ale_py, cv2, gymnasium"
 
 
 # ---------------------------------------------------------------- helpers
-
-
-def _pinned():
-    """``agentax._xla.pinned_to_one_cpu()`` where it exists (the XLA CPU hang cure), else nothing."""
-    from agentax import _xla
-
-    pin = getattr(_xla, "pinned_to_one_cpu", None)
-    return pin() if pin is not None else contextlib.nullcontext()
 
 
 def _timed_loop(step, seconds: float, warmup: int = 3) -> tuple[int, float]:
@@ -507,6 +498,8 @@ def ppo_rows() -> tuple[list[list], dict[str, dict]]:
 
 
 def run() -> dict:
+    from _pin import pinned_to_one_cpu  # benchmarks/_pin.py: run.py puts this folder on sys.path
+
     headers = [
         "what",
         "implementation",
@@ -531,7 +524,7 @@ def run() -> dict:
     from agentax.agents import dqn
 
     samples = [_batch(4, seed) for seed in range(4)]
-    with _pinned():
+    with pinned_to_one_cpu():
         bare_step, bare_compile = bare_learn_step(4, samples)
         ours_step, ours_compile = agentax_learn_step(4, samples)
         bare, ours = interleaved_rates([bare_step, ours_step], LEARN_SECONDS)

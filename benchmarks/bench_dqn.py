@@ -17,7 +17,6 @@ Rows, all measured in this run:
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import subprocess
@@ -53,15 +52,9 @@ print(json.dumps({"train_seconds": train_seconds, "total_seconds": time.perf_cou
 """
 
 
-def _pinned():
-    """``agentax._xla.pinned_to_one_cpu()`` where it exists (the XLA CPU hang cure), else nothing."""
-    from agentax import _xla
-
-    pin = getattr(_xla, "pinned_to_one_cpu", None)
-    return pin() if pin is not None else contextlib.nullcontext()
-
-
 def compiled_row(num_seeds: int) -> list:
+    from _pin import pinned_to_one_cpu  # benchmarks/_pin.py: run.py puts this folder on sys.path
+
     from agentax.agents import dqn, presets
     from agentax.envs import make_jax
     from agentax.runners.compiled import RunnerConfig, train
@@ -75,7 +68,7 @@ def compiled_row(num_seeds: int) -> list:
         eval_episodes=preset.eval_episodes,
         stop_at_return=SOLVED,
     )
-    with _pinned():
+    with pinned_to_one_cpu():
         result = train(dqn.make_train(env, preset.config), env, runner)
     learning_steps = float(np.sum(np.asarray(result.state.agent.step)))
     per_seed = np.asarray(result.eval["per_seed_mean"])
