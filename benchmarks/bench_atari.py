@@ -26,7 +26,6 @@ Rows, all measured in this run, one after the other:
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import dataclasses
 import json
@@ -67,14 +66,6 @@ BENCH_IMPORTS = "import stable_baselines3, torch, ale_py, cv2, gymnasium"
 
 
 # ---------------------------------------------------------------- helpers
-
-
-def _pinned():
-    """``agentax._xla.pinned_to_one_cpu()`` where it exists (the XLA CPU hang cure), else nothing."""
-    from agentax import _xla
-
-    pin = getattr(_xla, "pinned_to_one_cpu", None)
-    return pin() if pin is not None else contextlib.nullcontext()
 
 
 def _timed_loop(step, seconds: float, warmup: int = 3) -> tuple[int, float]:
@@ -248,9 +239,9 @@ def agentax_learn_step(num_actions: int, samples: list):
     jitted, per ``step()`` call, waited for."""
     import jax
 
-    from agentax.agents import dqn
+    from agentax.agents import dqn, presets
 
-    cfg = dqn.PRESETS["nature"].config
+    cfg = presets.preset("dqn", "nature").config
     state = dqn.init(jax.random.key(0), samples[0].transition.obs[0], num_actions, cfg)
     placed = [jax.device_put(s) for s in samples]
     start = time.perf_counter()
@@ -450,14 +441,14 @@ PPO_RUNNERS = {
 def ppo_rate(runner: str) -> dict:
     """PPO's atari preset, 8 envs x 128 steps per update, on ``runner`` (a key of ``PPO_RUNNERS``):
     agent steps/s after the first update."""
-    from agentax.agents import ppo
+    from agentax.agents import ppo, presets
     from agentax.agents.protocol import EnvSpec
     from agentax.api import agent_maker
     from agentax.envs import make_host_env
     from agentax.runners import compiled_atari, host
     from agentax.runners import parallel as parallel_runner
 
-    cfg = dataclasses.replace(ppo.PRESETS["atari"].config, total_steps=1_024 * (PPO_UPDATES + 1))
+    cfg = dataclasses.replace(presets.preset("ppo", "atari").config, total_steps=1_024 * (PPO_UPDATES + 1))
     env = make_host_env(ENV_ID, 1, sticky_actions=0.0)
     agent = agent_maker(ppo, EnvSpec.of(env), cfg)()
     env.close()
@@ -507,6 +498,8 @@ def ppo_rows() -> tuple[list[list], dict[str, dict]]:
 
 
 def run() -> dict:
+    from _pin import pinned_to_one_cpu  # benchmarks/_pin.py: run.py puts this folder on sys.path
+
     headers = [
         "what",
         "implementation",
@@ -531,7 +524,7 @@ def run() -> dict:
     from agentax.agents import dqn
 
     samples = [_batch(4, seed) for seed in range(4)]
-    with _pinned():
+    with pinned_to_one_cpu():
         bare_step, bare_compile = bare_learn_step(4, samples)
         ours_step, ours_compile = agentax_learn_step(4, samples)
         bare, ours = interleaved_rates([bare_step, ours_step], LEARN_SECONDS)
@@ -633,8 +626,8 @@ def _notes(sb3, dqn_runs, ppo_runs, load_before, extra) -> str:
         f"cycled (device arrays), each call waited for; {LEARN_SECONDS:g} s each after compiling (compile "
         f"s apart), timed in {LEARN_ROUNDS} turns of agentax and the reference alternating, pinned to one "
         "CPU (`pinned_to_one_cpu`, as agentax's other benches). agentax: "
-        "`jax.jit(dqn.make_learn(PRESETS['nature'].config))` (Huber, no Double, 1-step, the target "
-        "synced every 1,000 steps inside the step, no gradient clipping, metrics out); the reference: "
+        "`jax.jit(dqn.make_learn(presets.preset('dqn', 'nature').config))` (Huber, no Double, 1-step, the "
+        "target synced every 1,000 steps inside the step, no gradient clipping, metrics out); the reference: "
         "a flax Nature CNN (default init), the TD target from a target network's parameters passed in "
         "(its sync, a copy every 1,000 steps, left out), Huber, `optax.adam(1e-4)`.",
         f"**Frame replay**: `FrameReplayBuffer(100_000, 8, n_step=1)`, {REPLAY_FILL:,} transitions "

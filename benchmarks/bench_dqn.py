@@ -17,7 +17,6 @@ Rows, all measured in this run:
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import subprocess
@@ -53,21 +52,15 @@ print(json.dumps({"train_seconds": train_seconds, "total_seconds": time.perf_cou
 """
 
 
-def _pinned():
-    """``agentax._xla.pinned_to_one_cpu()`` where it exists (the XLA CPU hang cure), else nothing."""
-    from agentax import _xla
-
-    pin = getattr(_xla, "pinned_to_one_cpu", None)
-    return pin() if pin is not None else contextlib.nullcontext()
-
-
 def compiled_row(num_seeds: int) -> list:
-    from agentax.agents import dqn
+    from _pin import pinned_to_one_cpu  # benchmarks/_pin.py: run.py puts this folder on sys.path
+
+    from agentax.agents import dqn, presets
     from agentax.api import compiled_program
     from agentax.envs import make_jax
     from agentax.runners.compiled import RunnerConfig, train
 
-    preset = dqn.PRESETS["default"]
+    preset = presets.preset("dqn", "default")
     env = make_jax("CartPole-v1")
     runner = RunnerConfig(
         seed=0,
@@ -77,7 +70,7 @@ def compiled_row(num_seeds: int) -> list:
         stop_at_return=SOLVED,
         freeze_at_return=preset.freeze_at_return,
     )
-    with _pinned():
+    with pinned_to_one_cpu():
         result = train(compiled_program(dqn, env, preset.config, runner), env, runner)
     learning_steps = float(np.sum(np.asarray(result.state.agent.step)))
     per_seed = np.asarray(result.eval["per_seed_mean"])
@@ -95,12 +88,12 @@ def compiled_row(num_seeds: int) -> list:
 
 
 def host_row() -> list:
-    from agentax.agents import dqn
+    from agentax.agents import dqn, presets
     from agentax.agents.protocol import EnvSpec
     from agentax.envs import make_host_env
     from agentax.runners.host import HostRunnerConfig, train
 
-    cfg = dqn.PRESETS["default"].config
+    cfg = presets.preset("dqn", "default").config
     env = make_host_env("CartPole-v1", 1)
     agent = dqn.make_agent(EnvSpec.of(env), cfg)
     env.close()

@@ -81,11 +81,13 @@ def _mean_of(rows: list[dict], name: str) -> float:
 
 
 def dqn_agent(total_steps: int):
-    from agentax.agents import dqn
+    from agentax.agents import dqn, presets
     from agentax.agents.protocol import EnvSpec
     from agentax.envs import make_host_env
 
-    cfg = dataclasses.replace(dqn.PRESETS["default"].config, total_steps=total_steps, **DQN_WORKLOAD)
+    cfg = dataclasses.replace(
+        presets.preset("dqn", "default").config, total_steps=total_steps, **DQN_WORKLOAD
+    )
     env = make_host_env(ENV_ID, 1)
     agent = dqn.make_agent(EnvSpec.of(env), cfg.validate())
     env.close()
@@ -93,12 +95,12 @@ def dqn_agent(total_steps: int):
 
 
 def ppo_agent(total_steps: int, preset: str = "cartpole-fast"):
-    from agentax.agents import ppo
+    from agentax.agents import ppo, presets
     from agentax.agents.protocol import EnvSpec
     from agentax.api import agent_maker
     from agentax.envs import make_host_env
 
-    cfg = dataclasses.replace(ppo.PRESETS[preset].config, total_steps=total_steps)
+    cfg = dataclasses.replace(presets.preset("ppo", preset).config, total_steps=total_steps)
     env = make_host_env(ENV_ID, 1)
     agent = agent_maker(ppo, EnvSpec.of(env), cfg)()
     env.close()
@@ -323,14 +325,14 @@ def compiled_overhead() -> dict:
     """PPO default preset, 500k steps: the runner with defaults and a run folder vs the bare program."""
     import jax
 
-    from agentax.agents import ppo
+    from agentax.agents import ppo, presets
     from agentax.api import compiled_program
     from agentax.envs import make_jax
     from agentax.runners import compiled
     from agentax.runners.rollout import SEED_AXIS
     from agentax.runs import Run
 
-    env, preset = make_jax(ENV_ID), ppo.PRESETS["default"]
+    env, preset = make_jax(ENV_ID), presets.preset("ppo", "default")
     algorithm = compiled_program(ppo, env, preset.config)
     seeds = np.arange(1, dtype=np.int32)
 
@@ -500,7 +502,8 @@ def run() -> dict:
         "also run a learning phase's larger matrix products on both cores, taking the actor's core. "
         "On a busy machine (other processes on the 2 cores) every figure moves; CPU / wall shows how "
         "much of the second core a run got.\n\n"
-        f"**Overhead** (last 4 rows). Compiled: PureJaxRL's PPO settings (`ppo.PRESETS['default']`: "
+        "**Overhead** (last 4 rows). Compiled: PureJaxRL's PPO settings "
+        "(`presets.preset('ppo', 'default')`: "
         f"4 envs × 128 steps, 4 epochs × 4 minibatches, {compiled_figures['env_steps']:,} env steps, "
         f"{compiled_figures['num_updates']} updates) — the bare program, one jitted `lax.scan` of "
         "`update` over every update vmapped over one seed, compiled with the runner's options "

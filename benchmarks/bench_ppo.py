@@ -20,7 +20,6 @@ The last column is SB3's whole-process wall-clock divided by each row's.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import subprocess
@@ -74,14 +73,6 @@ def sb3_python() -> Path | None:
         return None
 
 
-def _pinned():
-    """``agentax._xla.pinned_to_one_cpu()`` where it exists (the XLA CPU hang cure), else nothing."""
-    from agentax import _xla
-
-    pin = getattr(_xla, "pinned_to_one_cpu", None)
-    return pin() if pin is not None else contextlib.nullcontext()
-
-
 def _all_cpus() -> None:
     """Undo agentax's one-CPU pin (inherited by child processes) for a reference run."""
     try:
@@ -105,26 +96,28 @@ def whole_process(seeds: int, cache: Path) -> dict:
 
 def throughput(seeds: int) -> tuple[float, float]:
     """Env steps per second of the compiled runner (all seeds), and its compile seconds."""
-    from agentax.agents import ppo
+    from _pin import pinned_to_one_cpu  # benchmarks/_pin.py: run.py puts this folder on sys.path
+
+    from agentax.agents import ppo, presets
     from agentax.api import compiled_program
     from agentax.envs import make_jax
     from agentax.runners.compiled import RunnerConfig, train
 
-    env, preset = make_jax("CartPole-v1"), ppo.PRESETS["cartpole-fast"]
+    env, preset = make_jax("CartPole-v1"), presets.preset("ppo", "cartpole-fast")
     runner = RunnerConfig(num_seeds=seeds, updates_per_chunk=preset.updates_per_chunk, eval_every_chunks=1000)
-    with _pinned():
+    with pinned_to_one_cpu():
         result = train(compiled_program(ppo, env, preset.config), env, runner)
     return result.env_steps * seeds / result.train_seconds, result.compile_seconds
 
 
 def host_reference() -> dict:
     """The same PPO preset on Gymnasium's CartPole-v1 through the host loop, stopping when solved."""
-    from agentax.agents import ppo
+    from agentax.agents import ppo, presets
     from agentax.agents.protocol import EnvSpec
     from agentax.envs import make_host_env
     from agentax.runners.host import HostRunnerConfig, train
 
-    cfg = ppo.PRESETS["cartpole-fast"].config
+    cfg = presets.preset("ppo", "cartpole-fast").config
     env = make_host_env("CartPole-v1", 1)
     agent = ppo.make_agent(EnvSpec.of(env), cfg)
     env.close()

@@ -43,7 +43,7 @@ def _rows_mean(rows: list[dict], name: str) -> float:
 
 def runs(ray) -> tuple[list[list], dict]:
     """Thread actors and Ray actors on the same two workloads."""
-    from agentax.agents import dqn, ppo
+    from agentax.agents import dqn, ppo, presets
     from agentax.runners import parallel
     from agentax.runners import ray as ray_runner
 
@@ -51,11 +51,13 @@ def runs(ray) -> tuple[list[list], dict]:
     workloads = {
         "DQN (bench_parallel workload)": (
             dqn,
-            dataclasses.replace(dqn.PRESETS["default"].config, total_steps=bp.DQN_STEPS, **bp.DQN_WORKLOAD),
+            dataclasses.replace(
+                presets.preset("dqn", "default").config, total_steps=bp.DQN_STEPS, **bp.DQN_WORKLOAD
+            ),
         ),
         "PPO cartpole-fast": (
             ppo,
-            dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=bp.PPO_STEPS),
+            dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=bp.PPO_STEPS),
         ),
     }
     table, figures = [], {}
@@ -165,15 +167,15 @@ def _ms(seconds: list[float]) -> float:
 def publish_rows(ray) -> tuple[list[list], dict]:
     import jax
 
-    from agentax.agents import ppo
+    from agentax.agents import ppo, presets
     from agentax.agents.protocol import EnvSpec, acting_view
     from agentax.envs.core import Discrete
 
     specs = {
-        "PPO CartPole MLP 64-64": (_cartpole_spec(), ppo.PRESETS["cartpole-fast"].config),
+        "PPO CartPole MLP 64-64": (_cartpole_spec(), presets.preset("ppo", "cartpole-fast").config),
         "PPO Nature CNN (Atari)": (
             EnvSpec((4, 84, 84), Discrete(4), np.dtype("uint8")),
-            ppo.PRESETS["atari"].config,
+            presets.preset("ppo", "atari").config,
         ),
     }
     echo = ray.remote(Echo).remote()
@@ -202,13 +204,13 @@ def atari_actor_row(ray) -> tuple[list, dict]:
     agent steps/s (the second rollout; the first compiles) and the bytes of its batch."""
     import jax
 
-    from agentax.agents import ppo
+    from agentax.agents import ppo, presets
     from agentax.agents.protocol import EnvSpec, acting_view
     from agentax.envs.core import Discrete
     from agentax.runners.ray import Collector, RayRunnerConfig
 
     spec = EnvSpec((4, 84, 84), Discrete(4), np.dtype("uint8"))
-    cfg = dataclasses.replace(ppo.PRESETS["atari"].config, num_envs=4)
+    cfg = dataclasses.replace(presets.preset("ppo", "atari").config, num_envs=4)
     make_agent = functools.partial(ppo.make_agent, spec, cfg)
     key = np.asarray(jax.random.key_data(jax.random.key(0)))
     actor = ray.remote(Collector).remote(make_agent, "ALE/Breakout-v5", RayRunnerConfig(), 4, 0, key)

@@ -13,7 +13,15 @@ import jax
 import pytest
 
 import agentax
-from agentax.agents import ALGORITHMS, algorithm
+from agentax.agents import (
+    ALGORITHMS,
+    algorithm,
+    algorithm_config,
+    config_from_dict,
+    config_to_dict,
+    presets_of,
+)
+from agentax.agents.presets import DEFAULT_PRESETS, PRESETS
 from agentax.agents.protocol import ACTING_UNUSED, Agent, EnvSpec, acting_view
 from agentax.cli import main
 
@@ -252,17 +260,19 @@ def test_module_names_and_relative_imports_resolve():
 @pytest.mark.parametrize("name", list(ALGORITHMS))
 def test_every_registered_algorithm_follows_the_protocol(name):
     module = algorithm(name)
-    assert "default" in module.PRESETS, f"{name} has no default preset"
-    for preset_name, preset in module.PRESETS.items():
+    presets = presets_of(name)
+    assert "default" in presets, f"{name} has no default preset"
+    for preset_name, preset in presets.items():
         cfg = preset.config
-        assert module.config_from_dict(module.config_to_dict(cfg)) == cfg, (name, preset_name)
+        assert type(cfg) is algorithm_config(name), (name, preset_name)
+        assert config_from_dict(algorithm_config(name), config_to_dict(cfg)) == cfg, (name, preset_name)
         assert cfg.total_steps > 0
-    for default_preset in getattr(module, "DEFAULT_PRESETS", {}).values():
-        assert default_preset in module.PRESETS
+    for default_preset in DEFAULT_PRESETS.get(name, {}).values():
+        assert default_preset in presets
     from agentax.envs import make_host_env
 
     env = make_host_env("CartPole-v1", 1)
-    agent = module.make_agent(EnvSpec.of(env), module.PRESETS["default"].config)
+    agent = module.make_agent(EnvSpec.of(env), presets["default"].config)
     env.close()
     assert isinstance(agent, Agent) and agent.name == name
     # act reads only what acting_view keeps (the ray runner sends actors that and nothing more)
@@ -278,6 +288,18 @@ def test_every_registered_algorithm_follows_the_protocol(name):
                 lambda a, b: bool((a == b).all()), full, agent.act(view, obs, jax.random.key(2), progress)
             )
         )
+
+
+def test_presets_cover_the_registry_and_no_algorithm_imports_them_or_tyro():
+    """The tuned configs live in agents/presets.py, which imports the algorithms' configs (an
+    algorithm module importing it back would close a cycle); CLI flags and aliases live in the CLI."""
+    assert list(PRESETS) == list(ALGORITHMS) and set(DEFAULT_PRESETS) <= set(ALGORITHMS)
+    assert PRESETS["reinforce"]["lecture"] is PRESETS["reinforce"]["default"]  # one config, two names
+    sources = package_sources()
+    for module in ALGORITHM_MODULES:
+        imported = {name for _, name in imports_of(sources[module][0], module)}
+        assert "agentax.agents.presets" not in imported, module
+        assert not any(within(name, "tyro") for name in imported), module
 
 
 def test_train_help_lists_exactly_the_registered_algorithms(capsys):

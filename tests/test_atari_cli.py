@@ -56,7 +56,7 @@ def test_play_random_writes_a_gif_of_the_whole_game_and_its_true_score(tmp_path,
 
 def tiny_run(run_dir: Path, algo: str = "ppo", backend: str = "ale", sticky_actions: float = 0.0) -> Path:
     """A run folder of an untrained agent (a checkpoint of its initial state), trained on ``backend``."""
-    from agentax.agents import algorithm
+    from agentax.agents import algorithm, config_to_dict
     from agentax.agents.protocol import EnvSpec
     from agentax.cli.train import parse
     from agentax.envs import make_host_env
@@ -70,7 +70,7 @@ def tiny_run(run_dir: Path, algo: str = "ppo", backend: str = "ale", sticky_acti
     agent = agent_maker(module, EnvSpec.of(probe), cfg)()
     probe.close()
     runner = HostRunnerConfig(env_backend=backend, sticky_actions=sticky_actions)
-    run = Run.create(run_dir, run_config(algo, BREAKOUT, "auto", "host", runner, module.config_to_dict(cfg)))
+    run = Run.create(run_dir, run_config(algo, BREAKOUT, "auto", "host", runner, config_to_dict(cfg)))
     init_key, learner_key, _ = agent_keys(0)
     meta = {"env_steps": 0, "updates": 0, "episodes": 0, "elapsed": 0.0}
     run.save_checkpoint(0, (jax.device_get(agent.init(init_key)), learner_key), meta)

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from agentax.agents import ppo
+from agentax.agents import ppo, presets
 from agentax.agents.protocol import EnvSpec
 from agentax.api import agent_maker
 from agentax.envs.core import Discrete
@@ -119,7 +119,7 @@ def _broadcast(valid: np.ndarray, leaf: np.ndarray) -> np.ndarray:
 
 
 def _ppo_agent(env, **overrides):
-    cfg = dataclasses.replace(ppo.PRESETS["atari"].config, **overrides).validate()
+    cfg = dataclasses.replace(presets.preset("ppo", "atari").config, **overrides).validate()
     return agent_maker(ppo, EnvSpec.of(env), cfg)()
 
 
@@ -219,7 +219,9 @@ def test_refuses_what_it_cannot_run():
     from agentax.runners.compiled_atari import check
     from agentax.runners.host import HostRunnerConfig
 
-    agent = agent_maker(ppo, EnvSpec((4, 84, 84), Discrete(4), jnp.uint8), ppo.PRESETS["atari"].config)()
+    agent = agent_maker(
+        ppo, EnvSpec((4, 84, 84), Discrete(4), jnp.uint8), presets.preset("ppo", "atari").config
+    )()
     with pytest.raises(UsageError, match="cannot be vmapped over seeds"):
         check(agent, BREAKOUT, HostRunnerConfig(), num_seeds=2)
     with pytest.raises(UsageError, match="--env-backend ale"):

@@ -6,7 +6,7 @@ import gymnasium
 import numpy as np
 import pytest
 
-from agentax.agents import dqn, ppo
+from agentax.agents import dqn, ppo, presets
 from agentax.agents.protocol import EnvSpec
 from agentax.api import agent_maker
 from agentax.envs import make_host_env
@@ -52,7 +52,7 @@ def spec():
 @pytest.mark.timeout(240)
 def test_ppo_with_the_nature_cnn_learns_where_the_square_is():
     cfg = dataclasses.replace(
-        ppo.PRESETS["atari"].config,
+        presets.preset("ppo", "atari").config,
         total_steps=2_048,
         num_envs=8,
         num_steps=16,
@@ -70,7 +70,7 @@ def test_ppo_with_the_nature_cnn_learns_where_the_square_is():
 @pytest.mark.timeout(240)
 def test_dqn_with_the_nature_cnn_and_frame_replay_learns_where_the_square_is():
     cfg = dataclasses.replace(
-        dqn.NATURE,
+        presets.NATURE,
         total_steps=1_536,
         num_envs=8,
         learning_starts=256,

@@ -19,20 +19,21 @@ from agentax.envs import make_jax
 from agentax.errors import UsageError
 from agentax.runners.compiled import RunnerConfig, train
 from agentax.runs import Run, checkpoints, read_metrics
+from benchmarks import _pin  # benchmarks/_pin.py (tests/conftest.py puts the repo root on sys.path)
 
 HANG_PROGRAM = textwrap.dedent(
     """
     import dataclasses, os
     import agentax  # jax's CPU client will be made on one CPU (agentax._xla.create_cpu_client_on_one_cpu)
     import jax
-    from agentax.agents import ppo
+    from agentax.agents import ppo, presets
     from agentax.api import compiled_program
     from agentax.envs import make_jax
     from agentax.runners.compiled import RunnerConfig, train
 
     jax.numpy.ones(3).block_until_ready()  # the client, and its threads, exist before the runner
     env = make_jax("CartPole-v1")
-    cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=12 * 256)
+    cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=12 * 256)
     runner = RunnerConfig(num_seeds=8, updates_per_chunk=2, eval_episodes=4)
     result = train(compiled_program(ppo, env, cfg), env, runner)
     masks, pool = set(), 0
@@ -98,13 +99,13 @@ def test_pinned_to_one_cpu_pins_every_thread_while_in_force_then_gives_each_its_
     os.sched_setaffinity(older.native_id, {max(allowed)})
     before = _thread_masks()
     try:
-        with _xla.pinned_to_one_cpu() as cpu:
+        with _pin.pinned_to_one_cpu() as cpu:
             assert cpu in allowed
-            assert _xla.UNPINNED_CPUS == allowed
+            assert _pin.UNPINNED_CPUS == allowed
             inside = _thread_masks()
             assert set(inside) >= set(before)
             assert all(mask == {cpu} for mask in inside.values()), inside
-            with _xla.pinned_to_one_cpu() as nested:  # re-entrant: changes nothing
+            with _pin.pinned_to_one_cpu() as nested:  # re-entrant: changes nothing
                 assert nested == cpu
             assert all(mask == {cpu} for mask in _thread_masks().values())
             newer = threading.Thread(target=stop.wait)  # inherits the one-CPU mask
@@ -116,7 +117,7 @@ def test_pinned_to_one_cpu_pins_every_thread_while_in_force_then_gives_each_its_
         }
         assert after[older.native_id] == {max(allowed)}
         assert after[newer.native_id] == allowed  # started inside: the process's mask
-        assert not _xla.UNPINNED_CPUS
+        assert not _pin.UNPINNED_CPUS
     finally:
         stop.set()
 
@@ -125,10 +126,10 @@ def test_pinned_to_one_cpu_pins_every_thread_while_in_force_then_gives_each_its_
 def test_pinned_to_one_cpu_is_off_with_agentax_pin_cpu_0(monkeypatch):
     monkeypatch.setenv("AGENTAX_PIN_CPU", "0")
     before = _thread_masks()
-    with _xla.pinned_to_one_cpu() as cpu:
+    with _pin.pinned_to_one_cpu() as cpu:
         assert cpu is None
         assert _thread_masks() == before
-        assert not _xla.UNPINNED_CPUS
+        assert not _pin.UNPINNED_CPUS
 
 
 # The runner itself: seeds, determinism, interruption and resume, on a tiny PPO.

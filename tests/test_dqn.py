@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import agentax
-from agentax.agents import dqn
+from agentax.agents import config_from_dict, dqn, presets
 from agentax.errors import UsageError
 from agentax.nets import QNetwork, dueling_aggregate
 from agentax.replay import ReplaySample, Transition, example_transition, host, uniform
@@ -169,7 +169,7 @@ def test_compiled_and_host_runners_take_the_same_learning_step():
 
 
 def test_presets_and_validation():
-    lecture = dqn.PRESETS["lecture"].config
+    lecture = presets.preset("dqn", "lecture").config
     # LECTURE-FACTS.md: 32-32 elu, batch 32, γ 0.95, Adam 1e-3, MSE, replay 2,000, ε to 0.01 in 500 episodes.
     assert (lecture.hidden, lecture.activation, lecture.batch_size) == ((32, 32), "elu", 32)
     assert (lecture.discount_factor, lecture.learning_rate, lecture.loss) == (0.95, 1e-3, "mse")
@@ -179,14 +179,14 @@ def test_presets_and_validation():
     assert float(dqn.epsilon_at(lecture, 495)) == pytest.approx(0.01)
     assert float(dqn.epsilon_at(lecture, 550)) == pytest.approx(0.01)
     with pytest.raises(UsageError, match="choose from"):
-        dqn.preset("nope")
+        presets.preset("dqn", "nope")
     with pytest.raises(UsageError, match="discount_factor"):
-        dqn.preset("default", discount_factor=1.5)
+        presets.preset("dqn", "default", discount_factor=1.5)
     with pytest.raises(UsageError, match="discrete action space"):
         from agentax.envs.core import Box
 
         dqn.num_actions_of(Box(-1.0, 1.0, (1,)))
-    assert dqn.config_from_dict(dataclasses.asdict(lecture)) == lecture
+    assert config_from_dict(dqn.DQNConfig, dataclasses.asdict(lecture)) == lecture
 
 
 @pytest.mark.timeout(240)

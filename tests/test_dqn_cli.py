@@ -9,7 +9,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from agentax.agents import dqn
+from agentax.agents import config_from_dict, dqn
 from agentax.agents.protocol import EnvSpec
 from agentax.api import restore_policy
 from agentax.cli import main
@@ -85,7 +85,7 @@ def test_a_gymnasium_env_trains_through_the_host_driver(tmp_path):
     assert read_metrics(out)[-1]["updates"] == 128
     episodes = config["runner"]["eval_episodes"]
     env = make_host_env("Acrobot-v1", min(episodes, 8))  # as the runner's evaluator
-    agent = dqn.make_agent(EnvSpec.of(env), dqn.config_from_dict(config["config"]))
+    agent = dqn.make_agent(EnvSpec.of(env), config_from_dict(dqn.DQNConfig, config["config"]))
     (state, _), meta, _ = load_checkpoint(out, session.checkpoint_target(agent))
     assert int(state.step) == meta["updates"] == 128 and meta["env_steps"] == 1024
     # The reloaded policy replays the final evaluation (seed + 123,457) to eval.json's returns.

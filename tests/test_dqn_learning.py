@@ -6,7 +6,7 @@ import jax
 import numpy as np
 import pytest
 
-from agentax.agents import dqn
+from agentax.agents import config_to_dict, dqn, presets
 from agentax.agents.protocol import EnvSpec
 from agentax.api import compiled_program
 from agentax.envs import make_jax
@@ -18,13 +18,14 @@ from agentax.runs import Run, load_checkpoint, run_config
 
 # The tuned preset, cut down: 16 learning steps per 64 env steps instead of 128 per 256, the target
 # network synced every 128 learning steps.
-SMALL = dqn.preset(
+SMALL = presets.preset(
+    "dqn",
     "default",
     gradient_steps=16,
     train_frequency=16,
     target_update_period=128,
     total_steps=8_192,
-)
+).config
 
 
 @pytest.mark.slow
@@ -76,7 +77,7 @@ def test_dqn_improves_through_the_host_driver():
 @pytest.mark.timeout(240)
 def test_lecture_schedule_counts_episodes(tmp_path):
     """The lecture: one learning step at the end of each episode once 50 are done; nothing after the last."""
-    cfg = dataclasses.replace(dqn.PRESETS["lecture"].config, max_episodes=55, total_steps=2_000)
+    cfg = dataclasses.replace(presets.preset("dqn", "lecture").config, max_episodes=55, total_steps=2_000)
     env = make_jax("CartPole-v0")
     result = train(
         compiled_program(dqn, env, cfg), env, RunnerConfig(seed=0, updates_per_chunk=2_000, eval_episodes=1)
@@ -92,7 +93,7 @@ def test_lecture_schedule_counts_episodes(tmp_path):
     runner = host.HostRunnerConfig(seed=0, log_every_steps=10_000, eval_episodes=1)
     run = Run.create(
         tmp_path / "host",
-        run_config("dqn", "CartPole-v0", "lecture", "host", runner, dqn.config_to_dict(cfg)),
+        run_config("dqn", "CartPole-v0", "lecture", "host", runner, config_to_dict(cfg)),
     )
     result = host.train(agent, "CartPole-v0", runner, run)
     assert result.updates == int(result.state.step) == 5
@@ -106,7 +107,11 @@ def test_lecture_schedule_in_a_batch_learns_exactly_as_alone():
     """Seeds end episodes at different steps: in a vmapped batch the learning branch runs when any
     seed is due (``any_seed``) and keeps its result only for the due ones, so each seed learns as alone."""
     cfg = dataclasses.replace(
-        dqn.PRESETS["lecture"].config, learning_starts=5, gradient_steps=3, max_episodes=12, total_steps=800
+        presets.preset("dqn", "lecture").config,
+        learning_starts=5,
+        gradient_steps=3,
+        max_episodes=12,
+        total_steps=800,
     )
     env = make_jax("CartPole-v0")
     runner = RunnerConfig(seed=0, num_seeds=3, updates_per_chunk=800, eval_episodes=1)

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from agentax.agents import ppo
+from agentax.agents import config_to_dict, ppo, presets
 from agentax.agents.protocol import EnvSpec
 from agentax.cli import main
 from agentax.envs import make_host_env
@@ -77,7 +77,7 @@ def test_a_diverging_run_stops_with_one_line_and_exit_code_3(tmp_path, capsys, a
 def test_only_finite_parameters_are_checkpointed(tmp_path):
     """Parameters turned NaN after the 4th iteration: the run stops at the next checkpoint and the
     folder keeps the last finite one (a checkpoint at every row of 256 steps)."""
-    cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=4_096)
+    cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=4_096)
     agent = make_agent(ppo, cfg)
 
     def poisoned_learn(state, rollout, key):
@@ -100,10 +100,10 @@ def test_only_finite_parameters_are_checkpointed(tmp_path):
 
 @pytest.mark.timeout(120)
 def test_resume_skips_a_damaged_checkpoint(tmp_path, capsys):
-    cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=2_048)
+    cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=2_048)
     agent = make_agent(ppo, cfg)
     runner = HostRunnerConfig(seed=0, log_every_steps=512, checkpoint_every_seconds=0.0, eval_episodes=2)
-    config = run_config("ppo", "CartPole-v1", "cartpole-fast", "host", runner, ppo.config_to_dict(cfg))
+    config = run_config("ppo", "CartPole-v1", "cartpole-fast", "host", runner, config_to_dict(cfg))
     run = Run.create(tmp_path / "run", config)
     host.train(agent, "CartPole-v1", runner, run)
     found = checkpoints(run.path)

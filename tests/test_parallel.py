@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 
-from agentax.agents import dqn, ppo, reinforce
+from agentax.agents import dqn, ppo, presets, reinforce
 from agentax.agents.protocol import EnvSpec
 from agentax.envs import make_host_env
 from agentax.runners import host, parallel
@@ -53,7 +53,7 @@ def assert_same_trees(a, b):
 
 @pytest.mark.timeout(120)
 def test_ppo_on_the_host_and_the_parallel_runner_at_lag_0_gives_the_same_numbers():
-    cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=8_192)
+    cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=8_192)
     agent = make(ppo, cfg)
     on_host = host.train(agent, "CartPole-v1", HostRunnerConfig(seed=3, eval_episodes=4))
     in_threads = parallel.train(
@@ -90,7 +90,7 @@ def test_reinforce_episodes_on_both_runners_give_the_same_numbers():
 # Measured before ppo.learn took V(s_t) from the learner's parameters too (it took the rollout's, of
 # the behaviour version k-1, beside the learner's V(s_t+1), and the value loss exploded at lag 1):
 # seeds 0-3 ended at 500, 208, 74, 275 (stopping at 475); after, at 487, 500, 500, 497.
-LAG1 = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=51_200)
+LAG1 = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=51_200)
 
 
 @pytest.mark.slow
@@ -103,7 +103,7 @@ def test_parallel_ppo_with_policy_lag_1_solves_cartpole():
 
 @pytest.mark.timeout(120)
 def test_policy_lag_1_runs_are_reproducible():
-    cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=4_096)
+    cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=4_096)
     agent = make(ppo, cfg)
     runner = ParallelRunnerConfig(seed=5, actors=2, policy_lag=1, eval_episodes=2, log_every_steps=1_024)
     first, second = (parallel.train(agent, "CartPole-v1", runner) for _ in range(2))
@@ -238,7 +238,7 @@ if "FailingEnv-v0" not in gymnasium.registry:
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("algo", ["ppo", "dqn"])
 def test_an_error_in_an_actor_ends_the_run_with_that_error(algo):
-    agent = make(ppo, ppo.PRESETS["cartpole-fast"].config) if algo == "ppo" else make(dqn, DQN)
+    agent = make(ppo, presets.preset("ppo", "cartpole-fast").config) if algo == "ppo" else make(dqn, DQN)
     start = time.perf_counter()
     with pytest.raises(RuntimeError, match="^boom$"):
         parallel.train(agent, "FailingEnv-v0", ParallelRunnerConfig(actors=2, eval_episodes=1))
@@ -251,7 +251,7 @@ def test_an_error_in_the_learner_stops_the_actors():
     def failing_learn(state, experience, key):
         raise RuntimeError("learner failed")
 
-    agent = make(ppo, ppo.PRESETS["cartpole-fast"].config)
+    agent = make(ppo, presets.preset("ppo", "cartpole-fast").config)
     agent = dataclasses.replace(agent, learn=failing_learn)
     start = time.perf_counter()
     with pytest.raises(RuntimeError, match="learner failed"):
@@ -266,7 +266,7 @@ def test_an_error_in_the_learner_stops_the_actors():
 @pytest.mark.timeout(120)
 def test_a_slow_learner_shows_as_actors_waiting():
     """Lag 0: the actors wait for every new parameter version while the learner learns (0.2 s)."""
-    cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=2_048)
+    cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=2_048)
     agent = make(ppo, cfg)
 
     def slow_learn(state, rollout, key):
@@ -293,7 +293,7 @@ def test_ctrl_c_ends_a_parallel_run_with_no_thread_and_no_handler_left(tmp_path)
     from agentax.errors import TrainingInterrupted
     from agentax.runs import Run
 
-    cfg = dataclasses.replace(dqn.PRESETS["default"].config, total_steps=200_000)
+    cfg = dataclasses.replace(presets.preset("dqn", "default").config, total_steps=200_000)
     agent = make(dqn, cfg)
     metrics = tmp_path / "metrics.csv"
 

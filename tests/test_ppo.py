@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from agentax.agents import ppo
+from agentax.agents import ppo, presets
 from agentax.api import compiled_program
 from agentax.envs import make_jax
 from agentax.errors import UsageError
@@ -46,13 +46,15 @@ def test_config_validation_names_the_bad_value():
         ppo.PPOConfig(learning_rate=-1.0).validate()
     with pytest.raises(UsageError, match="minibatches"):
         ppo.PPOConfig(num_envs=3, num_steps=5, num_minibatches=2).validate()
-    with pytest.raises(UsageError, match="unknown PPO preset"):
-        ppo.preset("nope")
+    with pytest.raises(UsageError, match="unknown ppo preset"):
+        presets.preset("ppo", "nope")
 
 
 def test_one_update_moves_the_policy_and_reports_finite_losses():
     env = make_jax("CartPole-v1")
-    cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, num_envs=4, num_steps=16, update_epochs=10)
+    cfg = dataclasses.replace(
+        presets.preset("ppo", "cartpole-fast").config, num_envs=4, num_steps=16, update_epochs=10
+    )
     algorithm = compiled_program(ppo, env, cfg)
     state = algorithm.init(jax.random.key(0))
     _, first = jax.jit(algorithm.update)(state)
@@ -65,7 +67,7 @@ def test_one_update_moves_the_policy_and_reports_finite_losses():
 @pytest.mark.timeout(240)
 def test_ppo_learns_cartpole():
     env = make_jax("CartPole-v1")
-    cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=30_720)
+    cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=30_720)
     result = train(
         compiled_program(ppo, env, cfg), env, RunnerConfig(seed=1, updates_per_chunk=30, eval_episodes=10)
     )

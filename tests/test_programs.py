@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from agentax import _xla
-from agentax.agents import ppo
+from agentax.agents import config_to_dict, ppo, presets
 from agentax.api import compiled_program
 from agentax.envs import make_jax
 from agentax.runners import programs
@@ -83,9 +83,9 @@ def test_no_description_or_no_cache_means_plain_jit(cache, monkeypatch):
 def test_runner_gives_the_same_training_from_stored_programs(cache):
     """Traced, exported then loaded: three trainings of two PPO seeds, metric for metric identical."""
     env = make_jax("CartPole-v1")
-    cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=4 * 256)
+    cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=4 * 256)
     runner = RunnerConfig(seed=3, num_seeds=2, updates_per_chunk=2, eval_episodes=3)
-    description = {"algo": "ppo", "env": "CartPole-v1", "config": ppo.config_to_dict(cfg)}
+    description = {"algo": "ppo", "env": "CartPole-v1", "config": config_to_dict(cfg)}
     traced = train(compiled_program(ppo, env, cfg), env, runner)
     exported = train(compiled_program(ppo, env, cfg), env, runner, program_description=description)
     assert sorted(p.name.split("-")[0] for p in cache.glob("*.jaxexport")) == ["chunk", "init"]

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from agentax.agents import dqn
+from agentax.agents import dqn, presets
 from agentax.agents.protocol import EnvSpec
 from agentax.api import compiled_program
 from agentax.envs import make_host_env, make_jax
@@ -264,7 +264,7 @@ def test_rainbow_on_the_compiled_runner():
 
 
 def test_der_preset_on_frames():
-    cfg = dqn.preset("der", augment="shift", batch_size=2)
+    cfg = presets.preset("dqn", "der", augment="shift", batch_size=2).config
     assert (cfg.n_step, cfg.learning_starts, cfg.target_update_period, cfg.total_steps) == (
         10,
         1_600,
@@ -306,4 +306,4 @@ def test_der_preset_on_frames():
     with pytest.raises(UsageError, match="augment"):
         dqn.init(jax.random.key(0), jnp.zeros(4), 2, cfg)
     with pytest.raises(UsageError, match="augment"):
-        dqn.preset("der", augment="crop")
+        presets.preset("dqn", "der", augment="crop")

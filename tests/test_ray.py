@@ -26,7 +26,7 @@ import pytest
 ray = pytest.importorskip("ray")
 psutil = pytest.importorskip("psutil")
 
-from agentax.agents import dqn, ppo  # noqa: E402
+from agentax.agents import dqn, ppo, presets  # noqa: E402
 from agentax.agents.protocol import EnvSpec  # noqa: E402
 from agentax.api import agent_maker  # noqa: E402
 from agentax.envs import make_host_env  # noqa: E402
@@ -172,7 +172,9 @@ def test_a_breakout_rollout_packs_over_sixfold_and_unpacks_exactly():
     from agentax.runners.ray import pack_frames, unpack_frames
 
     env = make_host_env("ALE/Breakout-v5", 2, training=True, backend="ale", sticky_actions=0.0)
-    agent = agent_maker(ppo, EnvSpec.of(env), dataclasses.replace(ppo.PRESETS["atari"].config, num_envs=2))()
+    agent = agent_maker(
+        ppo, EnvSpec.of(env), dataclasses.replace(presets.preset("ppo", "atari").config, num_envs=2)
+    )()
     actor = Actor(agent, env, seed=3, key=jax.random.key(0))
     trajectory = actor.rollout(agent.init(jax.random.key(1)), 200)  # a lost life or two in 200 steps
     actor.close()
@@ -190,7 +192,7 @@ def test_a_breakout_rollout_packs_over_sixfold_and_unpacks_exactly():
 
 @pytest.mark.timeout(180)
 def test_ppo_on_ray_actors_learns_and_gives_the_thread_actors_numbers(cluster, tmp_path):
-    cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=16_384)
+    cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=16_384)
     agent, remake = make(ppo, cfg)
     settings = {"seed": 2, "actors": 2, "policy_lag": 1, "eval_episodes": 10}
     on_ray = ray_runner.train(
@@ -223,7 +225,7 @@ def test_ppo_on_ray_actors_learns_and_gives_the_thread_actors_numbers(cluster, t
 
 @pytest.mark.timeout(180)
 def test_dqn_on_ray_actors_learns_and_resumes_with_its_replay(cluster, tmp_path):
-    cfg = dataclasses.replace(dqn.PRESETS["default"].config, total_steps=30_000)
+    cfg = dataclasses.replace(presets.preset("dqn", "default").config, total_steps=30_000)
     agent, remake = make(dqn, cfg)
     runner = RayRunnerConfig(seed=0, actors=2, eval_episodes=10)
     run = Run.create(tmp_path, CONFIG)
@@ -248,7 +250,7 @@ def test_dqn_on_ray_actors_learns_and_resumes_with_its_replay(cluster, tmp_path)
 
 @pytest.mark.timeout(180)
 def test_a_killed_actor_process_is_replaced_and_the_run_finishes(cluster, tmp_path):
-    cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, total_steps=32_768)
+    cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=32_768)
     agent, remake = make(ppo, cfg)
     run = Run.create(tmp_path, CONFIG)
     killed: list[int] = []
@@ -287,7 +289,7 @@ def wait_for_no_collectors(seconds: float = 10.0) -> bool:
 
 @pytest.mark.timeout(120)
 def test_a_learner_error_ends_the_run_and_its_actor_processes(cluster, tmp_path):
-    cfg = dataclasses.replace(dqn.PRESETS["default"].config, learning_rate=1e30, total_steps=20_000)
+    cfg = dataclasses.replace(presets.preset("dqn", "default").config, learning_rate=1e30, total_steps=20_000)
     agent, remake = make(dqn, cfg)
     with pytest.raises(TrainingDiverged, match="non-finite"):
         ray_runner.train(
@@ -300,7 +302,7 @@ def test_a_learner_error_ends_the_run_and_its_actor_processes(cluster, tmp_path)
 def test_more_actors_than_the_cluster_has_cpus_is_refused(cluster):
     from agentax.errors import UsageError
 
-    agent, remake = make(ppo, ppo.PRESETS["cartpole-fast"].config)
+    agent, remake = make(ppo, presets.preset("ppo", "cartpole-fast").config)
     with pytest.raises(UsageError, match="need 8 CPUs, the Ray cluster has 2"):
         ray_runner.train(agent, "CartPole-v1", RayRunnerConfig(actors=8), make_agent=remake)
 

@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import pytest
 
-from agentax.agents import reinforce
+from agentax.agents import presets, reinforce
 from agentax.api import compiled_program
 from agentax.envs import make_jax
 from agentax.errors import UsageError
@@ -47,7 +47,9 @@ def test_validation_and_sigmoid_head_needs_two_actions():
 @pytest.mark.parametrize("preset", ["lecture", "baseline"])
 def test_reinforce_learns_cartpole_v0(preset):
     env = make_jax("CartPole-v0")
-    cfg = dataclasses.replace(reinforce.PRESETS[preset].config, total_steps=75 * 2000)  # 75 iterations
+    cfg = dataclasses.replace(
+        presets.preset("reinforce", preset).config, total_steps=75 * 2000
+    )  # 75 iterations
     result = train(
         compiled_program(reinforce, env, cfg),
         env,

@@ -57,6 +57,25 @@ def test_an_out_that_is_a_file_and_seeds_past_memory_are_one_line_and_nothing_wr
     assert not out.exists()
 
 
+def test_cli_aliases_parse_into_the_algorithms_own_config_and_show_in_help(capsys):
+    """The short flags live in cli/train.py (ALIASES), not in the algorithm: ``--per`` and
+    ``--target-update`` set DQNConfig's fields, listed beside the long names with their docstrings."""
+    from agentax.agents.dqn import DQNConfig
+    from agentax.cli.train import parse
+
+    _, cfg, _ = parse("dqn", ["--per", "--target-update", "500", "--preset", "lecture"])
+    assert type(cfg) is DQNConfig  # not the CLI's annotated subclass
+    assert (cfg.prioritized, cfg.target_update_period, cfg.schedule_unit) == (True, 500, "episodes")
+    _, cfg, _ = parse("dqn", ["--no-prioritized", "--target-update-period", "7"])
+    assert (cfg.prioritized, cfg.target_update_period) == (False, 7)
+    with pytest.raises(SystemExit):
+        parse("dqn", ["--help"])
+    help_text = capsys.readouterr().out
+    assert "--target-update INT, --target-update-period INT" in help_text
+    assert "--per, --no-per, --prioritized, --no-prioritized" in help_text
+    assert "Learning steps between target-network updates" in help_text  # the field's docstring
+
+
 def test_resuming_a_folder_without_a_run(tmp_path, capsys):
     assert main(["train", "--resume", str(tmp_path)]) == 2
     assert "holds no run" in capsys.readouterr().err

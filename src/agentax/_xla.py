@@ -18,15 +18,16 @@ is made on one CPU whenever jax makes it, and no thread stays pinned, so actors,
 threads may use every core. (XLA's intra-op pool keeps one thread, as under the process-wide
 pin.)
 
-:func:`pinned_to_one_cpu` pins every thread of a running process for the length of a block. It
-does not cure the hang by itself once the client exists; it is there for measurements and for
-code that wants one core.
+The cure patches a private API, so it says when it cannot: a ``RuntimeWarning`` where jax's
+backend registry is not there (a jax upgrade), and another where :func:`let_xla_use_every_cpu`
+comes after the one-CPU client exists. (``benchmarks/_pin.py``'s ``pinned_to_one_cpu``, which pins
+every thread for the length of a block, is measurement machinery built on the helpers here.)
 
 The one CPU is chosen so that two trainings or two test workers do not share one core: a
 pytest-xdist worker's by its number, else the CPU the calling thread last ran on (the kernel picks
 an idle one; choosing by pid put two trainings on one core while the other idled).
-``AGENTAX_PIN_CPU=0`` turns both off, ``AGENTAX_PIN_CPU=1`` forces them even where an accelerator
-plugin is installed (where they are off by default, since the hang is a CPU-backend one).
+``AGENTAX_PIN_CPU=0`` turns pinning off, ``AGENTAX_PIN_CPU=1`` forces it even where an accelerator
+plugin is installed (where it is off by default, since the hang is a CPU-backend one).
 
 **The compilation cache**: :func:`enable_compilation_cache` keeps compiled programs on disk
 (``~/.cache/agentax/jax``, or ``$AGENTAX_JAX_CACHE``; ``none`` disables it), with the size and
@@ -39,9 +40,8 @@ from __future__ import annotations
 import importlib.util
 import os
 import re
-import threading
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 _ACCELERATOR_PLUGINS = ("jax_cuda12_plugin", "jax_cuda13_plugin", "jax_rocm60_plugin", "libtpu")
@@ -54,17 +54,9 @@ def _accelerator_expected() -> bool:
     return any(importlib.util.find_spec(name) is not None for name in _ACCELERATOR_PLUGINS)
 
 
-UNPINNED_CPUS: set[int] = set()
-"""While :func:`pinned_to_one_cpu` is in force, the CPUs the process could use before it (else
-empty): for Python threads started inside the block that run no XLA code, such as
-:func:`agentax.runs.preload_plotting`, to leave the pinned CPU to the others."""
-
-_pin_lock = threading.Lock()
-_pinned_cpu: int | None = None
-_pin_depth = 0
-
-
-def _pin_wanted() -> bool:
+def pin_wanted() -> bool:
+    """Whether to pin: not with ``AGENTAX_PIN_CPU=0``, nor (unless ``=1``) where an accelerator is
+    expected, nor without ``sched_setaffinity`` and ``/proc``."""
     setting = os.environ.get("AGENTAX_PIN_CPU", "auto").lower()
     if setting in ("0", "false", "no", "off"):
         return False
@@ -73,7 +65,7 @@ def _pin_wanted() -> bool:
     return hasattr(os, "sched_setaffinity") and os.path.isdir("/proc/self/task")
 
 
-def _choose_cpu(allowed: list[int]) -> int:
+def choose_cpu(allowed: list[int]) -> int:
     """A pytest-xdist worker's CPU by its number, else the CPU the calling thread last ran on
     (the kernel picks an idle one; choosing by pid put two trainings on one core while the other
     idled), so that two trainings or two test workers do not share one core."""
@@ -84,84 +76,25 @@ def _choose_cpu(allowed: list[int]) -> int:
     return current
 
 
-def _threads() -> list[int]:
+def thread_ids() -> list[int]:
+    """The ids of this process's threads, from ``/proc/self/task``."""
     return [int(tid) for tid in os.listdir("/proc/self/task")]
 
 
-def _set_affinity(tid: int, cpus: set[int]) -> None:
+def set_affinity(tid: int, cpus: set[int]) -> None:
+    """Give thread ``tid`` the CPUs ``cpus``, if it still runs."""
     try:
         os.sched_setaffinity(tid, cpus)
     except OSError:  # the thread ended meanwhile (ProcessLookupError is an OSError)
         pass
 
 
-@contextmanager
-def pinned_to_one_cpu() -> Iterator[int | None]:
-    """Run the block with every thread of the process pinned to one allowed CPU; yield that CPU.
-
-    On entry every existing thread (the main one, XLA's thread pools, any other) is pinned to one
-    CPU, so threads created inside the block inherit it; on exit each thread that existed before
-    gets its own mask back, and each one created inside the block the mask the process had.
-    The CPU is a pytest-xdist worker's by its number, else the one this thread last ran on.
-    A nested use (from any thread) changes nothing and yields the CPU already pinned.
-    Yields None where pinning is off or impossible (``AGENTAX_PIN_CPU=0``; an accelerator
-    backend expected, unless ``AGENTAX_PIN_CPU=1``; no ``sched_setaffinity`` or ``/proc``).
-    Where the process may use one CPU only, nothing changes and it yields that CPU.
-    It does not cure the XLA CPU hang once jax's CPU client exists (see the module docstring).
-    """
-    global _pinned_cpu, _pin_depth
-    saved: dict[int, set[int]] = {}
-    allowed: set[int] = set()
-    with _pin_lock:
-        outer = _pin_depth == 0
-        if outer:
-            _pinned_cpu, saved, allowed = _pin_all_threads()
-        _pin_depth += 1
-        cpu = _pinned_cpu
-    try:
-        yield cpu
-    finally:
-        with _pin_lock:
-            _pin_depth -= 1
-            if outer:
-                if saved:
-                    _restore(saved, allowed)
-                UNPINNED_CPUS.clear()
-                _pinned_cpu = None
-
-
-def _pin_all_threads() -> tuple[int | None, dict[int, set[int]], set[int]]:
-    """Pin every thread to one CPU: (the CPU, each thread's previous mask, the process's mask)."""
-    if not _pin_wanted():
-        return None, {}, set()
-    allowed = os.sched_getaffinity(0)
-    if len(allowed) == 1:
-        return next(iter(allowed)), {}, allowed
-    cpu = _choose_cpu(sorted(allowed))
-    saved: dict[int, set[int]] = {}
-    new = _threads()
-    while new:  # again until no thread appears that an unpinned one started meanwhile
-        for tid in new:
-            try:
-                saved[tid] = os.sched_getaffinity(tid)
-            except OSError:
-                saved[tid] = set()  # ended meanwhile; nothing to restore
-                continue
-            _set_affinity(tid, {cpu})
-        new = [tid for tid in _threads() if tid not in saved]
-    UNPINNED_CPUS.update(allowed)
-    return cpu, saved, allowed
-
-
-def _restore(saved: dict[int, set[int]], allowed: set[int]) -> None:
-    for tid in _threads():
-        mask = saved.get(tid) or allowed
-        _set_affinity(tid, mask)
-
-
 _one_cpu_client = True
 """Read when jax creates its CPU client: on one CPU (the hang's cure), unless a runner that steps
 envs on the host asked for every CPU first (:func:`let_xla_use_every_cpu`)."""
+
+_client_made_on_one_cpu = False
+"""Whether jax's CPU client exists and was made on one CPU (by the wrapped factory)."""
 
 
 def let_xla_use_every_cpu() -> bool:
@@ -169,11 +102,23 @@ def let_xla_use_every_cpu() -> bool:
     takes effect. With one CPU at creation XLA runs one program at a time, so a parallel runner's
     actors would wait behind the learner's update (measured: parallel no faster than sequential). The
     host and parallel runners ask for it; the hang was seen only with the compiled runner's
-    vmapped-over-seeds program, which keeps the one-CPU client."""
+    vmapped-over-seeds program, which keeps the one-CPU client.
+
+    Too late once the client exists: then, if it was made on one CPU, a ``RuntimeWarning`` says so
+    (something in this process called jax first: a notebook that evaluated a policy, a compiled run)."""
     global _one_cpu_client
     from jax._src import xla_bridge
 
     if "cpu" in getattr(xla_bridge, "_backends", {}):
+        if _client_made_on_one_cpu:
+            warnings.warn(
+                "jax's CPU client already exists, made on one CPU (agentax's cure for the XLA CPU hang), "
+                "so XLA runs one program at a time: actors wait behind the learner and the parallel "
+                "runner will run no faster than sequential. Train before anything else in this process "
+                "calls jax, or set AGENTAX_PIN_CPU=0.",
+                RuntimeWarning,
+                stacklevel=2,
+            )
         return False
     _one_cpu_client = False
     return True
@@ -186,32 +131,49 @@ def create_cpu_client_on_one_cpu() -> bool:
     the client is pinned to one CPU while it does, so XLA sizes its thread pool for one CPU; then
     that thread, and the threads the client started, get the process's mask back, so every
     thread (the runner's, actors, a learner) may run on all CPUs. Returns whether the factory is
-    wrapped: not where pinning is off (:func:`pinned_to_one_cpu`'s settings), nor once the CPU
-    client exists (too late), nor where jax's private registry looks different.
+    wrapped: not where pinning is off (:func:`pin_wanted`), nor once the CPU client exists (too
+    late), nor where jax's private backend registry is not there, which a ``RuntimeWarning`` says:
+    the hang may then come back.
     """
-    if not _pin_wanted():
+    if not pin_wanted():
         return False
-    from jax._src import xla_bridge
-
+    try:
+        from jax._src import xla_bridge
+    except ImportError:
+        xla_bridge = None
     registration = getattr(xla_bridge, "_backend_factories", {}).get("cpu")
-    if registration is None or "cpu" in getattr(xla_bridge, "_backends", {"cpu": None}):
+    backends = getattr(xla_bridge, "_backends", None)
+    if registration is None or not hasattr(registration, "factory") or not isinstance(backends, dict):
+        warnings.warn(
+            "agentax cannot make jax's CPU client on one CPU: jax's private backend registry "
+            "(jax._src.xla_bridge._backend_factories['cpu'], _backends) is not there in this jax version. "
+            "The XLA CPU hang of programs vmapped over seeds may return (see agentax/_xla.py); set "
+            "AGENTAX_PIN_CPU=0 to silence this warning.",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+        return False
+    if "cpu" in backends:
         return False
     original = registration.factory
     if getattr(original, "agentax_one_cpu", False):
         return True
 
     def factory():
+        global _client_made_on_one_cpu
         allowed = os.sched_getaffinity(0)
         if len(allowed) == 1 or not _one_cpu_client:
             return original()
-        before = set(_threads())
-        os.sched_setaffinity(0, {_choose_cpu(sorted(allowed))})  # the calling thread only
+        before = set(thread_ids())
+        os.sched_setaffinity(0, {choose_cpu(sorted(allowed))})  # the calling thread only
         try:
-            return original()
+            client = original()
+            _client_made_on_one_cpu = True
+            return client
         finally:
             os.sched_setaffinity(0, allowed)
-            for tid in set(_threads()) - before:  # the client's threads inherited the one CPU
-                _set_affinity(tid, allowed)
+            for tid in set(thread_ids()) - before:  # the client's threads inherited the one CPU
+                set_affinity(tid, allowed)
 
     factory.agentax_one_cpu = True  # type: ignore[attr-defined]
     registration.factory = factory

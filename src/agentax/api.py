@@ -31,16 +31,19 @@ import time
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import numpy as np
 
-from agentax.agents import Preset, algorithm
+from agentax.agents import algorithm, algorithm_config, config_from_dict, config_to_dict, presets_of
 from agentax.errors import UsageError
 from agentax.evaluate import EvalStats
 from agentax.policies import Policy
 from agentax.runners import RUNNERS
+
+if TYPE_CHECKING:
+    from agentax.agents.presets import Preset
 
 
 @dataclass(frozen=True)
@@ -277,7 +280,7 @@ def _restore_learned(run_dir: Path, config: dict[str, Any]) -> Policy:
 
     config = _upgraded(config)
     module = algorithm(config["algo"])
-    cfg = module.config_from_dict(config["config"])
+    cfg = config_from_dict(algorithm_config(config["algo"]), config["config"])
     spec = RUNNERS[config.get("runner_kind", "compiled")]
     if not spec.host_loop:
         from agentax.envs import make_jax
@@ -312,15 +315,16 @@ def host_env_spec(env_id: str, backend: str, sticky_actions: float) -> tuple[Any
 def choose_preset(algo: str, env_id: str, name: str = "auto") -> tuple[str, Preset]:
     """``(name, preset)``: ``name``, or for 'auto' the algorithm's preset for the env (any Atari id
     counts as 'atari'), else 'default'."""
-    module = algorithm(algo)
+    presets = presets_of(algo)
     if name == "auto":
+        from agentax.agents.presets import DEFAULT_PRESETS
         from agentax.envs.atari import is_atari_id
 
         key = "atari" if is_atari_id(env_id) else env_id
-        name = getattr(module, "DEFAULT_PRESETS", {}).get(key, "default")
-    if name not in module.PRESETS:
-        raise UsageError(f"unknown {algo} preset {name!r}; choose from {', '.join(module.PRESETS)}")
-    return name, module.PRESETS[name]
+        name = DEFAULT_PRESETS.get(algo, {}).get(key, "default")
+    if name not in presets:
+        raise UsageError(f"unknown {algo} preset {name!r}; choose from {', '.join(presets)}")
+    return name, presets[name]
 
 
 def parse_stop(value: str, preset: Any, env: Any) -> float | None:
@@ -419,7 +423,7 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Preset, *, quiet: bool
         )
         # refused before anything is written: what the program cannot do, more seeds than memory holds
         check_fits(compiled_program(module, env, cfg, runner), runner)
-        settings = module.config_to_dict(cfg)
+        settings = config_to_dict(cfg)
         run = RunFolder.create(
             out, run_config(algo, run_args.env, run_args.preset, "compiled", runner, settings)
         )
@@ -480,7 +484,7 @@ def _start_host(
             compiled_atari.check(agent, run_args.env, runner, run_args.seeds)
             where = "compiled, EnvPool inside the program"
     run = RunFolder.create(
-        out, run_config(algo, run_args.env, run_args.preset, kind, runner, module.config_to_dict(cfg))
+        out, run_config(algo, run_args.env, run_args.preset, kind, runner, config_to_dict(cfg))
     )
     _announce(f"training {algo} on {run_args.env} ({where}) into {out}", quiet)
     return _train_host(agent, remake, kind, runner, run, resume=False, progress=run_args.progress)
@@ -540,7 +544,7 @@ def resume(run_dir: str | Path, progress: bool = True, *, quiet: bool = False) -
     latest_checkpoint(run_dir)  # a clear error before anything starts if there is none
     algo = config["algo"]
     module = algorithm(algo)
-    cfg = module.config_from_dict(config["config"])
+    cfg = config_from_dict(algorithm_config(algo), config["config"])
     _xla.enable_compilation_cache()
     kind = config.get("runner_kind", "compiled")
     _announce(f"resuming {algo} on {config['env']} ({kind} runner) from {run_dir}", quiet)

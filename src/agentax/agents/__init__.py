@@ -11,33 +11,13 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-from dataclasses import dataclass
 from types import ModuleType
-from typing import Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from agentax.errors import UsageError
 
-
-@dataclass(frozen=True)
-class Preset:
-    """A named, tuned configuration: an algorithm's config and the compiled runner's schedule."""
-
-    config: Any
-    """the algorithm's frozen config dataclass"""
-    description: str
-    """one line for ``agentax train ALGO --help`` and the README"""
-    updates_per_chunk: int = 10
-    """updates per compiled call (one log row, one checkpoint)"""
-    eval_every_chunks: int = 0
-    """evaluate the greedy policy every this many chunks (0: the compiled runner's choice: every chunk
-    when the run stops once solved, else about ten times a run)"""
-    eval_episodes: int = 20
-    """evaluation episodes per seed"""
-    stop_at_solved: bool = False
-    """stop once the evaluation reaches the env's solved threshold (the ``--stop-at-return`` default)"""
-    freeze_at_return: float | None = None
-    """compiled runner: each seed stops learning once its greedy policy's side episodes all reach
-    this (the ``--freeze-at-return`` default; ignored by the other runners unless asked for)"""
+if TYPE_CHECKING:
+    from agentax.agents.presets import Preset
 
 
 def check_fields(
@@ -81,17 +61,38 @@ def config_from_dict(cls: type, values: dict[str, Any]) -> Any:
     return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
 
 
-ALGORITHMS: dict[str, str] = {
-    "reinforce": "agentax.agents.reinforce",
-    "ppo": "agentax.agents.ppo",
-    "dqn": "agentax.agents.dqn",
-    "pqn": "agentax.agents.pqn",
+class AlgorithmEntry(NamedTuple):
+    """Where an algorithm lives: its module and its config dataclass's name in it."""
+
+    module: str
+    config: str
+
+
+ALGORITHMS: dict[str, AlgorithmEntry] = {
+    "reinforce": AlgorithmEntry("agentax.agents.reinforce", "ReinforceConfig"),
+    "ppo": AlgorithmEntry("agentax.agents.ppo", "PPOConfig"),
+    "dqn": AlgorithmEntry("agentax.agents.dqn", "DQNConfig"),
+    "pqn": AlgorithmEntry("agentax.agents.pqn", "PQNConfig"),
 }
-"""Every learning algorithm: its name on the command line and in config.json → its module."""
+"""Every learning algorithm: its name on the command line and in config.json → where it lives."""
 
 
 def algorithm(name: str) -> ModuleType:
     """The module of algorithm ``name``; a ``UsageError`` listing the known ones otherwise."""
     if name not in ALGORITHMS:
         raise UsageError(f"unknown algorithm {name!r}; choose from {', '.join(ALGORITHMS)}")
-    return importlib.import_module(ALGORITHMS[name])
+    return importlib.import_module(ALGORITHMS[name].module)
+
+
+def algorithm_config(name: str) -> type:
+    """The frozen config dataclass of algorithm ``name`` (for :func:`config_from_dict`)."""
+    return getattr(algorithm(name), ALGORITHMS[name].config)
+
+
+def presets_of(name: str) -> dict[str, Preset]:
+    """The tuned configs of algorithm ``name`` (:mod:`agentax.agents.presets`) by preset name,
+    ``"default"`` among them."""
+    from agentax.agents import presets
+
+    algorithm(name)
+    return presets.PRESETS[name]

@@ -28,7 +28,8 @@ augmentation        ``augment="shift"``            DrQ's random shifts of replay
 ==================  =============================  ==========================================
 
 All of them together (Double, dueling, prioritized, n-step, distributional, noisy) are Rainbow
-(Hessel et al., 2018); preset ``der`` is its data-efficient version for Atari 100k.
+(Hessel et al., 2018); preset ``der`` (:mod:`agentax.agents.presets`) is its data-efficient version
+for Atari 100k.
 
 Without a target network (``target_update_period=0``, the lecture's plain DQN) both Q_select and
 Q_target are the online network, and ``double`` changes nothing.
@@ -42,20 +43,16 @@ runner builds its program from them (:mod:`agentax.runners.rollout`, where the p
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Annotated, Any
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import optax
-import tyro
 from flax import struct
 
-from agentax import agents
-from agentax.agents import Preset
 from agentax.agents.protocol import PRIORITY, Agent, EnvSpec, Loop, OffPolicy
 from agentax.envs.core import Discrete
 from agentax.errors import UsageError
@@ -78,7 +75,7 @@ class DQNConfig:
     """The dueling head's baseline: "max" (Q = V + A − max A, the lecture) or "mean" (A − mean A)."""
     double: bool = True
     """Double DQN: the online network picks the next action, the target network values it."""
-    target_update_period: Annotated[int, tyro.conf.arg(aliases=("--target-update",))] = 256
+    target_update_period: int = 256
     """Learning steps between target-network updates; 0: no target network (bootstrap from online)."""
     target_update_tau: float = 1.0
     """Share of the online weights mixed into the target at each update: 1 copies, 0.01 is Polyak."""
@@ -102,7 +99,7 @@ class DQNConfig:
     """Replay capacity: the most recent transitions kept."""
     n_step: int = 3
     """Rewards summed per transition before bootstrapping (1: one-step TD)."""
-    prioritized: Annotated[bool, tyro.conf.arg(aliases=("--per",))] = False
+    prioritized: bool = False
     """Prioritized replay: sample ∝ (|δ| + ε)^ζ and weight the loss by importance weights."""
     priority_exponent: float = 0.6
     """ζ: how strongly sampling follows the priorities (0: uniform)."""
@@ -215,170 +212,6 @@ class DQNConfig:
             if not ok:
                 raise UsageError(message)
         return self
-
-
-LECTURE = DQNConfig(
-    hidden=(32, 32),
-    activation="elu",
-    double=False,
-    target_update_period=0,
-    discount_factor=0.95,
-    learning_rate=1e-3,
-    max_grad_norm=None,
-    loss="mse",
-    batch_size=32,
-    buffer_size=2_000,
-    n_step=1,
-    num_envs=1,
-    schedule_unit="episodes",
-    learning_starts=50,
-    train_frequency=1,
-    gradient_steps=1,
-    epsilon_start=1.0,
-    epsilon_end=0.01,
-    exploration_duration=495,
-    max_episodes=600,
-    total_steps=120_000,
-)
-"""The lecture's DQN (LECTURE-FACTS.md), episode for episode, on CartPole-v0.
-
-The lecture loops over 600 episodes of at most 200 steps; in each step ε = max(1 − episode/500,
-0.01); after each episode, once 50 episodes are done, one training step on a batch of 32 from the
-last 2,000 transitions. In agentax's units: ``schedule_unit="episodes"`` counts ``learning_starts``
-(50), ``train_frequency`` (1: a learning step at the end of every episode) and
-``exploration_duration`` (495: ε reaches 0.01 at episode 495, as max(1 − 495/500, 0.01) does) in
-finished episodes; ``max_episodes=600`` ends collection and learning after the 600th episode, and
-``total_steps=120,000`` (600 × 200, the most those episodes can take) bounds the run. One env, no
-target network, MSE, Adam 1e-3 (the lecture notes 1e-2 works better), γ 0.95. One difference: the
-lecture stores ``done`` and so also cuts bootstrapping at the 200-step time limit; agentax keeps
-truncation apart and bootstraps through it.
-"""
-
-LECTURE_ATARI = DQNConfig(
-    optimizer="rmsprop",
-    learning_rate=2.5e-4,
-    max_grad_norm=None,
-    loss="huber",
-    discount_factor=0.99,
-    double=False,
-    n_step=1,
-    target_update_period=2_000,
-    batch_size=64,
-    buffer_size=100_000,
-    num_envs=4,
-    learning_starts=20_000,
-    train_frequency=1,
-    gradient_steps=1,
-    epsilon_start=1.0,
-    epsilon_end=0.01,
-    exploration_duration=250_000,
-    total_steps=2_500_000,
-)
-"""The lecture's TF-Agents DQN on Breakout (LECTURE-FACTS.md): RMSprop 2.5e-4 (ρ 0.95, ε 1e-5,
-centered), Huber, γ 0.99, target update every 2,000 learning steps, ε 1 → 0.01 over 1M frames
-(250k agent steps), a learning step (batch 64) every 4 agent steps (4 envs, one step each), 20k
-random steps first, 100k transitions of replay; 10M frames."""
-
-NATURE = dataclasses.replace(
-    LECTURE_ATARI,
-    optimizer="adam",
-    learning_rate=1e-4,
-    adam_eps=1e-8,
-    target_update_period=1_000,
-    batch_size=32,
-    buffer_size=1_000_000,
-    num_envs=1,
-    learning_starts=80_000,
-    train_frequency=4,
-    exploration_duration=1_000_000,
-    total_steps=10_000_000,
-)
-"""DQN as in Mnih et al. 2015 with CleanRL's ``dqn_atari`` settings: Adam 1e-4, Huber, γ 0.99, target
-synced every 1,000 learning steps, a learning step of batch 32 every 4 agent steps, ε 1 → 0.01 over
-1M agent steps, 80k random steps first, 1M transitions of replay, 10M agent steps."""
-
-DER = DQNConfig(
-    distributional=True,
-    num_atoms=51,
-    v_min=-10.0,
-    v_max=10.0,
-    noisy=True,
-    noisy_sigma0=0.1,
-    dueling=True,
-    dueling_baseline="mean",
-    double=True,
-    prioritized=True,
-    priority_exponent=0.5,
-    importance_exponent_start=0.4,
-    n_step=10,
-    discount_factor=0.99,
-    optimizer="adam",
-    learning_rate=1e-4,
-    adam_eps=1.5e-4,
-    max_grad_norm=10.0,
-    batch_size=32,
-    buffer_size=100_000,
-    target_update_period=2_000,
-    num_envs=1,
-    learning_starts=1_600,
-    train_frequency=1,
-    gradient_steps=1,
-    epsilon_start=0.0,
-    epsilon_end=0.0,
-    exploration_duration=1,
-    total_steps=100_000,
-)
-"""Data-efficient Rainbow (van Hasselt, Hessel & Aslanides, 2019) for Atari 100k: 100k agent steps
-(400k frames), a learning step (batch 32) every agent step from step 1,600 on, target every 2,000
-learning steps, Adam 1e-4 (ε 1.5e-4), 10-step returns (the paper: 20; 10 as SPR and Dopamine's
-``DER.gin``), prioritized replay (ζ 0.5, β 0.4 → 1) of all 100k transitions, dueling (mean), Double,
-C51 (51 atoms on ±10), noisy nets σ0 0.1 and no ε (Dopamine's DER.gin keeps ε 0.01 after 2,000 steps).
-The paper's smaller torso (256 hidden units) is not reproduced: the Nature CNN's. ``--augment shift``
-adds DrQ's random shifts."""
-
-DEFAULT_PRESETS: dict[str, str] = {"atari": "lecture-atari"}
-"""the preset ``--preset auto`` picks for an env ("atari": every Atari game; else "default")"""
-
-PRESETS: dict[str, Preset] = {
-    "default": Preset(
-        DQNConfig(),
-        "tuned for CartPole-v1: Double DQN, 3-step returns, 128 learning steps per 256 env steps; "
-        "each seed stops learning once 8 greedy episodes in a row reach 475; stops when solved",
-        updates_per_chunk=4,
-        eval_every_chunks=1,
-        eval_episodes=20,
-        stop_at_solved=True,
-        freeze_at_return=475.0,
-    ),
-    "lecture-atari": Preset(
-        LECTURE_ATARI,
-        "the lecture's TF-Agents DQN on Breakout: RMSprop 2.5e-4, target every 2,000 steps, ε over 1M frames",
-        eval_episodes=10,
-    ),
-    "nature": Preset(
-        NATURE, "DQN as in the Nature paper / CleanRL's dqn_atari (Adam 1e-4, 1M replay)", eval_episodes=10
-    ),
-    "der": Preset(
-        DER,
-        "data-efficient Rainbow for Atari 100k (van Hasselt et al. 2019): C51, noisy nets, dueling, "
-        "Double, PER, 10-step returns, a learning step per agent step; add --augment shift for DrQ's shifts",
-        eval_episodes=10,
-    ),
-    "lecture": Preset(
-        LECTURE,
-        "the lecture's DQN: 600 episodes of CartPole-v0, a learning step per episode, no target network",
-        updates_per_chunk=1_000,
-        eval_every_chunks=1,
-        eval_episodes=20,
-    ),
-}
-
-
-def preset(name: str, **overrides: Any) -> DQNConfig:
-    """The config of preset ``name`` with ``overrides`` applied, validated."""
-    if name not in PRESETS:
-        raise UsageError(f"unknown DQN preset {name!r}; choose from {', '.join(PRESETS)}")
-    return dataclasses.replace(PRESETS[name].config, **overrides).validate()
 
 
 @struct.dataclass
@@ -710,29 +543,14 @@ def make_agent(spec: EnvSpec, cfg: DQNConfig, *, loop: Loop = jax.lax.scan) -> A
     )
 
 
-# ---------------------------------------------------------------- saved runs
-
-
-def config_to_dict(cfg: DQNConfig) -> dict[str, Any]:
-    return agents.config_to_dict(cfg)
-
-
-def config_from_dict(values: dict[str, Any]) -> DQNConfig:
-    return agents.config_from_dict(DQNConfig, values)
-
-
 __all__ = [
     "DQNConfig",
     "DQNState",
-    "PRESETS",
     "act",
-    "config_from_dict",
-    "config_to_dict",
     "greedy_policy",
     "init",
     "learn",
     "make_agent",
     "make_learn",
-    "preset",
     "td_error",
 ]

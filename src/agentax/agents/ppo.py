@@ -32,7 +32,6 @@ import optax
 from flax import struct
 
 from agentax import agents
-from agentax.agents import Preset
 from agentax.agents.protocol import Agent, EnvSpec, Loop, OnPolicy
 from agentax.envs.core import Box, Discrete
 from agentax.errors import UsageError
@@ -117,80 +116,6 @@ class PPOConfig:
     @property
     def num_updates(self) -> int:
         return max(1, self.total_steps // self.steps_per_update)
-
-
-PRESETS: dict[str, Preset] = {
-    "default": Preset(PPOConfig(), "CleanRL's classic-control settings, 500k steps"),
-    "cartpole-fast": Preset(
-        PPOConfig(
-            total_steps=51_200,
-            num_envs=8,
-            num_steps=32,
-            learning_rate=3e-3,
-            discount_factor=0.98,
-            gae_lambda=0.8,
-            num_minibatches=2,
-            update_epochs=10,
-            clip_eps=0.2,
-            anneal_clip=True,
-            ent_coef=0.0,
-        ),
-        "solves CartPole-v1 in ~5-10k env steps (RL-Zoo's settings, lr 3e-3, 10 epochs × 2 minibatches); "
-        "stops when solved",
-        updates_per_chunk=10,
-        stop_at_solved=True,
-    ),
-    "pendulum": Preset(
-        PPOConfig(
-            total_steps=200_000,
-            num_envs=4,
-            num_steps=512,
-            learning_rate=1e-3,
-            discount_factor=0.9,
-            gae_lambda=0.95,
-            num_minibatches=8,
-            update_epochs=10,
-            ent_coef=0.0,
-        ),
-        "continuous control (Pendulum-v1, host loop): Gaussian policy, γ 0.9, 10 epochs",
-    ),
-}
-
-
-PRESETS["atari"] = Preset(
-    PPOConfig(
-        total_steps=10_000_000,
-        num_envs=8,
-        num_steps=128,
-        learning_rate=2.5e-4,
-        discount_factor=0.99,
-        gae_lambda=0.95,
-        num_minibatches=4,
-        update_epochs=4,
-        clip_eps=0.1,
-        ent_coef=0.01,
-        vf_coef=0.5,
-        max_grad_norm=0.5,
-    ),
-    "CleanRL's ppo_atari_envpool settings (8 envs × 128 steps, lr 2.5e-4 annealed, clip 0.1, 4 epochs × 4 "
-    "minibatches, GAE 0.95, entropy 0.01; no value clipping), 10M agent steps, Nature CNN",
-    eval_episodes=10,
-)
-
-
-DEFAULT_PRESETS: dict[str, str] = {
-    "atari": "atari",
-    "CartPole-v0": "cartpole-fast",
-    "CartPole-v1": "cartpole-fast",
-    "Pendulum-v1": "pendulum",
-}
-"""the preset ``--preset auto`` picks for an env ("atari": for every Atari game; else "default")"""
-
-
-def preset(name: str) -> Preset:
-    if name not in PRESETS:
-        raise UsageError(f"unknown PPO preset {name!r}; choose from {', '.join(PRESETS)}")
-    return PRESETS[name]
 
 
 @struct.dataclass
@@ -394,9 +319,3 @@ def make_agent(spec: EnvSpec, cfg: PPOConfig, *, loop: Loop = jax.lax.scan) -> A
     )
 
 
-def config_to_dict(cfg: PPOConfig) -> dict[str, Any]:
-    return agents.config_to_dict(cfg)
-
-
-def config_from_dict(values: dict[str, Any]) -> PPOConfig:
-    return agents.config_from_dict(PPOConfig, values)

@@ -27,7 +27,6 @@ import optax
 from flax import struct
 
 from agentax import agents
-from agentax.agents import Preset
 from agentax.agents.protocol import Agent, EnvSpec, Loop, OnPolicy
 from agentax.envs.core import Discrete
 from agentax.errors import UsageError
@@ -98,19 +97,6 @@ class PQNConfig:
                 f"({self.num_minibatches}) equal minibatches"
             )
         return self
-
-
-PRESETS: dict[str, Preset] = {
-    "default": Preset(
-        PQNConfig(),
-        "CartPole-v1: 16 envs × 32 steps, Q(λ 0.65), 4 epochs × 8 minibatches, LayerNorm MLP 128-128, "
-        "ε 1 → 0.05 over the first 10 %; stops when solved",
-        updates_per_chunk=20,
-        eval_every_chunks=1,
-        stop_at_solved=True,
-    ),
-}
-DEFAULT_PRESETS: dict[str, str] = {}
 
 
 @struct.dataclass
@@ -220,12 +206,4 @@ def make_agent(spec: EnvSpec, cfg: PQNConfig, *, loop: Loop = jax.lax.scan) -> A
     )
 
 
-def config_to_dict(cfg: PQNConfig) -> dict[str, Any]:
-    return agents.config_to_dict(cfg)
-
-
-def config_from_dict(values: dict[str, Any]) -> PQNConfig:
-    return agents.config_from_dict(PQNConfig, values)
-
-
-__all__ = ["PQNConfig", "PQNState", "PRESETS", "learn", "make_agent", "q_network"]
+__all__ = ["PQNConfig", "PQNState", "learn", "make_agent", "q_network"]

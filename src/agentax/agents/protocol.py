@@ -3,9 +3,9 @@
 An algorithm module (``agentax.agents.reinforce``, ``ppo``, ``dqn``) is a namespace of pure
 functions over pytrees. Its contract, written once here:
 
-- ``PRESETS: dict[str, Preset]`` (with ``"default"``), ``DEFAULT_PRESETS: dict[env_id, preset name]``;
-  a frozen config dataclass with ``total_steps``, ``validate()``, ``config_to_dict`` /
-  ``config_from_dict``;
+- a frozen config dataclass with ``total_steps`` and ``validate()``, named in the registry
+  (``agentax.agents.ALGORITHMS``), its tuned presets (``"default"`` among them) in
+  ``agentax.agents.presets``;
 - ``make_agent(spec: EnvSpec, cfg, *, loop=jax.lax.scan) -> Agent``: the four pure functions below,
   closed over the env's spec and the config, and the experience they learn from. Every runner drives
   this one object; the compiled runner builds its program from it (:mod:`agentax.runners.rollout`).

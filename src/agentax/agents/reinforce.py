@@ -29,7 +29,6 @@ import optax
 from flax import struct
 
 from agentax import agents
-from agentax.agents import Preset
 from agentax.agents.protocol import Agent, EnvSpec, Episodes, Loop
 from agentax.envs.core import Discrete
 from agentax.errors import UsageError
@@ -77,19 +76,6 @@ class ReinforceConfig:
     @property
     def num_updates(self) -> int:
         return max(1, self.total_steps // self.steps_per_update)
-
-
-PRESETS: dict[str, Preset] = {
-    "default": Preset(
-        ReinforceConfig(), "the lecture's settings (150 iterations of 10 episodes, γ 0.95, Adam 0.01)"
-    ),
-    "lecture": Preset(
-        ReinforceConfig(), "the lecture's settings (150 iterations of 10 episodes, γ 0.95, Adam 0.01)"
-    ),
-    "baseline": Preset(
-        ReinforceConfig(baseline=True), "the lecture's settings with a learned value baseline"
-    ),
-}
 
 
 @struct.dataclass
@@ -200,9 +186,3 @@ def make_agent(spec: EnvSpec, cfg: ReinforceConfig, *, loop: Loop = jax.lax.scan
     )
 
 
-def config_to_dict(cfg: ReinforceConfig) -> dict[str, Any]:
-    return agents.config_to_dict(cfg)
-
-
-def config_from_dict(values: dict[str, Any]) -> ReinforceConfig:
-    return agents.config_from_dict(ReinforceConfig, values)

@@ -38,7 +38,7 @@ def main(argv: list[str]) -> int:
     from pathlib import Path
 
     from agentax import _xla
-    from agentax.agents import ppo
+    from agentax.agents import config_to_dict, ppo, presets_of
     from agentax.api import compiled_program
     from agentax.cli.evaluate import stats_table
     from agentax.envs import make_jax
@@ -50,7 +50,7 @@ def main(argv: list[str]) -> int:
 
     _xla.enable_compilation_cache()
     env = make_jax("CartPole-v1")
-    preset = ppo.PRESETS["cartpole-fast"]
+    preset = presets_of("ppo")["cartpole-fast"]
     runner = RunnerConfig(
         seed=args.seed,
         updates_per_chunk=2,  # a log row (and an evaluation) every 512 env steps: a curve with points
@@ -65,7 +65,7 @@ def main(argv: list[str]) -> int:
         out = default_run_dir("ppo", env.id, root=Path(args.video).parent)
     else:
         out = default_run_dir("ppo", env.id, root="runs/demo")
-    config = run_config("ppo", env.id, "cartpole-fast", "compiled", runner, ppo.config_to_dict(preset.config))
+    config = run_config("ppo", env.id, "cartpole-fast", "compiled", runner, config_to_dict(preset.config))
     console = Console()
     console.print(f"[bold]Training PPO on {env.id}[/] (preset cartpole-fast) into {out}")
     start = time.perf_counter()

@@ -18,13 +18,14 @@ This module only parses: :class:`~agentax.api.RunArgs` and the training itself l
 from __future__ import annotations
 
 import dataclasses
+import typing
 from pathlib import Path
 from typing import Annotated, Any
 
 import tyro
 
 from agentax import api
-from agentax.agents import ALGORITHMS, algorithm
+from agentax.agents import ALGORITHMS, presets_of
 from agentax.api import RunArgs
 from agentax.errors import UsageError
 from agentax.runners import RUNNERS
@@ -40,19 +41,55 @@ def _option(argv: list[str], name: str, default: str) -> str:
     return default
 
 
+ALIASES: dict[str, dict[str, tuple[str, ...]]] = {
+    "dqn": {"target_update_period": ("--target-update",), "prioritized": ("--per",)},
+}
+"""Short flags besides the generated ones: algorithm → config field → its extra flags."""
+
+
+def with_aliases(config_type: type, aliases: dict[str, tuple[str, ...]]) -> type:
+    """``config_type`` as tyro parses it: a subclass whose ``aliases`` fields are annotated with
+    ``tyro.conf.arg(aliases=...)``. The fields keep their order and defaults, and tyro reads their
+    docstrings from the base class, so ``--help`` reads as the config's own."""
+    if not aliases:
+        return config_type
+    hints = typing.get_type_hints(config_type)
+    defaults = {field.name: field.default for field in dataclasses.fields(config_type)}
+    fields = [
+        (
+            name,
+            Annotated[hints[name], tyro.conf.arg(aliases=flags)],
+            dataclasses.field(default=defaults[name]),
+        )
+        for name, flags in aliases.items()
+    ]
+    namespace = {"__doc__": config_type.__doc__, "__module__": config_type.__module__}
+    return dataclasses.make_dataclass(
+        config_type.__name__, fields, bases=(config_type,), frozen=True, namespace=namespace
+    )
+
+
+def _as(cls: type, value: Any) -> Any:
+    """``value``, a config of ``cls`` or of a class with the same fields, as a ``cls``."""
+    if type(value) is cls:
+        return value
+    return cls(**{field.name: getattr(value, field.name) for field in dataclasses.fields(cls)})
+
+
 def parse(algo: str, argv: list[str]) -> tuple[RunArgs, Any, Any]:
     """``(run_args, algorithm config, preset)`` from the command line."""
     preset_name, preset = api.choose_preset(
         algo, _option(argv, "--env", RunArgs.env), _option(argv, "--preset", "auto")
     )
-    presets = algorithm(algo).PRESETS
+    presets = presets_of(algo)
     config_type = type(preset.config)
+    cli_type = with_aliases(config_type, ALIASES.get(algo, {}))
 
     Args = dataclasses.make_dataclass(
         "Args",
         [
             ("run", Annotated[RunArgs, tyro.conf.OmitArgPrefixes]),
-            ("config", Annotated[config_type, tyro.conf.OmitArgPrefixes]),
+            ("config", Annotated[cli_type, tyro.conf.OmitArgPrefixes]),
         ],
         frozen=True,
     )
@@ -61,13 +98,14 @@ def parse(algo: str, argv: list[str]) -> tuple[RunArgs, Any, Any]:
         Args,
         args=argv,
         prog=f"agentax train {algo}",
-        default=Args(RunArgs(preset=preset_name), preset.config),
+        default=Args(RunArgs(preset=preset_name), _as(cli_type, preset.config)),
         description=f"Train {algo}. Presets: "
         + "; ".join(f"{name}: {p.description}" for name, p in presets.items()),
     )
-    if hasattr(args.config, "validate"):
-        args.config.validate()
-    return args.run.check(), args.config, preset
+    config = _as(config_type, args.config)
+    if hasattr(config, "validate"):
+        config.validate()
+    return args.run.check(), config, preset
 
 
 def main(argv: list[str]) -> int:

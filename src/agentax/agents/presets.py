@@ -1,0 +1,327 @@
+"""Every tuned configuration, by algorithm and name: what ``agentax train ALGO --preset NAME`` starts from.
+
+A :class:`Preset` is data: an algorithm's frozen config, one line about it, and the compiled runner's
+schedule for it. :data:`PRESETS` maps each algorithm to its presets (each has ``"default"``),
+:data:`DEFAULT_PRESETS` each algorithm to the preset ``--preset auto`` picks for an env, and
+:func:`preset` is the one lookup, overrides applied and validated. The registry reaches them by
+:func:`agentax.agents.presets_of`. This module imports the algorithms' configs; no algorithm imports it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from agentax.agents.dqn import DQNConfig
+from agentax.agents.ppo import PPOConfig
+from agentax.agents.pqn import PQNConfig
+from agentax.agents.reinforce import ReinforceConfig
+from agentax.errors import UsageError
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A named, tuned configuration: an algorithm's config and the compiled runner's schedule."""
+
+    config: Any
+    """the algorithm's frozen config dataclass"""
+    description: str
+    """one line for ``agentax train ALGO --help`` and the README"""
+    updates_per_chunk: int = 10
+    """updates per compiled call (one log row, one checkpoint)"""
+    eval_every_chunks: int = 0
+    """evaluate the greedy policy every this many chunks (0: the compiled runner's choice: every chunk
+    when the run stops once solved, else about ten times a run)"""
+    eval_episodes: int = 20
+    """evaluation episodes per seed"""
+    stop_at_solved: bool = False
+    """stop once the evaluation reaches the env's solved threshold (the ``--stop-at-return`` default)"""
+    freeze_at_return: float | None = None
+    """compiled runner: each seed stops learning once its greedy policy's side episodes all reach
+    this (the ``--freeze-at-return`` default; the other runners do not apply it unless asked)"""
+
+
+# ---------------------------------------------------------------- REINFORCE
+
+REINFORCE_LECTURE = Preset(
+    ReinforceConfig(), "the lecture's settings (150 iterations of 10 episodes, γ 0.95, Adam 0.01)"
+)
+"""The lecture's REINFORCE: ``ReinforceConfig``'s defaults."""
+
+REINFORCE_PRESETS: dict[str, Preset] = {
+    "default": REINFORCE_LECTURE,
+    "lecture": REINFORCE_LECTURE,  # an alias: the defaults are the lecture's
+    "baseline": Preset(
+        ReinforceConfig(baseline=True), "the lecture's settings with a learned value baseline"
+    ),
+}
+
+
+# ---------------------------------------------------------------- PPO
+
+PPO_PRESETS: dict[str, Preset] = {
+    "default": Preset(PPOConfig(), "CleanRL's classic-control settings, 500k steps"),
+    "cartpole-fast": Preset(
+        PPOConfig(
+            total_steps=51_200,
+            num_envs=8,
+            num_steps=32,
+            learning_rate=3e-3,
+            discount_factor=0.98,
+            gae_lambda=0.8,
+            num_minibatches=2,
+            update_epochs=10,
+            clip_eps=0.2,
+            anneal_clip=True,
+            ent_coef=0.0,
+        ),
+        "solves CartPole-v1 in ~5-10k env steps (RL-Zoo's settings, lr 3e-3, 10 epochs × 2 minibatches); "
+        "stops when solved",
+        updates_per_chunk=10,
+        stop_at_solved=True,
+    ),
+    "pendulum": Preset(
+        PPOConfig(
+            total_steps=200_000,
+            num_envs=4,
+            num_steps=512,
+            learning_rate=1e-3,
+            discount_factor=0.9,
+            gae_lambda=0.95,
+            num_minibatches=8,
+            update_epochs=10,
+            ent_coef=0.0,
+        ),
+        "continuous control (Pendulum-v1, host loop): Gaussian policy, γ 0.9, 10 epochs",
+    ),
+    "atari": Preset(
+        PPOConfig(
+            total_steps=10_000_000,
+            num_envs=8,
+            num_steps=128,
+            learning_rate=2.5e-4,
+            discount_factor=0.99,
+            gae_lambda=0.95,
+            num_minibatches=4,
+            update_epochs=4,
+            clip_eps=0.1,
+            ent_coef=0.01,
+            vf_coef=0.5,
+            max_grad_norm=0.5,
+        ),
+        "CleanRL's ppo_atari_envpool settings (8 envs × 128 steps, lr 2.5e-4 annealed, clip 0.1, "
+        "4 epochs × 4 minibatches, GAE 0.95, entropy 0.01; no value clipping), 10M agent steps, Nature CNN",
+        eval_episodes=10,
+    ),
+}
+
+
+# ---------------------------------------------------------------- DQN
+
+LECTURE = DQNConfig(
+    hidden=(32, 32),
+    activation="elu",
+    double=False,
+    target_update_period=0,
+    discount_factor=0.95,
+    learning_rate=1e-3,
+    max_grad_norm=None,
+    loss="mse",
+    batch_size=32,
+    buffer_size=2_000,
+    n_step=1,
+    num_envs=1,
+    schedule_unit="episodes",
+    learning_starts=50,
+    train_frequency=1,
+    gradient_steps=1,
+    epsilon_start=1.0,
+    epsilon_end=0.01,
+    exploration_duration=495,
+    max_episodes=600,
+    total_steps=120_000,
+)
+"""The lecture's DQN (LECTURE-FACTS.md), episode for episode, on CartPole-v0.
+
+The lecture loops over 600 episodes of at most 200 steps; in each step ε = max(1 − episode/500,
+0.01); after each episode, once 50 episodes are done, one training step on a batch of 32 from the
+last 2,000 transitions. In agentax's units: ``schedule_unit="episodes"`` counts ``learning_starts``
+(50), ``train_frequency`` (1: a learning step at the end of every episode) and
+``exploration_duration`` (495: ε reaches 0.01 at episode 495, as max(1 − 495/500, 0.01) does) in
+finished episodes; ``max_episodes=600`` ends collection and learning after the 600th episode, and
+``total_steps=120,000`` (600 × 200, the most those episodes can take) bounds the run. One env, no
+target network, MSE, Adam 1e-3 (the lecture notes 1e-2 works better), γ 0.95. One difference: the
+lecture stores ``done`` and so also cuts bootstrapping at the 200-step time limit; agentax keeps
+truncation apart and bootstraps through it.
+"""
+
+LECTURE_ATARI = DQNConfig(
+    optimizer="rmsprop",
+    learning_rate=2.5e-4,
+    max_grad_norm=None,
+    loss="huber",
+    discount_factor=0.99,
+    double=False,
+    n_step=1,
+    target_update_period=2_000,
+    batch_size=64,
+    buffer_size=100_000,
+    num_envs=4,
+    learning_starts=20_000,
+    train_frequency=1,
+    gradient_steps=1,
+    epsilon_start=1.0,
+    epsilon_end=0.01,
+    exploration_duration=250_000,
+    total_steps=2_500_000,
+)
+"""The lecture's TF-Agents DQN on Breakout (LECTURE-FACTS.md): RMSprop 2.5e-4 (ρ 0.95, ε 1e-5,
+centered), Huber, γ 0.99, target update every 2,000 learning steps, ε 1 → 0.01 over 1M frames
+(250k agent steps), a learning step (batch 64) every 4 agent steps (4 envs, one step each), 20k
+random steps first, 100k transitions of replay; 10M frames."""
+
+NATURE = dataclasses.replace(
+    LECTURE_ATARI,
+    optimizer="adam",
+    learning_rate=1e-4,
+    adam_eps=1e-8,
+    target_update_period=1_000,
+    batch_size=32,
+    buffer_size=1_000_000,
+    num_envs=1,
+    learning_starts=80_000,
+    train_frequency=4,
+    exploration_duration=1_000_000,
+    total_steps=10_000_000,
+)
+"""DQN as in Mnih et al. 2015 with CleanRL's ``dqn_atari`` settings: Adam 1e-4, Huber, γ 0.99, target
+synced every 1,000 learning steps, a learning step of batch 32 every 4 agent steps, ε 1 → 0.01 over
+1M agent steps, 80k random steps first, 1M transitions of replay, 10M agent steps."""
+
+DER = DQNConfig(
+    distributional=True,
+    num_atoms=51,
+    v_min=-10.0,
+    v_max=10.0,
+    noisy=True,
+    noisy_sigma0=0.1,
+    dueling=True,
+    dueling_baseline="mean",
+    double=True,
+    prioritized=True,
+    priority_exponent=0.5,
+    importance_exponent_start=0.4,
+    n_step=10,
+    discount_factor=0.99,
+    optimizer="adam",
+    learning_rate=1e-4,
+    adam_eps=1.5e-4,
+    max_grad_norm=10.0,
+    batch_size=32,
+    buffer_size=100_000,
+    target_update_period=2_000,
+    num_envs=1,
+    learning_starts=1_600,
+    train_frequency=1,
+    gradient_steps=1,
+    epsilon_start=0.0,
+    epsilon_end=0.0,
+    exploration_duration=1,
+    total_steps=100_000,
+)
+"""Data-efficient Rainbow (van Hasselt, Hessel & Aslanides, 2019) for Atari 100k: 100k agent steps
+(400k frames), a learning step (batch 32) every agent step from step 1,600 on, target every 2,000
+learning steps, Adam 1e-4 (ε 1.5e-4), 10-step returns (the paper: 20; 10 as SPR and Dopamine's
+``DER.gin``), prioritized replay (ζ 0.5, β 0.4 → 1) of all 100k transitions, dueling (mean), Double,
+C51 (51 atoms on ±10), noisy nets σ0 0.1 and no ε (Dopamine's DER.gin keeps ε 0.01 after 2,000 steps).
+The paper's smaller torso (256 hidden units) is not reproduced: the Nature CNN's. ``--augment shift``
+adds DrQ's random shifts."""
+
+DQN_PRESETS: dict[str, Preset] = {
+    "default": Preset(
+        DQNConfig(),
+        "tuned for CartPole-v1: Double DQN, 3-step returns, 128 learning steps per 256 env steps; "
+        "each seed stops learning once 8 greedy episodes in a row reach 475; stops when solved",
+        updates_per_chunk=4,
+        eval_every_chunks=1,
+        eval_episodes=20,
+        stop_at_solved=True,
+        freeze_at_return=475.0,
+    ),
+    "lecture-atari": Preset(
+        LECTURE_ATARI,
+        "the lecture's TF-Agents DQN on Breakout: RMSprop 2.5e-4, target every 2,000 steps, ε over 1M frames",
+        eval_episodes=10,
+    ),
+    "nature": Preset(
+        NATURE, "DQN as in the Nature paper / CleanRL's dqn_atari (Adam 1e-4, 1M replay)", eval_episodes=10
+    ),
+    "der": Preset(
+        DER,
+        "data-efficient Rainbow for Atari 100k (van Hasselt et al. 2019): C51, noisy nets, dueling, "
+        "Double, PER, 10-step returns, a learning step per agent step; add --augment shift for DrQ's shifts",
+        eval_episodes=10,
+    ),
+    "lecture": Preset(
+        LECTURE,
+        "the lecture's DQN: 600 episodes of CartPole-v0, a learning step per episode, no target network",
+        updates_per_chunk=1_000,
+        eval_every_chunks=1,
+        eval_episodes=20,
+    ),
+}
+
+
+# ---------------------------------------------------------------- PQN
+
+PQN_PRESETS: dict[str, Preset] = {
+    "default": Preset(
+        PQNConfig(),
+        "CartPole-v1: 16 envs × 32 steps, Q(λ 0.65), 4 epochs × 8 minibatches, LayerNorm MLP 128-128, "
+        "ε 1 → 0.05 over the first 10 %; stops when solved",
+        updates_per_chunk=20,
+        eval_every_chunks=1,
+        stop_at_solved=True,
+    ),
+}
+
+
+# ---------------------------------------------------------------- the lookup
+
+PRESETS: dict[str, dict[str, Preset]] = {
+    "reinforce": REINFORCE_PRESETS,
+    "ppo": PPO_PRESETS,
+    "dqn": DQN_PRESETS,
+    "pqn": PQN_PRESETS,
+}
+"""algorithm → preset name → preset; every algorithm has a ``"default"``"""
+
+DEFAULT_PRESETS: dict[str, dict[str, str]] = {
+    "ppo": {
+        "atari": "atari",
+        "CartPole-v0": "cartpole-fast",
+        "CartPole-v1": "cartpole-fast",
+        "Pendulum-v1": "pendulum",
+    },
+    "dqn": {"atari": "lecture-atari"},
+}
+"""algorithm → env → the preset ``--preset auto`` picks for it ("atari": every Atari game; any other
+env, or an algorithm missing here: "default")"""
+
+
+def preset(algo: str, name: str, **overrides: Any) -> Preset:
+    """Preset ``name`` of algorithm ``algo``, its config with ``overrides`` applied and validated.
+
+    ``preset("dqn", "der", augment="shift").config`` is data-efficient Rainbow with DrQ's shifts; an
+    unknown algorithm, preset or setting is a ``UsageError`` naming the choices."""
+    if algo not in PRESETS:
+        raise UsageError(f"unknown algorithm {algo!r}; choose from {', '.join(PRESETS)}")
+    if name not in PRESETS[algo]:
+        raise UsageError(f"unknown {algo} preset {name!r}; choose from {', '.join(PRESETS[algo])}")
+    chosen = PRESETS[algo][name]
+    names = {field.name for field in dataclasses.fields(chosen.config)}
+    unknown = sorted(set(overrides) - names)
+    if unknown:
+        raise UsageError(f"unknown {type(chosen.config).__name__} settings {unknown}")
+    return dataclasses.replace(chosen, config=dataclasses.replace(chosen.config, **overrides).validate())
