@@ -31,8 +31,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from agentax import agents
-from agentax.agents.protocol import Agent, EnvSpec, Loop, OnPolicy
+from agentax.agents.protocol import Agent, EnvSpec, Loop, OnPolicy, check_fields
 from agentax.envs.core import Box, Discrete
 from agentax.errors import UsageError
 from agentax.nets import (
@@ -89,7 +88,7 @@ class PPOConfig:
 
     def validate(self) -> PPOConfig:
         """Raise a UsageError naming the first bad value (run by ``make_agent`` and the CLI)."""
-        agents.check_fields(
+        check_fields(
             self,
             positive=(
                 "total_steps",
@@ -317,5 +316,3 @@ def make_agent(spec: EnvSpec, cfg: PPOConfig, *, loop: Loop = jax.lax.scan) -> A
         total_steps=cfg.total_steps,
         env_action=lambda action: env_action(action, spec),
     )
-
-

@@ -26,8 +26,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from agentax import agents
-from agentax.agents.protocol import Agent, EnvSpec, Loop, OnPolicy
+from agentax.agents.protocol import Agent, EnvSpec, Loop, OnPolicy, check_fields
 from agentax.envs.core import Discrete
 from agentax.errors import UsageError
 from agentax.nets import MLP
@@ -72,7 +71,7 @@ class PQNConfig:
 
     def validate(self) -> PQNConfig:
         """Raise a UsageError naming the first bad value."""
-        agents.check_fields(
+        check_fields(
             self,
             positive=(
                 "total_steps",

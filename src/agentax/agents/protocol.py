@@ -45,6 +45,7 @@ import jax
 import jax.numpy as jnp
 
 from agentax.envs.core import Box, Discrete
+from agentax.errors import UsageError
 from agentax.policies import Policy
 
 PRIORITY = "priority"
@@ -154,3 +155,29 @@ def acting_view(state: AgentState) -> AgentState:
     """What actors in other processes need of an agent state: ``state`` without its optimizer state
     and target parameters (a Nature-CNN DQN's state shrinks 4x, to its parameters)."""
     return state.replace(**{name: None for name in ACTING_UNUSED if hasattr(state, name)})
+
+
+def check_fields(
+    cfg: Any,
+    positive: tuple[str, ...] = (),
+    unit_interval: tuple[str, ...] = (),
+    non_negative: tuple[str, ...] = (),
+    activation: str | None = "activation",
+) -> None:
+    """A ``UsageError`` naming the first field of ``cfg`` outside its range: ``positive`` (> 0),
+    ``unit_interval`` ([0, 1]), ``non_negative`` (≥ 0); ``activation`` names a field that must be
+    one of the activations of :mod:`agentax.nets`."""
+    from agentax.nets import ACTIVATIONS
+
+    for name in positive:
+        if getattr(cfg, name) <= 0:
+            raise UsageError(f"{name} must be positive, got {getattr(cfg, name)}")
+    for name in unit_interval:
+        if not 0.0 <= getattr(cfg, name) <= 1.0:
+            raise UsageError(f"{name} must lie in [0, 1], got {getattr(cfg, name)}")
+    for name in non_negative:
+        if getattr(cfg, name) < 0:
+            raise UsageError(f"{name} must not be negative, got {getattr(cfg, name)}")
+    if activation is not None and getattr(cfg, activation) not in ACTIVATIONS:
+        choices = ", ".join(ACTIVATIONS)
+        raise UsageError(f"unknown {activation} {getattr(cfg, activation)!r}; choose from {choices}")

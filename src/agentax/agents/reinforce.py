@@ -28,8 +28,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from agentax import agents
-from agentax.agents.protocol import Agent, EnvSpec, Episodes, Loop
+from agentax.agents.protocol import Agent, EnvSpec, Episodes, Loop, check_fields
 from agentax.envs.core import Discrete
 from agentax.errors import UsageError
 from agentax.nets import MLP, PolicyNet, log_prob
@@ -66,7 +65,7 @@ class ReinforceConfig:
     def validate(self) -> ReinforceConfig:
         """Raise a UsageError naming the first bad value."""
         positive = ("total_steps", "episodes_per_update", "max_steps", "learning_rate")
-        agents.check_fields(self, positive, unit_interval=("discount_factor",))
+        check_fields(self, positive, unit_interval=("discount_factor",))
         return self
 
     @property
@@ -184,5 +183,3 @@ def make_agent(spec: EnvSpec, cfg: ReinforceConfig, *, loop: Loop = jax.lax.scan
         experience=Episodes(cfg.episodes_per_update, cfg.max_steps),
         total_steps=cfg.total_steps,
     )
-
-
