@@ -120,6 +120,14 @@ def scalars(metrics: dict[str, jax.Array]) -> dict[str, jax.Array]:
     return {k: jnp.asarray(v, jnp.float32) for k, v in metrics.items() if jnp.ndim(v) == 0}
 
 
+def _program(agent: Agent, init: Callable, update: Callable, steps_per_update: int) -> Program:
+    """A :class:`Program` of ``agent`` whose ``update`` takes ``steps_per_update`` env steps."""
+    num_updates = max(1, agent.total_steps // steps_per_update)
+    return Program(
+        init, update, num_updates, steps_per_update, lambda carry: agent.greedy_policy(carry.agent)
+    )
+
+
 def program(
     agent: Agent, env: Environment, env_params: EnvParams = None, *, freeze: Freeze | None = None
 ) -> Program:
@@ -169,10 +177,7 @@ def on_policy_program(agent: Agent, envs: VectorEnv) -> Program:
         agent_state, metrics = agent.learn(carry.agent, trajectory, learn_key)
         return carry.replace(agent=agent_state, key=key), scalars(metrics)
 
-    steps = envs.num_envs * experience.num_steps
-    return Program(
-        init, update, max(1, agent.total_steps // steps), steps, lambda c: agent.greedy_policy(c.agent)
-    )
+    return _program(agent, init, update, envs.num_envs * experience.num_steps)
 
 
 # ---------------------------------------------------------------- whole episodes (REINFORCE)
@@ -214,10 +219,7 @@ def episodes_program(agent: Agent, envs: VectorEnv) -> Program:
         agent_state, metrics = agent.learn(carry.agent, trajectory, learn_key)
         return EpisodesCarry(agent_state, key, episodes), scalars(metrics)
 
-    steps = envs.num_envs * experience.max_steps
-    return Program(
-        init, update, max(1, agent.total_steps // steps), steps, lambda c: agent.greedy_policy(c.agent)
-    )
+    return _program(agent, init, update, envs.num_envs * experience.max_steps)
 
 
 # ---------------------------------------------------------------- replay and learning gates (DQN)
@@ -405,7 +407,4 @@ def off_policy_program(agent: Agent, envs: VectorEnv, freeze: Freeze | None = No
         last_act = jax.tree.map(lambda x: x[-1], act_info)
         return carry, {**metrics, **last_act, **extra}
 
-    steps = envs.num_envs * (1 if by_episode else experience.train_frequency)
-    return Program(
-        init, update, max(1, agent.total_steps // steps), steps, lambda c: agent.greedy_policy(c.agent)
-    )
+    return _program(agent, init, update, envs.num_envs * (1 if by_episode else experience.train_frequency))
