@@ -6,6 +6,8 @@ start-up stays fast. The errors of :mod:`agentax.errors` become one line on stde
 
 - :class:`~agentax.errors.UsageError` (bad input): ``agentax CMD: error: MESSAGE``, exit code 2;
 - :class:`~agentax.errors.TrainingDiverged` (a NaN or infinite loss): the same line, exit code 3;
+- :class:`~agentax.errors.NodeLost` (a Ray node lost, the run cannot go on): the same line and
+  ``continue with: agentax train --resume RUN_DIR``, exit code 4;
 - :class:`~agentax.errors.TrainingInterrupted` (Ctrl-C in a training): ``agentax CMD: interrupted;
   continue with: agentax train --resume RUN_DIR``, exit code 130 (128 + SIGINT, as a shell reports it);
   any other ``KeyboardInterrupt``: ``agentax CMD: interrupted``, exit code 130.
@@ -17,7 +19,7 @@ import importlib
 import shlex
 import sys
 
-from agentax.errors import TrainingDiverged, TrainingInterrupted, UsageError
+from agentax.errors import NodeLost, TrainingDiverged, TrainingInterrupted, UsageError
 
 COMMANDS: dict[str, str] = {
     "envs": "list the environments with their observation and action spaces",
@@ -53,6 +55,13 @@ def usage() -> str:
     return "\n".join(lines)
 
 
+def resume_hint(run_dir: str | None) -> str:
+    """``; continue with: agentax train --resume RUN_DIR``, or nothing without a run folder."""
+    if run_dir is None:
+        return ""
+    return f"; continue with: agentax train --resume {shlex.quote(str(run_dir))}"
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if not argv or argv[0] in ("-h", "--help"):
@@ -74,11 +83,11 @@ def main(argv: list[str] | None = None) -> int:
     except TrainingDiverged as error:
         print(f"agentax {name}: error: {error}", file=sys.stderr)
         return 3
+    except NodeLost as error:
+        print(f"agentax {name}: error: {error}{resume_hint(error.run_dir)}", file=sys.stderr)
+        return 4
     except TrainingInterrupted as interrupt:  # a KeyboardInterrupt, so caught before that one
-        message = "interrupted"
-        if interrupt.run_dir is not None:
-            message += f"; continue with: agentax train --resume {shlex.quote(str(interrupt.run_dir))}"
-        print(f"agentax {name}: {message}", file=sys.stderr)
+        print(f"agentax {name}: interrupted{resume_hint(interrupt.run_dir)}", file=sys.stderr)
         return 130
     except KeyboardInterrupt:
         print(f"agentax {name}: interrupted", file=sys.stderr)
