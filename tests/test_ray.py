@@ -1,6 +1,7 @@
 """The ray runner: PPO and DQN learn on Ray actors, spread over a 2-node cluster; PPO gives the thread
 actors' numbers; a killed actor process is replaced; a learner error, Ctrl-C or the end of a run
-leave no Ray process behind; ``--ray-address auto`` joins a cluster started by ``ray start``.
+leave no Ray process behind; ``--ray-address auto`` joins a cluster started by ``ray start``, and
+``HOST:PORT`` a token-guarded one of two ``ray start`` nodes; a lost node ends a run with the resume hint.
 
 One 2-node cluster (``ray.cluster_utils.Cluster``, one CPU each) serves the tests of this process;
 the tests that need a Ray of their own (the CLI's local Ray, ``ray start``) run ``agentax`` in a
@@ -8,11 +9,15 @@ subprocess with a ``RAY_TMPDIR`` of their own, by which its processes are found 
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import json
 import logging
 import os
+import re
+import secrets
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -96,8 +101,24 @@ def own_ray_tmpdir():
     """A short, fresh RAY_TMPDIR (Ray's socket paths must stay under 108 bytes); kills what is left."""
     marker = tempfile.mkdtemp(prefix="axr", dir="/tmp")
     yield marker
-    for process in processes_with(marker):
-        process.kill()
+    stop_ray_of(marker)
+
+
+def stop_ray_of(marker: str) -> None:
+    """Kill the processes of the Ray with RAY_TMPDIR ``marker``, by pid, with their children (Ray's
+    agents retitle themselves, which can hide their environment); never ``ray stop``, which ends
+    every Ray of the machine."""
+    found = processes_with(marker)
+    for process in list(found):
+        try:
+            found += process.children(recursive=True)
+        except psutil.Error:
+            continue
+    for process in found:
+        try:
+            process.kill()
+        except psutil.Error:
+            continue
 
 
 # ---------------------------------------------------------------- the wire format
@@ -307,6 +328,80 @@ def test_more_actors_than_the_cluster_has_cpus_is_refused(cluster):
         ray_runner.train(agent, "CartPole-v1", RayRunnerConfig(actors=8), make_agent=remake)
 
 
+@pytest.mark.timeout(120)
+def test_a_lost_node_whose_cpus_the_run_needs_ends_it_with_the_resume_hint(cluster, tmp_path):
+    """A third node joins the fixture's two, its collector's node is then lost: the two CPUs left
+    cannot hold a replacement (it would wait forever), so the run ends with NodeLost and its folder."""
+    from agentax.errors import NodeLost
+
+    node = cluster.add_node(num_cpus=1, object_store_memory=150 * 2**20)
+    cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, num_envs=6, total_steps=1_000_000)
+    agent, remake = make(ppo, cfg)
+    run = Run.create(tmp_path, CONFIG)
+    removed: list[float] = []
+
+    def remove_the_node_after_the_first_row():
+        deadline = time.monotonic() + 60
+        metrics = tmp_path / "metrics.csv"
+        while time.monotonic() < deadline:
+            if metrics.exists() and metrics.read_text().count("\n") >= 2:
+                cluster.remove_node(node)  # its raylet and its collector end
+                removed.append(time.monotonic())
+                return
+            time.sleep(0.05)
+
+    remover = threading.Thread(target=remove_the_node_after_the_first_row, daemon=True)
+    remover.start()
+    runner = RayRunnerConfig(seed=0, actors=3, stop_at_return=None, checkpoint_every_seconds=0.0)
+    with pytest.raises(NodeLost, match=r"a Ray node was lost .*3 actors × 1 CPU, 2 CPUs left") as lost:
+        ray_runner.train(agent, "CartPole-v1", runner, run, make_agent=remake)
+    remover.join()
+    assert removed and time.monotonic() - removed[0] < 30  # not a hang
+    assert lost.value.run_dir == str(run.path)
+    assert any((tmp_path / "checkpoints").iterdir())  # what --resume continues
+    assert wait_for_no_collectors(), collector_pids()
+    assert ray.cluster_resources()["CPU"] == 2  # the fixture's two nodes, for the tests after this one
+
+
+@pytest.mark.timeout(60)
+def test_a_join_that_ray_gave_up_for_a_refused_token_says_what_to_do(monkeypatch):
+    """``ray.init``'s "Failed to connect" after its retries, its cause naming InvalidAuthToken (the
+    path where the token could not be asked about first, e.g. ``auto``)."""
+    from agentax.train.ray import join_failure
+
+    monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
+    try:
+        raise RuntimeError("Failed to connect to GCS. Last connection error: ... InvalidAuthToken: ...")
+    except RuntimeError as cause:
+        error = ConnectionError("Failed to connect to Ray cluster at 10.0.0.1:6379")
+        error.__cause__ = cause
+    assert join_failure("auto", error).startswith(
+        "the Ray cluster at auto wants an authentication token and RAY_AUTH_MODE=disabled here sends none: "
+        "set RAY_AUTH_MODE=token and use the head machine's token"
+    )
+    unreachable = ConnectionError("Failed to connect to Ray cluster at 10.0.0.1:6379")
+    assert join_failure("10.0.0.1:6379", unreachable) == (
+        "cannot join the Ray cluster at '10.0.0.1:6379': Failed to connect to Ray cluster at 10.0.0.1:6379"
+    )
+
+
+@pytest.mark.timeout(60)
+def test_node_lost_is_one_line_with_the_resume_command_and_exit_code_4(monkeypatch, capsys):
+    from agentax import cli
+    from agentax.cli import train as train_command
+    from agentax.errors import NodeLost
+
+    def lose(argv):
+        raise NodeLost("a Ray node was lost", "/runs/my run")
+
+    monkeypatch.setattr(train_command, "main", lose)
+    assert cli.main(["train", "ppo"]) == 5
+    expected = (
+        "agentax train: error: a Ray node was lost; continue with: agentax train --resume '/runs/my run'"
+    )
+    assert capsys.readouterr().err.strip() == expected
+
+
 # ---------------------------------------------------------------- a Ray of the run's own (subprocesses)
 
 
@@ -384,3 +479,122 @@ def test_ray_address_auto_joins_a_cluster_started_by_ray_start(own_ray_tmpdir, t
     assert not [
         p for p in processes_with(own_ray_tmpdir) if (p.cmdline() or [""])[0].startswith("ray::Collector")
     ]
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("", 0))
+        return probe.getsockname()[1]
+
+
+def ray_start(*args: str, env: dict[str, str]) -> str:
+    done = subprocess.run(
+        [str(Path(sys.executable).parent / "ray"), "start", *args], env=env, capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    return done.stdout + done.stderr
+
+
+@pytest.mark.timeout(180)
+def test_ray_address_host_port_joins_a_token_cluster_and_a_wrong_token_is_one_line(own_ray_tmpdir, tmp_path):
+    """The cluster how-to, on one machine: a token, ``ray start --head`` (a token found: Ray 2.60 turns
+    token authentication on), a worker node by ``RAY_AUTH_MODE=token ray start --address``, and
+    ``--ray-address HOST:PORT`` with the token but no RAY_AUTH_MODE (``ray.init`` would not send it)."""
+    token = tmp_path / "auth_token"  # another machine's ~/.ray/auth_token
+    token.write_text(secrets.token_hex(32))
+    env = {k: v for k, v in agentax_env(own_ray_tmpdir).items() if not k.startswith("RAY_AUTH")}
+    env["RAY_AUTH_TOKEN_PATH"] = str(token)
+    head = ray_start(
+        "--head",
+        f"--port={free_port()}",
+        "--num-cpus=1",
+        "--include-dashboard=false",
+        "--disable-usage-stats",
+        env=env,
+    )
+    assert "Token authentication is enabled" in head
+    address = re.search(r"ray start --address='([^']+)'", head).group(1)
+    ray_start(
+        f"--address={address}", "--num-cpus=1", "--disable-usage-stats", env={**env, "RAY_AUTH_MODE": "token"}
+    )
+    train = [*AGENTAX, "train", "dqn", "--env", "CartPole-v1", "--runner", "ray", "--ray-address", address]
+    done = subprocess.run(
+        [*train, "--total-steps", "3000", "--no-progress", "--out", str(tmp_path / "run")],
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    assert json.loads((tmp_path / "run" / "config.json").read_text())["runner"]["ray_address"] == address
+    with open(tmp_path / "run" / "metrics.csv") as rows:
+        assert [float(row["actor_nodes"]) for row in csv.DictReader(rows)][-1] == 2  # both nodes
+
+    start = time.monotonic()
+    refused = subprocess.run(
+        [*train, "--total-steps", "3000", "--no-progress", "--out", str(tmp_path / "refused")],
+        env={**env, "RAY_AUTH_TOKEN": secrets.token_hex(32)},  # before RAY_AUTH_TOKEN_PATH
+        capture_output=True,
+        text=True,
+    )
+    assert refused.returncode == 2, refused.stderr
+    assert refused.stderr.strip().splitlines()[-1] == (
+        f"agentax train: error: the Ray cluster at {address} refused this machine's authentication token: "
+        "use the head machine's token (copy its ~/.ray/auth_token here, or set RAY_AUTH_TOKEN to what "
+        "`ray get-auth-token` prints there)"
+    )
+    assert time.monotonic() - start < 15  # at once, not after Ray's 20 s of retries
+
+
+@pytest.mark.timeout(180)
+def test_a_lost_local_ray_node_ends_the_cli_run_with_one_line_saying_what_to_do(own_ray_tmpdir, tmp_path):
+    """Its runtime env agent killed, the run's local Ray node dies and Ray ends the learner's process
+    itself (exit code 1, no Python runs); the watcher says what was lost and what to do."""
+    out = tmp_path / "lost"
+    run = subprocess.Popen(
+        [*AGENTAX, "train", "ppo", "--env", "CartPole-v1", "--runner", "ray", "--no-progress"]
+        + ["--total-steps", "500000", "--stop-at-return", "none", "--out", str(out)],
+        env=agentax_env(own_ray_tmpdir),
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    deadline = time.monotonic() + 90
+    while time.monotonic() < deadline and not (
+        (out / "metrics.csv").exists() and (out / "metrics.csv").read_text().count("\n") >= 2
+    ):
+        time.sleep(0.2)
+    (raylet,) = [p for p in processes_with(own_ray_tmpdir) if "raylet/raylet" in " ".join(p.cmdline())]
+    (agent,) = [p for p in raylet.children() if (p.cmdline() or [""])[0].startswith("ray::RuntimeEnvAgent")]
+    agent.kill()
+    _, stderr = run.communicate(timeout=60)
+    assert run.returncode == 1, stderr
+    assert stderr.strip().splitlines()[-1] == (
+        f"agentax train: error: Ray ended the run in {out}: the Ray node of its learner was lost (or the "
+        "process was killed); it had saved no checkpoint yet: start it again"  # one every 30 s
+    )
+    assert_none_left(own_ray_tmpdir)
+
+
+@pytest.mark.timeout(60)
+def test_the_watcher_says_how_to_resume_a_run_with_a_checkpoint_and_is_quiet_after_a_normal_end(tmp_path):
+    code = (
+        "import os, sys\n"
+        "from agentax.runs import Run\n"
+        "from agentax.train.ray import hint_if_ray_ends_this_process\n"
+        "with hint_if_ray_ends_this_process(Run.open(sys.argv[1])):\n"
+        "    if sys.argv[2] == 'exit':\n"
+        "        os._exit(1)  # as Ray's _Exit(1)\n"
+    )
+    (tmp_path / "my run" / "checkpoints" / "00000012").mkdir(parents=True)
+    (tmp_path / "my run" / "config.json").write_text(json.dumps(CONFIG))
+    ended = subprocess.run(
+        [sys.executable, "-c", code, str(tmp_path / "my run"), "exit"], capture_output=True, text=True
+    )
+    assert ended.returncode == 1
+    assert ended.stderr.strip().endswith(
+        f"continue from its last checkpoint with: agentax train --resume '{tmp_path / 'my run'}'"
+    ), ended.stderr
+    quiet = subprocess.run(
+        [sys.executable, "-c", code, str(tmp_path / "my run"), "end"], capture_output=True, text=True
+    )
+    assert quiet.returncode == 0 and quiet.stderr == "", quiet.stderr

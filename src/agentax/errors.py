@@ -39,3 +39,16 @@ class TrainingInterrupted(KeyboardInterrupt):
     def __init__(self, run_dir: str | None = None):
         super().__init__(run_dir)
         self.run_dir = run_dir
+
+
+class NodeLost(RuntimeError):
+    """A Ray node of a ``--runner ray`` run was lost and the run cannot go on without it (exit code 5).
+
+    The message says what was lost; ``run_dir`` (set by the runner) is what ``agentax train --resume``
+    continues from its last checkpoint. When the node lost is the learner's own, Ray ends the process
+    itself (exit code 1) and :func:`agentax.train.ray.hint_if_ray_ends_this_process` says the same.
+    """
+
+    def __init__(self, message: str, run_dir: str | None = None):
+        super().__init__(message)
+        self.run_dir = run_dir

@@ -8,6 +8,8 @@ start-up stays fast. The errors of :mod:`agentax.errors` become one line on stde
 - :class:`~agentax.errors.TrainingDiverged` (a NaN or infinite loss): the same line, exit code 3;
 - :class:`~agentax.errors.StorageFull` (the disk filled while writing): the same line, naming the
   bytes needed and the last complete checkpoint, exit code 4;
+- :class:`~agentax.errors.NodeLost` (a Ray node lost, the run cannot go on): the same line and
+  ``continue with: agentax train --resume RUN_DIR``, exit code 5;
 - :class:`~agentax.errors.TrainingInterrupted` (Ctrl-C in a training): ``agentax CMD: interrupted;
   continue with: agentax train --resume RUN_DIR``, exit code 130 (128 + SIGINT, as a shell reports it);
   any other ``KeyboardInterrupt``: ``agentax CMD: interrupted``, exit code 130.
@@ -26,7 +28,7 @@ import threading
 from collections.abc import Iterator
 from typing import Any
 
-from agentax.errors import StorageFull, TrainingDiverged, TrainingInterrupted, UsageError
+from agentax.errors import NodeLost, StorageFull, TrainingDiverged, TrainingInterrupted, UsageError
 
 COMMANDS: dict[str, str] = {
     "envs": "list the environments with their observation and action spaces",
@@ -60,6 +62,13 @@ def usage() -> str:
     lines += ["commands:"]
     lines += [f"  {name:<{width}}  {summary}" for name, summary in COMMANDS.items()]
     return "\n".join(lines)
+
+
+def resume_hint(run_dir: str | None) -> str:
+    """``; continue with: agentax train --resume RUN_DIR``, or nothing without a run folder."""
+    if run_dir is None:
+        return ""
+    return f"; continue with: agentax train --resume {shlex.quote(str(run_dir))}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -113,11 +122,12 @@ def _run(name: str, command: Any, args: list[str], signals: list[int]) -> int:
     except StorageFull as error:
         print(f"agentax {name}: error: {error}", file=sys.stderr)
         return 4
+    except NodeLost as error:
+        print(f"agentax {name}: error: {error}{resume_hint(error.run_dir)}", file=sys.stderr)
+        return 5
     except TrainingInterrupted as interrupt:  # a KeyboardInterrupt, so caught before that one
-        message = "terminated" if signals else "interrupted"
-        if interrupt.run_dir is not None:
-            message += f"; continue with: agentax train --resume {shlex.quote(str(interrupt.run_dir))}"
-        print(f"agentax {name}: {message}", file=sys.stderr)
+        stopped = "terminated" if signals else "interrupted"
+        print(f"agentax {name}: {stopped}{resume_hint(interrupt.run_dir)}", file=sys.stderr)
         return 130
     except KeyboardInterrupt:
         print(f"agentax {name}: {'terminated' if signals else 'interrupted'}", file=sys.stderr)

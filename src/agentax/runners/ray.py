@@ -16,15 +16,20 @@ it and waits. So
   same seed an on-policy run gives the thread actors' numbers;
 - **faults**: a collector process that dies (killed, out of memory, its node lost) is replaced by a
   new one (fresh env seeds) and the call it had in flight is made again: the run loses that batch
-  and goes on; ``actor_restarts`` counts them. An error raised *inside* a collector (a bug, a broken
-  env) ends the run with that error, and so does a learner error; the actors are then killed.
+  and goes on; ``actor_restarts`` counts them. A lost node whose CPUs the replacements need ends the
+  run with :class:`~agentax.errors.NodeLost` (not a wait forever); the learner's own node lost, Ray
+  ends this process itself, and :func:`hint_if_ray_ends_this_process` says how to resume. An error
+  raised *inside* a collector (a bug, a broken env) ends the run with that error, and so does a
+  learner error; the actors are then killed.
 
 Where it runs: ``ray_address`` joins an existing cluster (``auto``, or ``HOST:PORT`` of ``ray start
---head``); without it the run starts a local Ray (no dashboard, Ray's token authentication, as many
-CPUs as the machine has; Ray 2.60 listens on the machine's address, it cannot be held to loopback)
-and shuts it down at the end, also after Ctrl-C (at the learner's next safe point) or an error. A
-process already connected to Ray (``ray.init`` before the call, as the tests do) keeps its
-connection. Every node needs agentax installed (the same version); the learner stays in this process.
+--head``, sending this machine's token as ``auto`` does: :func:`token_auth_to_join`; a refused token
+is one line at once, :func:`refuse_if_token_refused`); without it the run starts a local Ray (no
+dashboard, Ray's token authentication, as many CPUs as the machine has; Ray 2.60 listens on the
+machine's address, it cannot be held to loopback) and shuts it down at the end, also after Ctrl-C
+(at the learner's next safe point) or an error. A process already connected to Ray (``ray.init``
+before the call, as the tests do) keeps its connection. Every node needs agentax installed (the same
+version); the learner stays in this process.
 """
 
 from __future__ import annotations
@@ -33,10 +38,14 @@ import collections
 import functools
 import logging
 import os
+import signal
+import socket
 import sys
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -44,7 +53,7 @@ import numpy as np
 
 from agentax.agents.protocol import Agent, acting_view
 from agentax.envs import make_host_env
-from agentax.errors import UsageError
+from agentax.errors import NodeLost, UsageError
 from agentax.replay import Transition
 from agentax.runners.driver import EnvironmentSteps, TrajectoryObserver
 from agentax.runners.host import Actor, actor_seed, fold_actor_key
@@ -53,6 +62,8 @@ from agentax.runners.parallel import train as train_parallel
 from agentax.runners.session import TrainResult
 from agentax.runs import Run
 
+CHECK_SECONDS = 1.0
+"""how often a replacement collector that waits to start checks that the cluster still holds the run"""
 RESTART_SEED_STRIDE = 104_729
 """a restarted collector's envs are seeded ``actor_seed + stride × restarts``"""
 
@@ -86,17 +97,116 @@ def ray_session(address: str | None) -> Iterator[Any]:
         yield ray
         return
     quiet = {"logging_level": logging.ERROR, "log_to_driver": False, "include_dashboard": False}
+    with token_auth_to_join(address):
+        try:
+            if address:
+                refuse_if_token_refused(address)
+                ray.init(address=address, **quiet)
+            else:
+                ray.init(num_cpus=os.cpu_count(), **quiet)
+        except ConnectionError as error:
+            raise UsageError(join_failure(address, error)) from None
+        try:
+            yield ray
+        finally:
+            ray.shutdown()
+
+
+# ---------------------------------------------------------------- Ray's token authentication
+
+AUTH_MODE = "RAY_AUTH_MODE"
+"""Ray's switch (2.52+): ``token`` sends and checks the cluster's token; unset, Ray 2.60 turns it on
+for a new local Ray, for ``ray start --head`` and ``ray.init("auto")`` when a token is found, but never
+for ``ray.init("HOST:PORT")`` nor ``ray start --address``"""
+
+
+def _token_loader() -> Any:
+    """Ray's token loader (``RAY_AUTH_TOKEN``, else the file at ``RAY_AUTH_TOKEN_PATH``, else
+    ``~/.ray/auth_token``); None in a Ray without token authentication."""
     try:
-        if address:
-            ray.init(address=address, **quiet)
-        else:
-            ray.init(num_cpus=os.cpu_count(), **quiet)
-    except ConnectionError as error:
-        raise UsageError(f"cannot join the Ray cluster at {address!r}: {error}") from None
+        from ray._raylet import AuthenticationTokenLoader
+    except ImportError:
+        return None
+    return AuthenticationTokenLoader.instance()
+
+
+def has_token() -> bool:
+    loader = _token_loader()
     try:
-        yield ray
+        return loader is not None and loader.has_token(ignore_auth_mode=True)
+    except Exception:  # an unreadable RAY_AUTH_TOKEN_PATH: ray.init says so
+        return False
+
+
+@contextmanager
+def token_auth_to_join(address: str | None) -> Iterator[None]:
+    """Joining ``HOST:PORT`` sends this machine's token, as ``ray.init("auto")`` does: with
+    ``RAY_AUTH_MODE`` unset and a token at hand, token authentication is on for the block (a cluster
+    without authentication ignores the token). An explicit ``RAY_AUTH_MODE`` is left as it is."""
+    if not is_host_port(address) or AUTH_MODE in os.environ or not has_token():
+        yield
+        return
+    from ray._raylet import Config
+
+    os.environ[AUTH_MODE] = "token"
+    Config.initialize("")  # Ray reads the mode from its config, refreshed from the environment
+    try:
+        yield
     finally:
-        ray.shutdown()
+        del os.environ[AUTH_MODE]
+        Config.initialize("")
+
+
+def is_host_port(address: str | None) -> bool:
+    return bool(address) and address != "auto" and "://" not in address and ":" in address
+
+
+def refuse_if_token_refused(address: str) -> None:
+    """A ``UsageError`` at once when the cluster at ``HOST:PORT`` refuses this machine's token (or its
+    lack of one): asked once, where ``ray.init`` would retry for 20 s and then say only "Failed to
+    connect". Nothing when it accepts, or cannot be asked (nothing answers there: ``ray.init`` says so)."""
+    if not is_host_port(address):
+        return
+    host, _, port = address.rpartition(":")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=5).close()
+        from ray._raylet import GcsClient
+        from ray.exceptions import AuthenticationError
+    except (OSError, ValueError, ImportError):
+        return
+    try:
+        GcsClient(address=address)  # asks the cluster's GCS for its id, the token checked
+    except AuthenticationError:
+        raise UsageError(token_refused(address)) from None
+    except Exception:
+        return
+
+
+def token_refused(address: str) -> str:
+    """What to do when the cluster at ``address`` refuses this machine's token, in one line."""
+    head_token = (
+        "the head machine's token (copy its ~/.ray/auth_token here, or set RAY_AUTH_TOKEN to what "
+        "`ray get-auth-token` prints there)"
+    )
+    mode = os.environ.get(AUTH_MODE, "")
+    if mode and mode.lower() != "token":
+        why = f"wants an authentication token and {AUTH_MODE}={mode} here sends none"
+        return f"the Ray cluster at {address} {why}: set {AUTH_MODE}=token and use {head_token}"
+    if not has_token():
+        why = "wants an authentication token and this machine has none"
+        return f"the Ray cluster at {address} {why}: use {head_token}"
+    return f"the Ray cluster at {address} refused this machine's authentication token: use {head_token}"
+
+
+def join_failure(address: str | None, error: ConnectionError) -> str:
+    """The one line for a ``ray.init`` that could not join ``address``."""
+    causes, cause = [], error
+    while cause is not None:
+        causes.append(str(cause))
+        cause = cause.__cause__ or cause.__context__
+    if any("InvalidAuthToken" in text or "AuthenticationError" in text for text in causes):
+        return token_refused(str(address))
+    return f"cannot join the Ray cluster at {address!r}: {error}"
 
 
 # ---------------------------------------------------------------- the wire format of stacked frames
@@ -222,9 +332,15 @@ class RemoteActor:
     batch, checking for the run's end; a collector that died is replaced and the call made again."""
 
     def __init__(
-        self, spawn: Callable[[int], Any], coordinator: Coordinator, done_steps: int, max_restarts: int
+        self,
+        spawn: Callable[[int], Any],
+        coordinator: Coordinator,
+        done_steps: int,
+        max_restarts: int,
+        still_held: Callable[[], None] = lambda: None,
     ):
         self.spawn, self.coordinator, self.max_restarts = spawn, coordinator, max_restarts
+        self.still_held = still_held  # raises NodeLost while a replacement waits for CPUs that are gone
         self.restarts = 0
         self.handle = spawn(0)
         self.steps = EnvironmentSteps(done_steps)
@@ -237,12 +353,17 @@ class RemoteActor:
         self.num_envs, self.obs_shape = info["num_envs"], tuple(info["obs_shape"])
         self.keeps_scores = info["keeps_scores"]
 
-    def wait(self, ref: Any) -> Any:
-        """The value of ``ref``, waiting for it while the run goes on."""
+    def wait(self, ref: Any, check: Callable[[], None] | None = None) -> Any:
+        """The value of ``ref``, waiting for it while the run goes on (and ``check()`` passes, asked
+        every ``CHECK_SECONDS``)."""
         import ray
 
+        polls = 0
         while not ray.wait([ref], timeout=POLL_SECONDS)[0]:
             self.coordinator.check()
+            polls += 1
+            if check is not None and polls % round(CHECK_SECONDS / POLL_SECONDS) == 0:
+                check()
         return ray.get(ref)
 
     def _call(self, method: str, *args: Any) -> Transition:
@@ -253,7 +374,7 @@ class RemoteActor:
             try:
                 if self.handle is None:  # a replacement for a collector that died
                     self.handle = self.spawn(self.restarts)
-                    self.started(self.wait(self.handle.describe.remote()))
+                    self.started(self.wait(self.handle.describe.remote(), self.still_held))
                 trajectory, scores, steps = self.wait(getattr(self.handle, method).remote(*args))
                 break
             except (RayActorError, WorkerCrashedError) as error:
@@ -318,6 +439,7 @@ def ray_fleet(agent: Agent, make_agent: Callable[[], Agent], env_id: str, runner
                 coordinator,
                 done_steps // runner.actors,
                 runner.max_actor_restarts,
+                functools.partial(check_not_lost, ray, runner),
             )
             for i in range(runner.actors)
         ]
@@ -354,6 +476,80 @@ def check_resources(ray: Any, runner: RayRunnerConfig) -> None:
         )
 
 
+def check_not_lost(ray: Any, runner: RayRunnerConfig) -> None:
+    """A :class:`~agentax.errors.NodeLost` once the cluster's live nodes no longer have the CPUs the
+    run's actors reserve: a node was lost, and a replacement collector would wait for it forever."""
+    cpus = ray.cluster_resources().get("CPU", 0)
+    wanted = runner.actors * runner.cpus_per_actor
+    if wanted > cpus:
+        raise NodeLost(
+            f"a Ray node was lost and with it the CPUs of the run's actors ({runner.actors} actors × "
+            f"{runner.cpus_per_actor:g} CPU, {cpus:g} CPUs left): join a node"
+        )
+
+
+RESUME_HINT_CODE = """import os, shlex, sys
+if sys.stdin.buffer.read() != b"done":
+    run = sys.argv[1]
+    checkpoints = os.path.join(run, "checkpoints")
+    if os.path.isdir(checkpoints) and os.listdir(checkpoints):
+        then = "continue from its last checkpoint with: agentax train --resume " + shlex.quote(run)
+    else:
+        then = "it had saved no checkpoint yet: start it again"
+    lost = "the Ray node of its learner was lost (or the process was killed)"
+    sys.stderr.write(f"agentax train: error: Ray ended the run in {run}: {lost}; {then}\\n")
+"""
+"""the watcher: reads until this process ends; without a "done" first, it says what to do"""
+
+
+@contextmanager
+def hint_if_ray_ends_this_process(run: Run | None) -> Iterator[None]:
+    """When the Ray node of this process is lost (its raylet or runtime env agent killed), Ray ends
+    the process itself, from its C++ core (``_Exit(1)`` once the object store is gone): no Python runs,
+    no exception to catch. A small watcher process outlives it and then says, in one line, what was
+    lost and how to continue; it ends quietly when the block ends any other way."""
+    if run is None:
+        yield
+        return
+    read_end, write_end = os.pipe()  # the write end stays here (not inherited), the watcher reads
+    watcher = os.posix_spawn(  # no fork of this multithreaded process (JAX, Ray)
+        sys.executable,
+        [sys.executable, "-I", "-S", "-c", RESUME_HINT_CODE, str(run.path)],
+        os.environ,
+        file_actions=[
+            (os.POSIX_SPAWN_DUP2, read_end, 0),
+            (os.POSIX_SPAWN_OPEN, 1, os.devnull, os.O_WRONLY, 0),
+        ],
+        setsid=True,  # Ctrl-C in the terminal is the run's, not the watcher's
+    )
+    os.close(read_end)
+    try:
+        yield
+    finally:
+        try:
+            os.write(write_end, b"done")
+        except OSError:  # the watcher is gone (killed): nothing to say it
+            pass
+        os.close(write_end)
+        end_quiet_watcher(watcher)
+
+
+def end_quiet_watcher(pid: int, seconds: float = 10.0) -> None:
+    """Reap the watcher, which ends once it has read "done"; killed if it has not after ``seconds``."""
+    deadline = time.monotonic() + seconds
+    while os.waitpid(pid, os.WNOHANG) == (0, 0):
+        if time.monotonic() > deadline:
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+            return
+        time.sleep(0.01)
+
+
+def has_checkpoint(run: Run | None) -> bool:
+    checkpoints = None if run is None else Path(run.path) / "checkpoints"
+    return checkpoints is not None and checkpoints.is_dir() and any(checkpoints.iterdir())
+
+
 def train(
     agent: Agent,
     env_id: str,
@@ -367,6 +563,13 @@ def train(
     """Train ``agent`` on ``env_id`` with ``runner.actors`` Ray actors and a learner in this process.
     ``make_agent()`` builds the same agent in each actor process (a picklable callable, such as
     ``functools.partial(ppo.make_agent, spec, cfg)``)."""
-    with ray_session(runner.ray_address) as ray:
+    with hint_if_ray_ends_this_process(run), ray_session(runner.ray_address) as ray:
         fleet = ray_fleet(agent, make_agent, env_id, runner, ray)
-        return train_parallel(agent, env_id, runner, run, resume=resume, progress=progress, fleet=fleet)
+        try:
+            return train_parallel(agent, env_id, runner, run, resume=resume, progress=progress, fleet=fleet)
+        except NodeLost as lost:
+            if has_checkpoint(run):
+                lost.run_dir = str(run.path)  # the CLI adds: continue with agentax train --resume DIR
+            elif run is not None:
+                lost.args = (f"{lost}; the run had saved no checkpoint yet: start it again",)
+            raise
