@@ -335,7 +335,9 @@ def test_a_lost_node_whose_cpus_the_run_needs_ends_it_with_the_resume_hint(clust
     from agentax.errors import NodeLost
 
     node = cluster.add_node(num_cpus=1, object_store_memory=150 * 2**20)
-    cfg = dataclasses.replace(ppo.PRESETS["cartpole-fast"].config, num_envs=6, total_steps=1_000_000)
+    cfg = dataclasses.replace(
+        presets.preset("ppo", "cartpole-fast").config, num_envs=6, total_steps=1_000_000
+    )
     agent, remake = make(ppo, cfg)
     run = Run.create(tmp_path, CONFIG)
     removed: list[float] = []
@@ -367,7 +369,7 @@ def test_a_lost_node_whose_cpus_the_run_needs_ends_it_with_the_resume_hint(clust
 def test_a_join_that_ray_gave_up_for_a_refused_token_says_what_to_do(monkeypatch):
     """``ray.init``'s "Failed to connect" after its retries, its cause naming InvalidAuthToken (the
     path where the token could not be asked about first, e.g. ``auto``)."""
-    from agentax.train.ray import join_failure
+    from agentax.runners.ray import join_failure
 
     monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
     try:
@@ -570,8 +572,8 @@ def test_a_lost_local_ray_node_ends_the_cli_run_with_one_line_saying_what_to_do(
     assert run.returncode == 1, stderr
     assert stderr.strip().splitlines()[-1] == (
         f"agentax train: error: Ray ended the run in {out}: the Ray node of its learner was lost (or the "
-        "process was killed); it had saved no checkpoint yet: start it again"  # one every 30 s
-    )
+        f"process was killed); continue from its last checkpoint with: agentax train --resume {out}"
+    )  # the first checkpoint comes with the first row
     assert_none_left(own_ray_tmpdir)
 
 
@@ -580,7 +582,7 @@ def test_the_watcher_says_how_to_resume_a_run_with_a_checkpoint_and_is_quiet_aft
     code = (
         "import os, sys\n"
         "from agentax.runs import Run\n"
-        "from agentax.train.ray import hint_if_ray_ends_this_process\n"
+        "from agentax.runners.ray import hint_if_ray_ends_this_process\n"
         "with hint_if_ray_ends_this_process(Run.open(sys.argv[1])):\n"
         "    if sys.argv[2] == 'exit':\n"
         "        os._exit(1)  # as Ray's _Exit(1)\n"
