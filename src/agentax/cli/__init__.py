@@ -64,6 +64,10 @@ def usage() -> str:
     return "\n".join(lines)
 
 
+EXIT_CODES: dict[type, int] = {UsageError: 2, TrainingDiverged: 3, StorageFull: 4, NodeLost: 5}
+"""The exit code of each error a user can cause and fix (see the module docstring)."""
+
+
 def resume_hint(run_dir: str | None) -> str:
     """``; continue with: agentax train --resume RUN_DIR``, or nothing without a run folder."""
     if run_dir is None:
@@ -113,18 +117,11 @@ def _run(name: str, command: Any, args: list[str], signals: list[int]) -> int:
     """``command.main(args)``, its errors as one line and an exit code (see the module docstring)."""
     try:
         return command.main(args) or 0
-    except UsageError as error:
-        print(f"agentax {name}: error: {error}", file=sys.stderr)
-        return 2
-    except TrainingDiverged as error:
-        print(f"agentax {name}: error: {error}", file=sys.stderr)
-        return 3
-    except StorageFull as error:
-        print(f"agentax {name}: error: {error}", file=sys.stderr)
-        return 4
-    except NodeLost as error:
-        print(f"agentax {name}: error: {error}{resume_hint(error.run_dir)}", file=sys.stderr)
-        return 5
+    except tuple(EXIT_CODES) as error:
+        print(
+            f"agentax {name}: error: {error}{resume_hint(getattr(error, 'run_dir', None))}", file=sys.stderr
+        )
+        return next(code for kind, code in EXIT_CODES.items() if isinstance(error, kind))
     except TrainingInterrupted as interrupt:  # a KeyboardInterrupt, so caught before that one
         stopped = "terminated" if signals else "interrupted"
         print(f"agentax {name}: {stopped}{resume_hint(interrupt.run_dir)}", file=sys.stderr)
