@@ -229,3 +229,33 @@ def test_freezing_seeds_is_a_compiled_runner_option_refused_elsewhere(tmp_path):
     with pytest.raises(UsageError, match="a number, 'none' or 'auto'"):
         agentax.train("dqn", out=tmp_path / "x", total_steps=64, progress=False, freeze_at_return="soon")
     assert not (tmp_path / "h").exists() and not (tmp_path / "p").exists()
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("prioritized", [False, True])
+def test_the_host_learner_reduces_whatever_scalar_metrics_an_agent_names(prioritized):
+    """No hidden contract on metric names: an off-policy agent whose ``learn`` reports ``td_loss``
+    and ``spread`` (not DQN's ``loss``/``q_mean``) gets those columns, uniform or prioritized;
+    per-sample arrays (the priorities) are not logged."""
+    from agentax.agents.protocol import EnvSpec
+    from agentax.envs import make_host_env
+    from agentax.runners import host
+
+    cfg = dqn.DQNConfig(hidden=(16,), num_envs=1, learning_starts=64, batch_size=8, prioritized=prioritized)
+    probe = make_host_env("CartPole-v1", 1)
+    agent = dqn.make_agent(EnvSpec.of(probe), cfg)
+    probe.close()
+
+    def renamed(state, sample, key):
+        state, metrics = agent.learn(state, sample, key)
+        return state, {
+            "td_loss": metrics["loss"],
+            "spread": jnp.std(metrics["priority"]),
+            "priority": metrics["priority"],
+        }
+
+    custom = dataclasses.replace(agent, learn=renamed, total_steps=512)
+    result = host.train(custom, "CartPole-v1", host.HostRunnerConfig(log_every_steps=256, eval_episodes=1))
+    last = result.rows[-1]
+    assert {"td_loss", "spread"} <= set(last) and "priority" not in last and "loss" not in last
+    assert np.isfinite(last["td_loss"]) and last["td_loss"] > 0 and last["spread"] >= 0

@@ -47,6 +47,7 @@ from agentax.runners.driver import (
     TrajectoryObserver,
     first_time_step,
 )
+from agentax.runners.rollout import scalars
 from agentax.runners.session import Session, TrainResult, checkpoint_target
 from agentax.runs import CHECKPOINT_PREFIX, REPLAY_PREFIX, Run, checkpoints, load_checkpoint, replay_beside
 
@@ -239,7 +240,9 @@ def replay_for(agent: Agent, obs_shape: tuple[int, ...], seed: int) -> Any:
 class OffPolicyLearner:
     """Learning phases on a replay buffer: ``gradient_steps`` learning steps, one compiled call for
     uniform replay (a ``lax.scan`` over batches drawn ahead by ``as_dataset``), step by step for
-    prioritized replay (each batch depends on the priorities the last one set)."""
+    prioritized replay (each batch depends on the priorities the last one set). A phase's metrics
+    are the means of every scalar metric ``learn`` returns (whatever the agent names them); the
+    priorities come from ``metrics[PRIORITY]``."""
 
     def __init__(self, agent: Agent, replay: Any, loop: Loop = jax.lax.scan):
         self.experience: OffPolicy = agent.experience
@@ -249,7 +252,7 @@ class OffPolicyLearner:
         def learn_many(state, samples, key):
             def one(state, sample_and_key):
                 state, metrics = agent.learn(state, *sample_and_key)
-                return state, {"loss": metrics["loss"], "q_mean": metrics.get("q_mean", metrics["loss"])}
+                return state, scalars(metrics)
 
             keys = jax.random.split(key, self.experience.gradient_steps)
             state, metrics = loop(one, state, (samples, keys))
@@ -265,15 +268,14 @@ class OffPolicyLearner:
                 self.dataset = self.replay.as_dataset(experience.batch_size, experience.gradient_steps)
             return self.learn_many(state, next(self.dataset), key)
         beta = float(experience.importance_exponent(env_steps))
-        losses, q_means = [], []
+        steps = []
         for step_key in jax.random.split(key, experience.gradient_steps):
             sample = self.replay.sample(experience.batch_size, beta)
             state, metrics = self.learn(state, sample, step_key)
             metrics = jax.device_get(metrics)
             self.replay.update_priorities(sample.indices, metrics[PRIORITY])
-            losses.append(metrics["loss"])
-            q_means.append(metrics.get("q_mean", metrics["loss"]))
-        return state, {"loss": np.mean(losses), "q_mean": np.mean(q_means)}
+            steps.append({name: value for name, value in metrics.items() if np.ndim(value) == 0})
+        return state, {name: np.mean([step[name] for step in steps]) for name in steps[0]}
 
 
 def learning_started(experience: OffPolicy, actor_steps: int, actor_episodes: int) -> bool:
