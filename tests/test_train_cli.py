@@ -139,6 +139,18 @@ def test_host_loop_trains_pendulum_and_loads(tmp_path):
     assert float(np.mean(returns)) == pytest.approx(evaluation["mean_return"], rel=1e-6)
 
 
+def resume_to_the_end(out, env: dict[str, str]) -> None:
+    """``agentax train --resume OUT`` in a fresh process, which must finish the run."""
+    done = subprocess.run(
+        [sys.executable, "-m", "agentax.cli", "train", "--resume", str(out), "--no-progress"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=150,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_killed_run_resumes_to_the_full_number_of_steps(tmp_path):
@@ -167,14 +179,7 @@ def test_killed_run_resumes_to_the_full_number_of_steps(tmp_path):
     finally:
         process.wait()
     assert not (out / "eval.json").exists(), "the run finished before it could be killed"
-    done = subprocess.run(
-        [sys.executable, "-m", "agentax.cli", "train", "--resume", str(out), "--no-progress"],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=150,
-    )
-    assert done.returncode == 0, done.stderr[-2000:]
+    resume_to_the_end(out, env)
     rows = read_metrics(out)
     assert [r["env_steps"] for r in rows] == [float(total * k // 6) for k in range(1, 7)]
     assert json.loads((out / "eval.json").read_text())["episodes"] == 20
@@ -202,12 +207,5 @@ def test_sigterm_checkpoints_says_how_to_continue_and_exits_143(tmp_path):
     assert process.returncode == 143, err[-2000:]
     assert f"agentax train: terminated; continue with: agentax train --resume {out}" in err
     assert not (out / "eval.json").exists(), "the run finished before SIGTERM reached it"
-    done = subprocess.run(
-        [sys.executable, "-m", "agentax.cli", "train", "--resume", str(out), "--no-progress"],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=150,
-    )
-    assert done.returncode == 0, done.stderr[-2000:]
+    resume_to_the_end(out, env)
     assert read_metrics(out)[-1]["env_steps"] == total
