@@ -18,10 +18,13 @@ before the final evaluation. The targets (the issue's "Measured" section): paral
 max(collect alone, learn alone), and ≥ 1.6 × faster than sequential on a workload where collecting
 and learning cost about the same. That workload is named in ``DQN_WORKLOAD``.
 
-**Overhead.** The compiled runner with its defaults and a run folder (``Run.create``: metrics.csv,
-TensorBoard, a checkpoint and an evaluation every chunk, eval.json, curve.png) against the bare
-program (PureJaxRL style: one jitted ``lax.scan`` of ``update`` over every update, one call) on
-PureJaxRL's PPO CartPole-v1 settings; the host runner with a run folder against ``run=None``.
+**Overhead.** Each runner with its defaults and a run folder (``Run.create``: metrics.csv,
+TensorBoard, checkpoints, eval.json, curve.png) against a bare program of the same work, on
+PureJaxRL's PPO CartPole-v1 settings (``presets.preset('ppo', 'default')``). Compiled: the same updates as
+jitted ``lax.scan`` calls between the runner's evaluation points and the same in-program greedy
+evaluations (PureJaxRL style, one call per segment, nothing else); host: the same actor and jitted
+``learn`` calls in a plain loop (no rows, no evaluation, no files). Both compare the training loop
+(``TrainResult.train_seconds``, against the bare loop); the notes give the whole calls too.
 """
 
 from __future__ import annotations
@@ -29,6 +32,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -42,7 +47,8 @@ QUICK = os.environ.get("AGENTAX_BENCH_QUICK", "") not in ("", "0")
 DQN_STEPS = 5_120 if QUICK else 15_360
 PPO_STEPS = 7_680 if QUICK else 20_480
 HOST_OVERHEAD_STEPS = 10_240 if QUICK else 30_720
-OVERHEAD_REPEATS = 1 if QUICK else 2  # alternating without/with; the fastest of each is kept
+OVERHEAD_REPEATS = int(os.environ.get("AGENTAX_BENCH_REPEATS", 1 if QUICK else 3))
+"""alternating bare/runner runs of each overhead pair; the fastest of each is kept"""
 DQN_WORKLOAD = dict(
     num_envs=4,
     train_frequency=64,  # 256 env steps between learning phases (RL-Zoo's train_freq 256)
@@ -322,40 +328,78 @@ def collection_breakdown(agent) -> dict:
 
 
 def compiled_overhead() -> dict:
-    """PPO default preset, 500k steps: the runner with defaults and a run folder vs the bare program."""
+    """PPO default preset, 500k steps: the runner with defaults and a run folder vs a bare program of
+    the same work (the same updates and the same in-program evaluations, in the fewest calls)."""
     import jax
 
     from agentax.agents import ppo, presets
     from agentax.api import compiled_program
     from agentax.envs import make_jax
+    from agentax.envs.core import episode_returns
     from agentax.runners import compiled
     from agentax.runners.rollout import SEED_AXIS
     from agentax.runs import Run
 
     env, preset = make_jax(ENV_ID), presets.preset("ppo", "default")
     algorithm = compiled_program(ppo, env, preset.config)
-    seeds = np.arange(1, dtype=np.int32)
+    runner = compiled.RunnerConfig(updates_per_chunk=preset.updates_per_chunk)
+    seeds = compiled.seeds_of(runner)
+    total, per_chunk = algorithm.num_updates, runner.updates_per_chunk
+    every = compiled.eval_every_chunks(runner, total)
+    chunks = -(-total // per_chunk)
+    points = sorted({min(c * per_chunk, total) for c in range(every, chunks + 1, every)} | {total})
+    """the updates after which the runner evaluates (every ``every`` chunks, and after the last)"""
 
-    def bare(state):
-        def all_updates(state):
-            return jax.lax.scan(lambda s, _: algorithm.update(s), state, None, algorithm.num_updates)
-
-        return jax.vmap(all_updates, axis_name=SEED_AXIS)(state)
-
-    figures = {"bare": [], "runner": [], "runner_whole": [], "bare_compile": 0.0, "runner_compile": 0.0}
-    figures["runner_no_folder"] = float("nan")
     init = jax.jit(compiled.init_from_seeds(algorithm))
+
+    def updates(length: int):
+        def run(state):
+            def scan(state):
+                return jax.lax.scan(lambda s, _: algorithm.update(s), state, None, length)[0]
+
+            return jax.vmap(scan, axis_name=SEED_AXIS)(state)
+
+        program = jax.jit(run, donate_argnums=0).lower(init(seeds))
+        return program.compile(compiled.CHUNK_COMPILER_OPTIONS)
+
+    def evaluate(state, evaluation):
+        def one(state, seed):
+            key = jax.random.fold_in(jax.random.key(seed), compiled.EVAL_KEY_OFFSET + evaluation)
+            return episode_returns(env, algorithm.greedy_policy(state), key, runner.eval_episodes)
+
+        return jax.vmap(one)(state, seeds)
+
     start = time.perf_counter()
-    program = jax.jit(bare).lower(init(seeds)).compile(compiled.CHUNK_COMPILER_OPTIONS)
-    figures["bare_compile"] = time.perf_counter() - start
-    for _ in range(OVERHEAD_REPEATS):
+    segments = {
+        length: updates(length) for length in {b - a for a, b in zip([0, *points[:-1]], points, strict=True)}
+    }
+    evaluation = jax.jit(evaluate).lower(init(seeds), 0).compile(compiled.CHUNK_COMPILER_OPTIONS)
+    every_update = updates(total)
+    bare_compile = time.perf_counter() - start
+
+    def bare() -> float:
+        """PureJaxRL's loop with the runner's evaluations: a scan to each evaluation point, then it."""
+        state = jax.block_until_ready(init(seeds))
+        start, done = time.perf_counter(), 0
+        for n, point in enumerate(points):
+            state, done = segments[point - done](state), point
+            returns, _ = evaluation(state, n)
+        jax.block_until_ready(returns)
+        return time.perf_counter() - start
+
+    def bare_updates() -> float:
         state = jax.block_until_ready(init(seeds))
         start = time.perf_counter()
-        jax.block_until_ready(program(state))
-        figures["bare"].append(time.perf_counter() - start)
+        jax.block_until_ready(every_update(state))
+        return time.perf_counter() - start
+
+    figures = {"bare": [], "bare_updates": [], "runner": [], "runner_whole": [], "runner_no_folder": []}
+    bare()  # the first calls of each program
+    for _ in range(OVERHEAD_REPEATS):
+        figures["bare_updates"].append(bare_updates())
+        figures["bare"].append(bare())
         with tempfile.TemporaryDirectory() as folder:
             run = Run.create(Path(folder) / "run", {"algo": "ppo", "env": ENV_ID, "preset": "default"})
-            runner = compiled.RunnerConfig(updates_per_chunk=preset.updates_per_chunk)
             start = time.perf_counter()
             result = compiled.train(algorithm, env, runner, run=run)
             whole = time.perf_counter() - start
@@ -363,33 +407,79 @@ def compiled_overhead() -> dict:
             figures["runner_whole"].append(whole - result.compile_seconds)
             figures["runner_compile"] = result.compile_seconds
             figures["rows"] = len(result.rows)
-    runner = compiled.RunnerConfig(updates_per_chunk=preset.updates_per_chunk)
-    figures["runner_no_folder"] = compiled.train(algorithm, env, runner).train_seconds  # chunks + evals
-    figures["num_updates"] = algorithm.num_updates
-    figures["updates_per_chunk"] = preset.updates_per_chunk
-    figures["env_steps"] = algorithm.num_updates * algorithm.steps_per_update
+        figures["runner_no_folder"].append(compiled.train(algorithm, env, runner).train_seconds)
+    figures["bare_compile"] = bare_compile
+    figures["evaluations"] = len(points)
+    figures["num_updates"] = total
+    figures["updates_per_chunk"] = per_chunk
+    figures["env_steps"] = total * algorithm.steps_per_update
     return figures
 
 
+def compiled_overhead_as_trained() -> dict:
+    """:func:`compiled_overhead` in a process of its own, as ``agentax train`` runs the compiled
+    runner: jax's CPU client made on one CPU (``agentax._xla``). This process gave XLA every CPU for
+    the parallel runner, and there the long scans of the bare program ran ~15 % slower than the
+    runner's chunks (measured: 4.55 s against 4.05 s; on one CPU both ~3.7 s), which would flatter
+    the runner; the vmapped program is also the one the one-CPU client guards against a hang."""
+    done = subprocess.run(
+        [sys.executable, __file__, "--compiled-overhead"],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=600,
+    )
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
 def host_overhead() -> dict:
-    """PPO default preset on Gymnasium's CartPole-v1: host.train with a run folder vs ``run=None``."""
+    """PPO default preset on Gymnasium's CartPole-v1: host.train with a run folder vs a plain loop of
+    the same actor and learning calls."""
+    import jax
+
+    from agentax.envs import make_host_env
     from agentax.runners import host
+    from agentax.runners.session import agent_keys
     from agentax.runs import Run
 
     agent = ppo_agent(HOST_OVERHEAD_STEPS, "default")
-    figures = {"bare": [], "run": []}
-    host.train(dataclasses.replace(agent, total_steps=2_048), ENV_ID, host.HostRunnerConfig())  # compile
-    for _ in range(OVERHEAD_REPEATS):
+    runner = host.HostRunnerConfig()
+    learn = jax.jit(agent.learn)
+
+    def bare() -> float:
+        """The host runner's work and nothing else: rollouts and learning steps, keyed as it keys them."""
+        init_key, learner_key, actors_key = agent_keys(runner.seed)
+        env = make_host_env(ENV_ID, agent.experience.num_envs, training=True)
+        actor = host.Actor(
+            agent, env, host.actor_seed(runner.seed, 0, 0), host.fold_actor_key(actors_key, 0, 0)
+        )
+        state = agent.init(init_key)
         start = time.perf_counter()
-        result = host.train(agent, ENV_ID, host.HostRunnerConfig())
-        figures["bare"].append(time.perf_counter() - start)
+        for _ in range(host.num_updates(agent)):
+            learner_key, learn_key = jax.random.split(learner_key)
+            state, _ = learn(state, actor.rollout(state, agent.experience.num_steps), learn_key)
+        jax.block_until_ready(state)
+        seconds = time.perf_counter() - start
+        actor.close()
+        return seconds
+
+    figures = {"bare": [], "run": [], "run_whole": [], "no_folder_whole": []}
+    host.train(dataclasses.replace(agent, total_steps=2_048), ENV_ID, runner)  # compile
+    bare()
+    for _ in range(OVERHEAD_REPEATS):
+        figures["bare"].append(bare())
+        start = time.perf_counter()
+        host.train(agent, ENV_ID, runner)
+        figures["no_folder_whole"].append(time.perf_counter() - start)
         with tempfile.TemporaryDirectory() as folder:
             run = Run.create(Path(folder) / "run", {"algo": "ppo", "env": ENV_ID, "preset": "default"})
             start = time.perf_counter()
-            host.train(agent, ENV_ID, host.HostRunnerConfig(), run=run)
-            figures["run"].append(time.perf_counter() - start)
+            result = host.train(agent, ENV_ID, runner, run=run)
+            figures["run_whole"].append(time.perf_counter() - start)
+            figures["run"].append(result.train_seconds)
     figures["env_steps"] = result.env_steps
     figures["updates"] = result.updates
+    figures["rows"] = len(result.rows)
     return figures
 
 
@@ -414,7 +504,7 @@ def run() -> dict:
     del dqn, ppo
 
     host_figures = host_overhead()
-    compiled_figures = compiled_overhead()
+    compiled_figures = compiled_overhead_as_trained()
 
     headers = [
         "workload",
@@ -428,8 +518,10 @@ def run() -> dict:
         "over the bare run (target ≤ +5 %)",
     ]
     bare, runner = min(compiled_figures["bare"]), min(compiled_figures["runner"])
-    runner_whole = min(compiled_figures["runner_whole"])
+    bare_updates, runner_whole = min(compiled_figures["bare_updates"]), min(compiled_figures["runner_whole"])
+    runner_no_folder = min(compiled_figures["runner_no_folder"])
     host_bare, host_run = min(host_figures["bare"]), min(host_figures["run"])
+    host_whole, host_no_folder = min(host_figures["run_whole"]), min(host_figures["no_folder_whole"])
     compiled_label, host_label = (
         "PPO default, compiled (JAX CartPole)",
         "PPO default, host (Gymnasium CartPole)",
@@ -437,21 +529,15 @@ def run() -> dict:
     c_steps, c_updates = compiled_figures["env_steps"], compiled_figures["num_updates"]
     h_steps, h_updates = host_figures["env_steps"], host_figures["updates"]
     overhead_rows = [
-        [
-            compiled_label,
-            "bare program (one scan)",
-            c_steps,
-            c_updates,
-            round(bare, 2),
-            None,
-            None,
-            None,
-            None,
-        ],
+        [compiled_label, "bare program: updates, one scan (no evaluations)", c_steps, c_updates]
+        + [round(bare_updates, 2), None, None, None, None],
+        [compiled_label, f"bare program: the same updates and {compiled_figures['evaluations']} evaluations"]
+        + [c_steps, c_updates, round(bare, 2), None, None, None, None],
         [compiled_label, "compiled runner, defaults + run folder", c_steps, c_updates, round(runner, 2)]
         + [None, None, None, f"{runner / bare - 1:+.1%}"],
-        [host_label, "host.train, run=None", h_steps, h_updates, round(host_bare, 2), None, None, None, None],
-        [host_label, "host.train with a run folder", h_steps, h_updates, round(host_run, 2)]
+        [host_label, "bare loop: the same rollouts and learn calls", h_steps, h_updates, round(host_bare, 2)]
+        + [None, None, None, None],
+        [host_label, "host runner, defaults + run folder", h_steps, h_updates, round(host_run, 2)]
         + [None, None, None, f"{host_run / host_bare - 1:+.1%}"],
     ]
     for row in dqn_rows + ppo_rows:
@@ -502,28 +588,37 @@ def run() -> dict:
         "also run a learning phase's larger matrix products on both cores, taking the actor's core. "
         "On a busy machine (other processes on the 2 cores) every figure moves; CPU / wall shows how "
         "much of the second core a run got.\n\n"
-        "**Overhead** (last 4 rows). Compiled: PureJaxRL's PPO settings "
-        "(`presets.preset('ppo', 'default')`: "
-        f"4 envs × 128 steps, 4 epochs × 4 minibatches, {compiled_figures['env_steps']:,} env steps, "
-        f"{compiled_figures['num_updates']} updates) — the bare program, one jitted `lax.scan` of "
-        "`update` over every update vmapped over one seed, compiled with the runner's options "
-        f"(compile {compiled_figures['bare_compile']:.1f} s apart), against `compiled.train` with its "
-        f"defaults (a chunk of {compiled_figures['updates_per_chunk']} updates, "
-        "about ten evaluations of 20 episodes a run, a checkpoint every 30 s and at the end) "
-        "into a run folder "
-        f"({compiled_figures.get('rows', 0)} rows, compile {compiled_figures['runner_compile']:.1f} s "
-        f"apart): the runner's training loop takes {runner / bare - 1:+.1%} over the bare program, "
+        f"**Overhead** (last 5 rows): each runner's training loop (`TrainResult.train_seconds`: from its "
+        "first iteration to its last row and checkpoint) against a bare program of the same work. "
+        "Compiled: PureJaxRL's PPO settings (`presets.preset('ppo', 'default')`: 4 envs × 128 steps, "
+        f"4 epochs × 4 minibatches, {compiled_figures['env_steps']:,} env steps, "
+        f"{compiled_figures['num_updates']} updates); the bare program is PureJaxRL's loop doing what "
+        "the runner does: jitted `lax.scan`s "
+        f"of `update` up to each of the runner's {compiled_figures['evaluations']} evaluation points, each "
+        "followed by the same in-program evaluation (20 greedy episodes, the runner's keys), compiled "
+        f"with the runner's options ({compiled_figures['bare_compile']:.1f} s apart); both measured in a "
+        "process of their own, as `agentax train` runs the compiled runner (jax's CPU client on one "
+        "CPU; in this process, whose client has every CPU for the parallel runner, the bare program's "
+        "long scans ran ~15 % slower than the runner's chunks). `compiled.train` "
+        f"with its defaults (a chunk of {compiled_figures['updates_per_chunk']} updates, a row per chunk "
+        f"— {compiled_figures.get('rows', 0)} rows —, a checkpoint every 30 s and at the end) into a run "
+        f"folder takes {runner / bare - 1:+.1%} over it (target ≤ +5 %; {runner / bare_updates - 1:+.1%} "
+        f"over the updates alone in one scan, which skips the evaluations); "
         f"{runner_whole / bare - 1:+.1%} with its start (init) and end (final evaluation, eval.json, "
-        f"curve.png) (target ≤ +5 %). The same runner without a run folder (chunks and "
-        f"evaluations, no checkpoints or files) took {compiled_figures['runner_no_folder']:.2f} s "
-        f"({compiled_figures['runner_no_folder'] / bare - 1:+.1%}): the rest is checkpoints and rows. "
+        f"curve.png), compile ({compiled_figures['runner_compile']:.1f} s) apart; without a run folder "
+        f"the loop took {runner_no_folder:.2f} s ({runner_no_folder / bare - 1:+.1%}). The runner "
+        "dispatches chunk k + 1 before it writes chunk k's row (the row's episode counters copied out "
+        "first; not where chunk k's state is checkpointed or may stop the run), so its Python — rows, "
+        "TensorBoard, the dispatch itself — runs while the next chunk computes. "
         f"Host: the same PPO settings for {host_figures['env_steps']:,} env steps on Gymnasium's "
-        "CartPole-v1, `host.train` with defaults (a row every 2,048 env steps, a checkpoint every 30 s "
-        "and at the end, final evaluation of 10 episodes) into a run folder (metrics.csv, TensorBoard, "
-        f"eval.json, curve.png) against `run=None`: {host_run / host_bare - 1:+.1%} (target ≤ +5 %), "
-        f"{host_run - host_bare:.2f} s more, mostly fixed costs (the first TensorBoard writer, the "
-        "checkpoint at the end, curve.png) that a longer run spreads thinner; whole calls, the final "
-        "evaluation in both."
+        "CartPole-v1; the bare loop makes the runner's rollouts and jitted `learn` calls with its keys "
+        "and nothing else; `host.train` with defaults (a row every 2,048 env steps — "
+        f"{host_figures['rows']} rows —, a checkpoint every 30 s and at the end) into a run folder: "
+        f"{host_run / host_bare - 1:+.1%} (target ≤ +5 %). Whole calls, the final evaluation "
+        f"(10 episodes), eval.json and curve.png included: {host_whole:.2f} s into a run folder, "
+        f"{host_no_folder:.2f} s with `run=None`. The first run folder of a process also pays "
+        "matplotlib's import for curve.png (0.35 s, measured apart) and its first TensorBoard writer "
+        "(~20 ms), which the fastest-of figures leave out."
         + (f" Fastest of {OVERHEAD_REPEATS} alternating runs each." if OVERHEAD_REPEATS > 1 else "")
     )
     if QUICK:
@@ -541,4 +636,10 @@ def run() -> dict:
 
 
 if __name__ == "__main__":
-    print(json.dumps(run(), indent=2))
+    if sys.argv[1:] == ["--compiled-overhead"]:
+        from agentax import _xla
+
+        _xla.enable_compilation_cache()
+        print(json.dumps(compiled_overhead()))
+    else:
+        print(json.dumps(run(), indent=2))

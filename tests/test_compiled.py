@@ -198,6 +198,29 @@ def test_interrupted_run_resumes_to_the_same_end_and_a_torn_checkpoint_is_a_clea
     assert (tmp_path / "cut" / "eval.json").exists() and (tmp_path / "cut" / "curve.png").exists()
 
 
+@pytest.mark.timeout(180)
+def test_looking_ahead_a_chunk_changes_no_number(tmp_path):
+    """The runner dispatches chunk k + 1 before writing chunk k's row, except where chunk k's state
+    is needed (a checkpoint due, a stop-at-return check). Checkpointing every chunk (never ahead)
+    and never (always ahead but at the end) give the same rows, state and evaluation."""
+    every_chunk = RunnerConfig(
+        seed=1, num_seeds=2, updates_per_chunk=2, eval_episodes=3, checkpoint_every_chunks=1
+    )
+    run = Run.create(tmp_path / "every", {"algo": "ppo", "env": ENV.id})
+    never_ahead = _train(every_chunk, run)
+    assert [p.name for p in checkpoints(tmp_path / "every")] == [f"ckpt-{n}.msgpack" for n in (8, 10, 12)]
+    ahead = _train(dataclasses.replace(every_chunk, checkpoint_every_chunks=0))  # no run folder
+    timing = ("steps_per_second", "wall_seconds")
+    assert [{k: v for k, v in r.items() if k not in timing} for r in ahead.rows] == [
+        {k: v for k, v in r.items() if k not in timing} for r in never_ahead.rows
+    ]
+    for got, want in zip(_params(ahead, 1), _params(never_ahead, 1), strict=True):
+        np.testing.assert_array_equal(got, want)
+    assert ahead.eval["per_seed_mean"] == pytest.approx(
+        [s["mean_return"] for s in never_ahead.eval["per_seed"]]
+    )
+
+
 def test_runner_config_rejects_zero_seeds():
     with pytest.raises(UsageError, match="seeds"):
         RunnerConfig(num_seeds=0)

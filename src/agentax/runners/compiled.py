@@ -34,7 +34,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -98,6 +98,16 @@ class RunnerConfig:
 
 
 AUTO_EVALUATIONS = 10
+
+
+class Chunk(NamedTuple):
+    """One call of the chunk program: ``num_active`` updates (0: only the evaluation), its 1-based
+    ``number`` in the run, whether it ends with an evaluation, and that evaluation's index (its keys)."""
+
+    num_active: int
+    number: int
+    do_eval: bool
+    evaluation: int
 
 
 def eval_every_chunks(runner: RunnerConfig, num_updates: int) -> int:
@@ -279,13 +289,24 @@ def train(
     compiled = chunk_program.lower(jax.tree.leaves(state), 0, True, seeds, 0).compile(CHUNK_COMPILER_OPTIONS)
     compile_seconds = time.perf_counter() - compile_start
 
-    def call(state, num_active, do_eval, evaluation):
+    def call(state, chunk: Chunk):  # dispatched: nothing waits for it
         leaves, metrics, returns, lengths = compiled(
-            jax.tree.leaves(state), num_active, do_eval, seeds, evaluation
+            jax.tree.leaves(state), chunk.num_active, chunk.do_eval, seeds, chunk.evaluation
         )
         return jax.tree.unflatten(state_tree, leaves), metrics, returns, lengths
 
     updates, evaluations = int(meta["updates"]), int(meta["evaluations"])
+    eval_every = eval_every_chunks(runner, algorithm.num_updates)
+
+    def chunk_after(updates: int, chunks: int, evaluations: int) -> Chunk | None:
+        """The chunk after ``updates`` updates, ``chunks`` of them in this call (None: no more)."""
+        if updates >= algorithm.num_updates or (max_chunks is not None and chunks >= max_chunks):
+            return None
+        num_active = min(runner.updates_per_chunk, algorithm.num_updates - updates)
+        number = updates // runner.updates_per_chunk + 1
+        last = updates + num_active >= algorithm.num_updates
+        return Chunk(num_active, number, last or number % eval_every == 0, evaluations)
+
     stats = jax.device_get(state.episodes)
     env_steps = float(np.mean(stats.env_steps))
     logger = RunLogger(
@@ -298,25 +319,35 @@ def train(
     )
     solved_env_steps, solved_seconds = meta.get("solved_env_steps"), meta.get("solved_seconds")
     chunks_this_call = 0
-    eval_every = eval_every_chunks(runner, algorithm.num_updates)
+    every = runner.checkpoint_every_chunks
     with logger:
-        while updates < algorithm.num_updates and solved_env_steps is None:
-            if max_chunks is not None and chunks_this_call >= max_chunks:
-                break
-            num_active = min(runner.updates_per_chunk, algorithm.num_updates - updates)
-            chunk_number = updates // runner.updates_per_chunk + 1
-            last = updates + num_active >= algorithm.num_updates
-            do_eval = last or chunk_number % eval_every == 0
-            chunk_start = time.perf_counter()
-            state, metrics, eval_returns, _ = call(state, num_active, do_eval, evaluations)
-            new_stats, metrics, eval_returns = jax.device_get((state.episodes, metrics, eval_returns))
-            seconds = time.perf_counter() - chunk_start
-            updates += num_active
-            evaluations += int(do_eval)
+        chunk = chunk_after(updates, 0, evaluations) if solved_env_steps is None else None
+        in_flight = call(state, chunk) if chunk is not None else None
+        row_time = time.perf_counter()
+        while chunk is not None:
+            state, metrics, eval_returns, _ = in_flight
+            updates += chunk.num_active
+            evaluations += int(chunk.do_eval)
             chunks_this_call += 1
+            following = chunk_after(updates, chunks_this_call, evaluations)
+            checkpoint = following is None or bool(every and chunk.number % every == 0)
+            # Look ahead: chunk k + 1 runs while chunk k's row is written, unless chunk k's state is
+            # still needed (a checkpoint, a stop at this evaluation): the next chunk takes its
+            # buffers (donated). The row's episode counters are copied out first.
+            ahead = following is not None and not (
+                checkpoint or logger.checkpoint_due() or (chunk.do_eval and runner.stop_at_return is not None)
+            )
+            episodes = state.episodes
+            if ahead:
+                episodes = jax.device_put(episodes, may_alias=False)
+                in_flight = call(state, following)
+            new_stats, metrics, eval_returns = jax.device_get((episodes, metrics, eval_returns))
+            now = time.perf_counter()
+            seconds, row_time = now - row_time, now
             steps_before, env_steps = env_steps, float(np.mean(new_stats.env_steps))
             per_seed = _episode_means(stats, new_stats)
             stats = new_stats
+            do_eval = chunk.do_eval
             row = {
                 "env_steps": env_steps,
                 "updates": updates,
@@ -333,17 +364,20 @@ def train(
             target = runner.stop_at_return
             if do_eval and target is not None and min(map(np.mean, eval_returns)) >= target:  # every seed
                 solved_env_steps, solved_seconds = env_steps, time.perf_counter() - start
-            meta = {
-                "updates": updates,
-                "evaluations": evaluations,
-                "env_steps": env_steps,
-                "elapsed": row["wall_seconds"],
-                "solved_env_steps": solved_env_steps,
-                "solved_seconds": solved_seconds,
-            }
-            every = runner.checkpoint_every_chunks
-            ending = last or solved_env_steps is not None or chunks_this_call == max_chunks
-            logger.checkpoint(updates, state, meta, force=ending or bool(every and chunk_number % every == 0))
+                following = None
+            if not ahead:
+                meta = {
+                    "updates": updates,
+                    "evaluations": evaluations,
+                    "env_steps": env_steps,
+                    "elapsed": row["wall_seconds"],
+                    "solved_env_steps": solved_env_steps,
+                    "solved_seconds": solved_seconds,
+                }
+                logger.checkpoint(updates, state, meta, force=checkpoint or solved_env_steps is not None)
+                if following is not None:
+                    in_flight = call(state, following)
+            chunk = following
     train_seconds = time.perf_counter() - logger.start
 
     result = TrainResult(
@@ -360,7 +394,7 @@ def train(
     if updates < algorithm.num_updates and solved_env_steps is None:
         return result  # stopped early by max_chunks: resumable, not finished
 
-    state, _, returns, lengths = call(state, 0, True, evaluations)
+    state, _, returns, lengths = call(state, Chunk(0, 0, True, evaluations))
     result.state = state
     result.eval = logger.finish(
         np.asarray(returns),

@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import numpy as np
@@ -92,20 +92,27 @@ def actor_seed(seed: int, index: int, updates: int) -> int:
     return seed + 1000 * index + 7919 * updates
 
 
+class _Ends(NamedTuple):
+    """What a returns tracker reads of one step ``[E]``."""
+
+    reward: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray
+
+
 def record_returns(returns: FinishedReturns, trajectory: Transition, episodes: bool) -> int:
     """Feed a trajectory ``[T, E]`` to a returns tracker; returns the env steps it holds. With
     ``episodes`` only each env's first episode counts (``info["valid"]``), ended by the step limit."""
-    valid = trajectory.info["valid"] if episodes else np.ones(trajectory.reward.shape, bool)
-    last = len(trajectory.reward) - 1
+    reward, terminated, truncated = trajectory.reward, trajectory.terminated, trajectory.truncated
+    valid = trajectory.info["valid"] if episodes else np.ones(reward.shape, bool)
+    last = len(reward) - 1
     for t in range(last + 1):
-        step = jax.tree.map(lambda x, t=t: x[t], trajectory)
         if episodes:
-            step = step.replace(
-                reward=step.reward * valid[t],
-                terminated=step.terminated & valid[t],
-                truncated=(step.truncated | (t == last)) & valid[t],
+            returns(
+                _Ends(reward[t] * valid[t], terminated[t] & valid[t], (truncated[t] | (t == last)) & valid[t])
             )
-        returns(step)
+        else:
+            returns(_Ends(reward[t], terminated[t], truncated[t]))
     return int(valid.sum())
 
 

@@ -186,6 +186,14 @@ class RunLogger:
         )
         return row
 
+    def checkpoint_due(self) -> bool:
+        """Whether :meth:`checkpoint` would save now unforced: a run folder's first row, or
+        ``checkpoint_every_seconds`` since the last checkpoint."""
+        return self.run is not None and (
+            self.last_checkpoint is None
+            or time.perf_counter() - self.last_checkpoint_time >= self.checkpoint_every_seconds
+        )
+
     def checkpoint(
         self,
         step: int,
@@ -199,12 +207,9 @@ class RunLogger:
         last (or ``force``), so a run stopped early can always resume; only finite parameters are
         saved (else ``TrainingDiverged``). ``before(step, force)`` runs first when it saves: what must be on
         disk before the checkpoint commits (the replay buffer). Returns whether it saved."""
-        now = time.perf_counter()
-        first = self.last_checkpoint is None
-        if self.run is None or not (
-            force or first or now - self.last_checkpoint_time >= self.checkpoint_every_seconds
-        ):
+        if self.run is None or not (force or self.checkpoint_due()):
             return False
+        now = time.perf_counter()
         check_finite_tree(tree, meta.get("env_steps", 0), self.last_checkpoint)
         if before is not None:
             before(step, force)

@@ -175,8 +175,12 @@ class Session:
         return solved
 
     def finish(self, state: Any, env_steps: int, updates: int) -> TrainResult:
-        """The final evaluation on fresh episodes (eval.json, curve.png) and the result."""
+        """The final evaluation on fresh episodes (eval.json, curve.png) and the result;
+        ``train_seconds`` is the training loop's, to its last row and checkpoint."""
+        train_seconds = time.perf_counter() - self.logger.start
         returns, lengths = self.evaluator(state, seed=self.runner.seed + EVAL_SEED_OFFSET)
         self.evaluator.close()
         evaluation = self.logger.finish(returns[None], lengths[None], env_steps=env_steps, updates=updates)
-        return TrainResult(state, updates, env_steps, evaluation, self.logger.rows)
+        return TrainResult(
+            state, updates, env_steps, evaluation, self.logger.rows, train_seconds=train_seconds
+        )

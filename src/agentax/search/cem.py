@@ -11,7 +11,7 @@ mean is one of the candidates, the best candidate reported is often the distribu
 from __future__ import annotations
 
 import pathlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
@@ -19,19 +19,20 @@ from flax import struct
 
 from agentax.errors import UsageError
 from agentax.policies import Policy
-from agentax.search.population import FitnessFn, NetConfig, evaluate_population, load_net_policy, rank_elites
+from agentax.search.population import (
+    FitnessFn,
+    PopulationConfig,
+    evaluate_population,
+    load_net_policy,
+    rank_elites,
+)
 
 
 @dataclass(frozen=True)
-class CEMConfig:
-    """Hyperparameters of the cross-entropy method (defaults solve CartPole-v0 and -v1)."""
+class CEMConfig(PopulationConfig):
+    """Hyperparameters of the cross-entropy method (defaults solve CartPole-v0 and -v1). The
+    candidates are the current mean and ``population_size − 1`` samples."""
 
-    population_size: int = 64
-    """Candidates per iteration (the current mean and population_size − 1 samples)."""
-    generations: int = 20
-    """Iterations to run (at most)."""
-    num_episodes: int = 5
-    """Episodes per fitness evaluation (fitness = their mean return)."""
     elite_fraction: float = 0.2
     """Fraction of the candidates the Gaussian is refitted to."""
     init_std: float = 1.0
@@ -40,25 +41,17 @@ class CEMConfig:
     """Standard deviation added (in quadrature) to the refitted one at the first iteration."""
     noise_decay_generations: int = 20
     """Iterations over which the extra noise decays linearly to zero."""
-    selection_episodes: int = 20
-    """Episodes of the final selection between the last mean and best sample (new episodes)."""
-    sample_actions: bool = False
-    """Evaluate fitness with sampled actions instead of greedy ones."""
-    net: NetConfig = field(default_factory=NetConfig)
-    """The policy network whose parameters are searched."""
+
+    counts = ("noise_decay_generations",)
 
     def __post_init__(self):
-        if self.population_size <= 1:
-            raise UsageError(f"population size must be at least 2, got {self.population_size}")
+        super().__post_init__()
         if not 0 < self.elite_fraction <= 1:
             raise UsageError(f"elite fraction must be in (0, 1], got {self.elite_fraction}")
         if self.init_std <= 0:
             raise UsageError(f"initial std must be > 0, got {self.init_std}")
         if self.extra_noise < 0:
             raise UsageError(f"extra noise (a mutation scale) must be >= 0, got {self.extra_noise}")
-        for name in ("generations", "num_episodes", "noise_decay_generations", "selection_episodes"):
-            if getattr(self, name) < 1:
-                raise UsageError(f"{name.replace('_', ' ')} must be >= 1, got {getattr(self, name)}")
 
     @property
     def num_elites(self) -> int:

@@ -11,7 +11,7 @@ Elites are re-evaluated on new episodes each generation, so a lucky score does n
 from __future__ import annotations
 
 import pathlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
@@ -19,19 +19,19 @@ from flax import struct
 
 from agentax.errors import UsageError
 from agentax.policies import Policy
-from agentax.search.population import FitnessFn, NetConfig, evaluate_population, load_net_policy, rank_elites
+from agentax.search.population import (
+    FitnessFn,
+    PopulationConfig,
+    evaluate_population,
+    load_net_policy,
+    rank_elites,
+)
 
 
 @dataclass(frozen=True)
-class GAConfig:
+class GAConfig(PopulationConfig):
     """Hyperparameters of the genetic algorithm (defaults solve CartPole-v0 and -v1)."""
 
-    population_size: int = 64
-    """Candidates per generation."""
-    generations: int = 20
-    """Generations to run (at most)."""
-    num_episodes: int = 5
-    """Episodes per fitness evaluation (fitness = their mean return)."""
     elite_fraction: float = 0.1
     """Fraction of the population copied unchanged into the next generation (at least one member)."""
     tournament_size: int = 3
@@ -42,25 +42,17 @@ class GAConfig:
     """Standard deviation of the Gaussian noise added to every gene of a child."""
     init_scale: float = 1.0
     """Standard deviation of the first generation's genes (around zero)."""
-    selection_episodes: int = 20
-    """Episodes of the final selection among the last generation (new episodes, not the search's)."""
-    sample_actions: bool = False
-    """Evaluate fitness with sampled actions instead of greedy ones."""
-    net: NetConfig = field(default_factory=NetConfig)
-    """The policy network whose parameters are searched."""
+
+    counts = ("tournament_size",)
 
     def __post_init__(self):
-        if self.population_size <= 1:
-            raise UsageError(f"population size must be at least 2, got {self.population_size}")
+        super().__post_init__()
         if self.mutation_scale < 0:
             raise UsageError(f"mutation scale must be >= 0, got {self.mutation_scale}")
         if not 0 < self.elite_fraction < 1:
             raise UsageError(f"elite fraction must be in (0, 1), got {self.elite_fraction}")
         if not 0 <= self.crossover_rate <= 1:
             raise UsageError(f"crossover rate must be in [0, 1], got {self.crossover_rate}")
-        for name in ("generations", "num_episodes", "tournament_size", "selection_episodes"):
-            if getattr(self, name) < 1:
-                raise UsageError(f"{name.replace('_', ' ')} must be >= 1, got {getattr(self, name)}")
         if self.init_scale <= 0:
             raise UsageError(f"init scale must be > 0, got {self.init_scale}")
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import pathlib
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import jax
 import jax.numpy as jnp
@@ -49,6 +49,34 @@ class NetConfig:
             raise UsageError(f"unknown activation {self.activation!r}; choose from {', '.join(ACTIVATIONS)}")
         if any(width < 1 for width in self.hidden):
             raise UsageError(f"hidden layer widths must be >= 1, got {self.hidden}")
+
+
+@dataclass(frozen=True)
+class PopulationConfig:
+    """What every population search shares: its size and length, and how fitness is measured."""
+
+    population_size: int = 64
+    """Candidates per generation."""
+    generations: int = 20
+    """Generations to run (at most)."""
+    num_episodes: int = 5
+    """Episodes per fitness evaluation (fitness = their mean return)."""
+    selection_episodes: int = 20
+    """Episodes of the final selection among the last candidates (new episodes, not the search's)."""
+    sample_actions: bool = False
+    """Evaluate fitness with sampled actions instead of greedy ones."""
+    net: NetConfig = field(default_factory=NetConfig)
+    """The policy network whose parameters are searched."""
+
+    def __post_init__(self):
+        if self.population_size <= 1:
+            raise UsageError(f"population size must be at least 2, got {self.population_size}")
+        for name in ("generations", "num_episodes", "selection_episodes", *self.counts):
+            if getattr(self, name) < 1:
+                raise UsageError(f"{name.replace('_', ' ')} must be >= 1, got {getattr(self, name)}")
+
+    counts = ()
+    """The search's own settings that must be >= 1 too."""
 
 
 def check_env(env: Environment, net: NetConfig) -> None:
