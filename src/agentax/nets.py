@@ -47,22 +47,27 @@ class NatureCNN(nn.Module):
     here: the network divides by 255.
     """
 
+    layer_norm: bool = False
+    """LayerNorm before each ReLU (PQN's network, as purejaxql's ``pqn_atari``)"""
+
     @nn.compact
     def __call__(self, frames: jax.Array) -> jax.Array:
-        x = nature_convolutions(frames)
-        init = nn.initializers.orthogonal(jnp.sqrt(2.0))
-        return nn.relu(nn.Dense(512, kernel_init=init)(x))
+        x = nature_convolutions(frames, self.layer_norm)
+        x = nn.Dense(512, kernel_init=nn.initializers.orthogonal(jnp.sqrt(2.0)))(x)
+        return nn.relu(nn.LayerNorm()(x) if self.layer_norm else x)
 
 
-def nature_convolutions(frames: jax.Array) -> jax.Array:
+def nature_convolutions(frames: jax.Array, layer_norm: bool = False) -> jax.Array:
     """The Nature CNN's three convolutions, inside the calling module: uint8 ``[..., 4, 84, 84]``
-    → ``[..., 3136]`` features (the frames divided by 255 first)."""
+    → ``[..., 3136]`` features (the frames divided by 255 first; ``layer_norm``: LayerNorm over
+    each position's channels before each ReLU)."""
     batch_shape = frames.shape[:-3]
     x = frames.reshape(-1, *frames.shape[-3:]).astype(jnp.float32) / 255.0
     x = jnp.transpose(x, (0, 2, 3, 1))  # [N, C, H, W] -> [N, H, W, C]
     init = nn.initializers.orthogonal(jnp.sqrt(2.0))
     for features, size, stride in ((32, 8, 4), (64, 4, 2), (64, 3, 1)):
-        x = nn.relu(nn.Conv(features, (size, size), (stride, stride), padding="VALID", kernel_init=init)(x))
+        x = nn.Conv(features, (size, size), (stride, stride), padding="VALID", kernel_init=init)(x)
+        x = nn.relu(nn.LayerNorm()(x) if layer_norm else x)
     return x.reshape(*batch_shape, -1)
 
 

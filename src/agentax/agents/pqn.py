@@ -14,13 +14,20 @@ the number of envs stepped side by side.
 The targets use the parameters of the learner at the start of the update (as purejaxql's and
 CleanRL's ``pqn.py``); a truncated step bootstraps from its final observation. PQN is on-policy in
 agentax's terms (``OnPolicy`` experience), so every runner that trains PPO trains it unchanged.
+
+On stacked frames (Atari) the Q-network is the Nature CNN with LayerNorm before every ReLU
+(purejaxql's ``pqn_atari``). A runner may mark steps that are no transitions of the game in
+``info["valid"]`` (EnvPool's reset step, :mod:`agentax.envs.envpool_xla`): the loss leaves them out,
+and the step before such a step is done, so no target is carried across it.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import optax
@@ -29,10 +36,10 @@ from flax import struct
 from agentax.agents.protocol import Agent, EnvSpec, Loop, OnPolicy, check_fields
 from agentax.envs.core import Discrete
 from agentax.errors import UsageError
-from agentax.nets import MLP
+from agentax.nets import MLP, NatureCNN, is_image
 from agentax.policies import Policy, epsilon_greedy, linear_schedule
 from agentax.replay import Transition
-from agentax.returns import q_lambda_returns
+from agentax.returns import masked_mean, q_lambda_returns
 
 
 @dataclass(frozen=True)
@@ -105,8 +112,25 @@ class PQNState:
     updates: jax.Array  # int32 []: learning iterations so far
 
 
-def q_network(cfg: PQNConfig, num_actions: int) -> MLP:
+def q_network(cfg: PQNConfig, spec: EnvSpec) -> nn.Module:
+    """``obs [..., *obs_shape] -> Q [..., num_actions]`` with LayerNorm after every hidden layer: an
+    MLP of ``hidden`` on flat observations, the Nature CNN on stacked frames."""
+    num_actions = num_actions_of(spec)
+    if is_image(spec.obs_shape):
+        return nn.Sequential([NatureCNN(layer_norm=True), nn.Dense(num_actions)])
     return MLP(cfg.hidden, cfg.activation, out=num_actions, layer_norm=True)
+
+
+QValues = Callable[[Any, jax.Array], jax.Array]
+"""``q_values(params, obs [..., *obs_shape]) -> [..., num_actions]``"""
+
+
+def q_values_of(net: nn.Module, spec: EnvSpec) -> QValues:
+    """The network's Q-values; flat observations as float32 first (a host env may give float64),
+    frames left uint8 (the CNN scales them)."""
+    if is_image(spec.obs_shape):
+        return net.apply
+    return lambda params, obs: net.apply(params, obs.astype(jnp.float32))
 
 
 def optimizer(cfg: PQNConfig) -> optax.GradientTransformation:
@@ -131,31 +155,42 @@ def epsilon_at(cfg: PQNConfig, env_steps: jax.Array) -> jax.Array:
     return linear_schedule(cfg.epsilon_start, cfg.epsilon_end, duration)(env_steps)
 
 
-def loss_fn(params: Any, net: MLP, minibatch: dict[str, jax.Array]) -> tuple[jax.Array, dict]:
-    q = net.apply(params, minibatch["obs"])  # (batch, num_actions)
+def loss_fn(params: Any, q_values: QValues, minibatch: dict[str, jax.Array]) -> tuple[jax.Array, dict]:
+    """½ mean squared TD error of ``minibatch`` (``obs``, ``action``, ``target`` ``[B]``; ``valid``
+    ``[B]``, if there, the entries the means run over)."""
+    q = q_values(params, minibatch["obs"])  # (batch, num_actions)
     q_taken = jnp.take_along_axis(q, minibatch["action"][:, None], axis=-1)[:, 0]
     td = q_taken - minibatch["target"]
-    return 0.5 * jnp.mean(td**2), {"q_mean": q_taken.mean()}
+    valid = minibatch.get("valid")
+    return 0.5 * masked_mean(td**2, valid), {"q_mean": masked_mean(q_taken, valid)}
 
 
 def learn(
-    state: PQNState, rollout: Transition, key: jax.Array, net: MLP, cfg: PQNConfig, loop: Loop = jax.lax.scan
+    state: PQNState,
+    rollout: Transition,
+    key: jax.Array,
+    q_values: QValues,
+    cfg: PQNConfig,
+    loop: Loop = jax.lax.scan,
 ) -> tuple[PQNState, dict[str, jax.Array]]:
-    """One PQN iteration on a rollout ``[T, E]``: Q(λ) targets, then epochs of minibatch SGD."""
+    """One PQN iteration on a rollout ``[T, E]``: Q(λ) targets, then epochs of minibatch SGD, run by
+    ``loop`` (``lax.scan``'s signature; the runner chooses it)."""
     tx = optimizer(cfg)
-    next_q = net.apply(state.params, rollout.next_obs.astype(jnp.float32)).max(axis=-1)  # (T, E)
+    next_q = q_values(state.params, rollout.next_obs).max(axis=-1)  # (T, E)
     done = rollout.terminated | rollout.truncated
     targets = q_lambda_returns(
         rollout.reward, next_q, rollout.terminated, done, cfg.discount_factor, cfg.q_lambda
     )
     batch_size = cfg.steps_per_update
-    flat = {"obs": rollout.obs.astype(jnp.float32), "action": rollout.action, "target": targets}
+    flat = {"obs": rollout.obs, "action": rollout.action, "target": targets}
+    if "valid" in rollout.info:
+        flat["valid"] = rollout.info["valid"]
     flat = jax.tree.map(lambda x: x.reshape(batch_size, *x.shape[2:]), flat)
     grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
 
     def sgd_step(carry, minibatch):
         params, opt_state = carry
-        (loss, metrics), grads = grad_fn(params, net, minibatch)
+        (loss, metrics), grads = grad_fn(params, q_values, minibatch)
         updates, opt_state = tx.update(grads, opt_state, params)
         return (optax.apply_updates(params, updates), opt_state), {"loss": loss, **metrics}
 
@@ -175,30 +210,30 @@ def make_agent(spec: EnvSpec, cfg: PQNConfig, *, loop: Loop = jax.lax.scan) -> A
     """PQN's pure functions for every runner (see ``agentax.agents.protocol``); ``act``'s ``progress``
     is the env steps that set ε."""
     cfg.validate()
-    num_actions = num_actions_of(spec)
-    if len(spec.obs_shape) != 1:
-        raise UsageError(f"PQN here takes flat observations (an MLP), not {spec.obs_shape}")
-    net = q_network(cfg, num_actions)
+    if len(spec.obs_shape) != 1 and not is_image(spec.obs_shape):
+        raise UsageError(f"PQN takes flat observations or stacked frames [C, H, W], not {spec.obs_shape}")
+    net = q_network(cfg, spec)
+    q_values = q_values_of(net, spec)
 
     def init(key: jax.Array) -> PQNState:
-        params = net.init(key, jnp.zeros(spec.obs_shape, jnp.float32))
+        params = net.init(key, jnp.zeros(spec.obs_shape, spec.obs_dtype))
         return PQNState(params, optimizer(cfg).init(params), jnp.int32(0))
 
     def act(state: PQNState, obs: jax.Array, key: jax.Array, progress: jax.Array):
-        q = net.apply(state.params, obs.astype(jnp.float32))  # (E, num_actions)
+        q = q_values(state.params, obs)  # (E, num_actions)
         epsilon = epsilon_at(cfg, progress)
         action = jax.vmap(epsilon_greedy, in_axes=(0, 0, None))(jax.random.split(key, q.shape[0]), q, epsilon)
         return action, {"epsilon": jnp.full(q.shape[0], epsilon, jnp.float32)}
 
     def greedy_policy(state: PQNState) -> Policy:
-        return lambda obs, key: jnp.argmax(net.apply(state.params, obs.astype(jnp.float32))).astype(jnp.int32)
+        return lambda obs, key: jnp.argmax(q_values(state.params, obs)).astype(jnp.int32)
 
     return Agent(
         name="pqn",
         init=init,
         act=act,
         greedy_policy=greedy_policy,
-        learn=lambda state, rollout, key: learn(state, rollout, key, net, cfg, loop),
+        learn=lambda state, rollout, key: learn(state, rollout, key, q_values, cfg, loop),
         experience=OnPolicy(cfg.num_envs, cfg.num_steps),
         total_steps=cfg.total_steps,
         learning_steps=lambda state: state.updates,

@@ -284,6 +284,26 @@ PQN_PRESETS: dict[str, Preset] = {
         eval_every_chunks=1,
         stop_at_solved=True,
     ),
+    "atari": Preset(
+        PQNConfig(
+            total_steps=10_000_000,
+            num_envs=128,
+            num_steps=32,
+            learning_rate=2.5e-4,
+            anneal_lr=False,
+            discount_factor=0.99,
+            q_lambda=0.65,
+            update_epochs=2,
+            num_minibatches=32,
+            max_grad_norm=10.0,
+            epsilon_start=1.0,
+            epsilon_end=0.001,
+            exploration_fraction=0.1,
+        ),
+        "purejaxql's pqn_atari settings (128 envs × 32 steps, Q(λ 0.65), 2 epochs × 32 minibatches, "
+        "RAdam 2.5e-4, ε 1 → 0.001 over the first 10 %), 10M agent steps, Nature CNN with LayerNorm",
+        eval_episodes=10,
+    ),
 }
 
 
@@ -305,6 +325,7 @@ DEFAULT_PRESETS: dict[str, dict[str, str]] = {
         "Pendulum-v1": "pendulum",
     },
     "dqn": {"atari": "lecture-atari"},
+    "pqn": {"atari": "atari"},
 }
 """algorithm → env → the preset ``--preset auto`` picks for it ("atari": every Atari game; any other
 env, or an algorithm missing here: "default")"""
