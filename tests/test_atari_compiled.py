@@ -125,30 +125,38 @@ def _ppo_agent(env, **overrides):
 
 @pytest.mark.timeout(60)
 def test_rollout_on_a_real_pool_masks_reset_steps_after_done_steps():
-    """A 128-step rollout of 8 Breakout envs with an untrained CNN policy: each masked step comes
-    right after a done step (or is the first, after one carried in), pays nothing, starts from the
-    observation the done step reached."""
-    from agentax.runners.compiled_atari import make_rollout, start_collector
+    """Two 128-step rollouts of 8 Breakout envs with an untrained CNN policy (the compiled runner's
+    on-policy rollout on the pool): each masked step comes right after a done step (or is the first,
+    after one carried in), pays nothing, starts from the observation the done step reached, and
+    finishes no game; every pool step counts as progress, and the actor's key chain is the host
+    actor's (one ``split(key)`` a step)."""
+    from agentax.runners.compiled_atari import AtariEnvs, start
+    from agentax.runners.rollout import on_policy_rollout
 
     env = XlaAtari(BREAKOUT, 8, seed=3, sticky_actions=0.25)
     agent = _ppo_agent(env)
-    state = agent.init(jax.random.key(0))
-    rollout = jax.jit(make_rollout(agent, env))
-    collector = start_collector(env, jax.random.key(1), 0)
+    rollout = jax.jit(on_policy_rollout(agent, AtariEnvs(env)))
+    carry = start(agent.init(jax.random.key(0)), env, jax.random.key(1), 0)
     masked = ends = 0
-    for _ in range(2):  # the second rollout starts with the resets the first one's last steps left
-        carried_in = int(collector.tracker.reset_next.sum())
-        collector, trajectory, games = rollout(state, collector)
+    for i in range(2):  # the second rollout starts with the resets the first one's last steps left
+        carried_in = int(carry.env_state.tracker.reset_next.sum())
+        carry, trajectory = rollout(carry)
         traj = jax.device_get(trajectory)
         valid, done = traj.info["valid"], traj.terminated | traj.truncated
         np.testing.assert_array_equal(~valid[1:], done[:-1])
         assert not (done & ~valid).any() and (traj.reward[~valid] == 0).all()
+        assert not (traj.info["games"].finished & ~valid).any()
+        assert int(carry.episodes.env_steps) == 8 * 128 * (i + 1)
         np.testing.assert_array_equal(traj.obs[1:], traj.next_obs[:-1])  # one stream of observations
         masked += int((~valid).sum()) - carried_in
         ends += int(done[:-1].sum())
         assert set(np.unique(traj.reward)) <= {-1.0, 0.0, 1.0}
     env.close()
     assert ends >= 5 and masked == ends
+    key = jax.random.key(1)
+    for _ in range(2 * 128):
+        key, _ = jax.random.split(key)
+    np.testing.assert_array_equal(jax.random.key_data(carry.key), jax.random.key_data(key))
 
 
 def _host_env(training: bool, seed: int):

@@ -172,8 +172,9 @@ class EpisodeStats:
 
     @classmethod
     def create(cls, num_envs: int) -> EpisodeStats:
-        zeros = jnp.zeros(num_envs, jnp.float32)
-        return cls(zeros, zeros, jnp.int32(0), jnp.float32(0), jnp.int32(0))
+        """No episode yet (each field its own buffer, so a jitted call may donate them)."""
+        episode_return, last_return = jnp.zeros(num_envs, jnp.float32), jnp.zeros(num_envs, jnp.float32)
+        return cls(episode_return, last_return, jnp.int32(0), jnp.float32(0), jnp.int32(0))
 
     def record(self, reward: jax.Array, done: jax.Array, valid: jax.Array | None = None) -> EpisodeStats:
         """Add one step of each env (``reward``, ``done``: ``[num_envs]``); ``valid`` masks skipped steps."""

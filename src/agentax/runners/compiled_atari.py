@@ -1,11 +1,13 @@
 """The compiled Atari runner: an on-policy agent's rollout *and* EnvPool's Atari step in one program.
 
 For ``agentax train ppo --env ALE/Breakout-v5 --runner compiled``. Each iteration is one jitted call,
-:func:`make_update`: a ``lax.scan`` of ``num_steps`` steps, each the agent's collect policy on the
-``num_envs`` observations and EnvPool's step of the pool (:mod:`agentax.envs.envpool_xla`, the
-host adapter's preprocessing and settings), then ``agent.learn`` on the rollout — no Python between
-the env and the network (CleanRL's ``ppo_atari_envpool_xla_jax.py`` does the same). One seed per
-process: EnvPool's pool handle cannot be vmapped.
+:func:`make_update`: the compiled runner's on-policy rollout
+(:func:`agentax.runners.rollout.on_policy_rollout`, a ``lax.scan`` of ``num_steps`` steps of the
+agent's collect policy) on :class:`AtariEnvs`, EnvPool's step of the pool
+(:mod:`agentax.envs.envpool_xla`, the host adapter's preprocessing and settings), then
+``agent.learn`` on the rollout — no Python between the env and the network (CleanRL's
+``ppo_atari_envpool_xla_jax.py`` does the same). One seed per process: EnvPool's pool handle cannot
+be vmapped.
 
 **EnvPool's reset step.** The step after an episode's end (a lost life, a game over, the frame
 limit) is EnvPool's reset: it ignores its action and returns the next episode's first observation.
@@ -19,7 +21,8 @@ in metrics.csv is their share.
 **The rest is the host runner's** (:mod:`agentax.runners.host`), so the two compare number for
 number where they can: the same :class:`~agentax.runners.host.HostRunnerConfig`, the same keys (the
 agent from ``agent_keys(seed)``'s first key, the learner's chain from the second, the actor's from
-the third, its envs seeded ``actor_seed(seed, 0, updates)``), the same rows
+the third, its envs seeded ``actor_seed(seed, 0, updates)``, an act key per step as the host
+actor's), the same rows
 (:func:`~agentax.runners.host.row_of`: ``mean_return`` is the mean true score of the whole games
 finished since the last row — every life, raw rewards), the same checkpoints (``(agent state,
 learner key)``, so :func:`agentax.runners.host.restore_policy` loads them and a resumed run restarts
@@ -38,26 +41,17 @@ from flax import struct
 from agentax import _xla
 from agentax.agents.protocol import Agent, OnPolicy
 from agentax.envs.atari import FRAME_SKIP, is_atari_id
+from agentax.envs.core import TimeStep
 from agentax.envs.envpool_xla import EpisodeTracker, XlaAtari, track
 from agentax.errors import UsageError
-from agentax.replay import Transition
+from agentax.returns import EpisodeStats
 from agentax.runners import host
+from agentax.runners.rollout import OnPolicyCarry, on_policy_rollout
 from agentax.runners.session import Session, TrainResult
 from agentax.runs import Run
 
 RUNNER_KIND = "compiled-atari"
 """config.json's ``runner_kind`` of these runs; their ``runner`` is a ``HostRunnerConfig``."""
-
-
-@struct.dataclass
-class Collector:
-    """What the rollout carries from one iteration to the next."""
-
-    handle: jax.Array  # EnvPool's pool handle (uint8 bytes), threaded through the program
-    obs: jax.Array  # uint8 [num_envs, 4, 84, 84]
-    tracker: EpisodeTracker  # the pending reset steps, the running games' scores
-    key: jax.Array  # the actor's key chain
-    env_steps: jax.Array  # int32 []: the pool's steps so far (the collect policy's progress)
 
 
 @struct.dataclass
@@ -67,6 +61,32 @@ class Games:
     finished: jax.Array  # bool
     score: jax.Array  # float32: true score
     length: jax.Array  # int32: valid agent steps
+
+
+@struct.dataclass
+class Pool:
+    """The pool's state in the program (the rollout's ``env_state``)."""
+
+    handle: jax.Array  # EnvPool's pool handle (uint8 bytes), threaded through the program
+    tracker: EpisodeTracker  # the pending reset steps, the running games' scores
+
+
+class AtariEnvs:
+    """``env``'s pool as a :class:`~agentax.runners.rollout.BatchedEnv` of the on-policy rollout."""
+
+    def __init__(self, env: XlaAtari):
+        self.env, self.num_envs = env, env.num_envs
+
+    def step(self, key: jax.Array, pool: Pool, action: jax.Array) -> tuple[TimeStep, Pool, dict[str, Any]]:
+        """EnvPool's step of every env (``key`` unused) read by :func:`track`: the learning view
+        ``[num_envs]`` (rewards clipped to their sign; ``final_obs`` the step's ``obs``: on an ending
+        step EnvPool returns the last observation itself) and ``info``: ``"valid"`` (False on reset
+        steps) and ``"games"``, the :class:`Games` the step finished."""
+        handle, step = self.env.step(pool.handle, action)
+        tracker, tracked = track(pool.tracker, step)
+        time_step = TimeStep(step.obs, jnp.sign(step.reward), step.terminated, step.truncated, step.obs)
+        games = Games(tracked.game_finished, tracked.game_score, tracked.game_length)
+        return time_step, Pool(handle, tracker), {"valid": tracked.valid, "games": games}
 
 
 def check(agent: Agent, env_id: str, runner: host.HostRunnerConfig, num_seeds: int = 1) -> None:
@@ -89,58 +109,27 @@ def check(agent: Agent, env_id: str, runner: host.HostRunnerConfig, num_seeds: i
         )
 
 
-def start_collector(env: XlaAtari, key: jax.Array, env_steps: int) -> Collector:
-    """New games in ``env``'s pool (a host call); the actor's key chain starts at ``key``."""
+def start(agent_state: Any, env: XlaAtari, key: jax.Array, env_steps: int) -> OnPolicyCarry:
+    """New games in ``env``'s pool (a host call): the rollout's carry, the actor's key chain from
+    ``key``, ``env_steps`` the pool's steps so far (the collect policy's progress)."""
     handle, obs = env.reset()
-    return Collector(handle, obs, EpisodeTracker.create(env.num_envs), key, jnp.int32(env_steps))
-
-
-def make_rollout(agent: Agent, env: XlaAtari):
-    """``rollout(agent_state, collector) -> (collector, trajectory [T, E], games [T, E])`` (jittable).
-
-    ``trajectory`` is a :class:`~agentax.replay.Transition` with clipped rewards (the sign), the
-    learning view's ends, and ``info`` from ``agent.act`` plus ``"valid"`` (False on reset steps).
-    """
-    act = host.act_and_split(agent.act)
-    num_steps = agent.experience.num_steps
-
-    def env_step(carry: tuple[Any, Collector], _):
-        state, collector = carry
-        action, info, key = act(state, collector.obs, collector.key, collector.env_steps)
-        handle, step = env.step(collector.handle, agent.env_action(action))
-        tracker, tracked = track(collector.tracker, step)
-        transition = Transition(
-            obs=collector.obs,
-            action=action,
-            reward=jnp.sign(step.reward),
-            next_obs=step.obs,  # on an ending step EnvPool returns the last observation itself
-            terminated=step.terminated,
-            truncated=step.truncated,
-            num_steps=jnp.ones(env.num_envs, jnp.int32),
-            info={**info, "valid": tracked.valid},
-        )
-        games = Games(tracked.game_finished, tracked.game_score, tracked.game_length)
-        collector = Collector(handle, step.obs, tracker, key, collector.env_steps + env.num_envs)
-        return (state, collector), (transition, games)
-
-    def rollout(state: Any, collector: Collector) -> tuple[Collector, Transition, Games]:
-        (_, collector), (trajectory, games) = jax.lax.scan(env_step, (state, collector), None, num_steps)
-        return collector, trajectory, games
-
-    return rollout
+    episodes = EpisodeStats.create(env.num_envs).replace(env_steps=jnp.int32(env_steps))
+    return OnPolicyCarry(agent_state, Pool(handle, EpisodeTracker.create(env.num_envs)), obs, key, episodes)
 
 
 def make_update(agent: Agent, env: XlaAtari):
-    """``update(agent_state, collector, learner_key) -> (agent_state, collector, learner_key,
-    metrics, games)``: one iteration, rollout then ``agent.learn`` (jittable; keys as the host runner's)."""
-    rollout = make_rollout(agent, env)
+    """``update(carry, learner_key) -> (carry, learner_key, metrics, games [T, E])`` (jittable): one
+    iteration, the on-policy rollout on ``env`` then ``agent.learn`` (keys as the host runner's)."""
+    rollout = on_policy_rollout(agent, AtariEnvs(env))
 
-    def update(state: Any, collector: Collector, learner_key: jax.Array):
+    def update(carry: OnPolicyCarry, learner_key: jax.Array):
         learner_key, learn_key = jax.random.split(learner_key)
-        collector, trajectory, games = rollout(state, collector)
-        state, metrics = agent.learn(state, trajectory, learn_key)
-        metrics = {**metrics, "masked_fraction": 1.0 - trajectory.info["valid"].mean()}
-        return state, collector, learner_key, metrics, games
+        carry, trajectory = rollout(carry)
+        info = dict(trajectory.info)
+        games = info.pop("games")
+        state, metrics = agent.learn(carry.agent, trajectory.replace(info=info), learn_key)
+        metrics = {**metrics, "masked_fraction": 1.0 - info["valid"].mean()}
+        return carry.replace(agent=state), learner_key, metrics, games
 
     return update
 
@@ -167,12 +156,7 @@ def train(
     _xla.let_xla_use_every_cpu()
     evaluator = host.Evaluator(agent, host.env_factory(env_id, runner), runner.eval_episodes)
     session = Session(agent, run, runner, evaluator, resume=resume)
-    state, learner_key, updates, env_steps = (
-        session.state,
-        session.learner_key,
-        session.updates,
-        session.env_steps,
-    )
+    learner_key, updates, env_steps = session.learner_key, session.updates, session.env_steps
     games_done = int(session.meta.get("games", 0))
     experience: OnPolicy = agent.experience
     env = XlaAtari(
@@ -181,14 +165,14 @@ def train(
         seed=host.actor_seed(runner.seed, 0, updates),
         sticky_actions=runner.sticky_actions,
     )
-    collector = start_collector(env, host.fold_actor_key(session.actors_key, 0, updates), env_steps)
-    update = jax.jit(make_update(agent, env), donate_argnums=(0, 1))
+    carry = start(session.state, env, host.fold_actor_key(session.actors_key, 0, updates), env_steps)
+    update = jax.jit(make_update(agent, env), donate_argnums=0)
     total_updates = host.num_updates(agent)
     scores: list[float] = []
     with session.begin(f"{agent.name} {env_id} (compiled)", progress):
         try:
             while updates < total_updates:
-                state, collector, learner_key, metrics, games = update(state, collector, learner_key)
+                carry, learner_key, metrics, games = update(carry, learner_key)
                 updates += 1
                 env_steps += experience.num_envs * experience.num_steps
                 finished = finished_games(games)  # waits for the iteration: speeds count all of it
@@ -197,11 +181,11 @@ def train(
                 last = updates >= total_updates
                 if not session.row_due(env_steps, last):
                     continue
-                args = (state, learner_key, env_steps, updates, scores, metrics)
+                args = (carry.agent, learner_key, env_steps, updates, scores, metrics)
                 extra, counts = {"frames": FRAME_SKIP * env_steps}, {"games": games_done}
                 scores = []
                 if session.log_row(*args, final=last, extra=extra, counts=counts):
                     break
         finally:
             env.close()
-    return session.finish(state, env_steps, updates)
+    return session.finish(carry.agent, env_steps, updates)

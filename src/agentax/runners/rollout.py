@@ -7,7 +7,8 @@ iteration does follows from ``agent.experience``:
 
 =================  ==============================================================================
 ``OnPolicy``       a rollout of ``num_steps`` steps from ``num_envs`` envs with ``agent.act``, then
-                   ``agent.learn`` on the trajectory ``[T, E]`` (PPO)
+                   ``agent.learn`` on the trajectory ``[T, E]`` (PPO); :func:`on_policy_rollout`,
+                   over any :class:`BatchedEnv`, is also the compiled Atari runner's rollout
 ``Episodes``       ``num_envs`` whole episodes from fresh resets, steps after an episode's end marked
                    in ``info["valid"]``, then ``agent.learn`` (REINFORCE)
 ``OffPolicy``      ``train_frequency`` env steps (one in the episode schedule) into the jittable
@@ -35,7 +36,7 @@ from __future__ import annotations
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import jax
 import jax.numpy as jnp
@@ -84,9 +85,23 @@ class Freeze:
     episodes: int = 8
 
 
+class BatchedEnv(Protocol):
+    """``num_envs`` envs stepped together inside ``jit``: a :class:`VectorEnv`, or the compiled Atari
+    runner's EnvPool pool (:class:`agentax.runners.compiled_atari.AtariEnvs`).
+
+    ``step(key, state, action [num_envs]) -> (time_step, state, info)``: the :class:`TimeStep`
+    ``[num_envs]`` of the learning view, the envs' new state, and the envs' own entries for each
+    transition's ``info`` (``{}`` for a JAX env; the Atari pool's ``"valid"`` and ``"games"``).
+    """
+
+    num_envs: int
+
+    def step(self, key: jax.Array, state: Any, action: jax.Array) -> tuple[TimeStep, Any, dict[str, Any]]: ...
+
+
 @dataclass(frozen=True)
 class VectorEnv:
-    """``num_envs`` copies of a JAX env with its params, batched by ``vmap``."""
+    """``num_envs`` copies of a JAX env with its params, batched by ``vmap`` (a :class:`BatchedEnv`)."""
 
     env: Environment
     params: EnvParams
@@ -95,9 +110,10 @@ class VectorEnv:
     def reset(self, key: jax.Array) -> tuple[jax.Array, Any]:
         return jax.vmap(self.env.reset, in_axes=(0, None))(jax.random.split(key, self.num_envs), self.params)
 
-    def step(self, key: jax.Array, state: Any, action: jax.Array) -> tuple[TimeStep, Any]:
+    def step(self, key: jax.Array, state: Any, action: jax.Array) -> tuple[TimeStep, Any, dict[str, Any]]:
         keys = jax.random.split(key, self.num_envs)
-        return jax.vmap(self.env.step, in_axes=(0, 0, 0, None))(keys, state, action, self.params)
+        time_step, state = jax.vmap(self.env.step, in_axes=(0, 0, 0, None))(keys, state, action, self.params)
+        return time_step, state, {}
 
 
 def transition_of(obs: jax.Array, action: jax.Array, time_step: TimeStep, info: Any = None) -> Transition:
@@ -148,31 +164,52 @@ def program(
 
 @struct.dataclass
 class OnPolicyCarry:
+    """What an on-policy rollout carries from one step (and one iteration) to the next."""
+
     agent: Any
     env_state: Any
     obs: jax.Array  # [num_envs, *obs_shape]
-    key: jax.Array
-    episodes: EpisodeStats
+    key: jax.Array  # the actor's key chain (in the compiled runner's program also the learner's)
+    episodes: EpisodeStats  # its env_steps (every env step) are the collect policy's progress
+
+
+def on_policy_rollout(
+    agent: Agent, envs: BatchedEnv
+) -> Callable[[OnPolicyCarry], tuple[OnPolicyCarry, Transition]]:
+    """``rollout(carry) -> (carry, trajectory)`` (jittable): ``num_steps`` steps of ``agent.act`` on
+    ``envs``, the trajectory a :class:`Transition` ``[num_steps, num_envs]`` whose ``info`` holds
+    ``act``'s entries and the envs' own.
+
+    Per step ``key, act_key, step_key = split(carry.key, 3)``. Threefry splits are prefix-stable:
+    ``key`` and ``act_key`` are those of a split in two, so on envs that ignore ``step_key`` (the
+    Atari pool) the act keys are the host actor's (:func:`agentax.runners.host.act_and_split`).
+    """
+
+    def env_step(carry: OnPolicyCarry, _) -> tuple[OnPolicyCarry, Transition]:
+        key, act_key, step_key = jax.random.split(carry.key, 3)
+        action, info = agent.act(carry.agent, carry.obs, act_key, carry.episodes.env_steps)
+        time_step, env_state, env_info = envs.step(step_key, carry.env_state, agent.env_action(action))
+        transition = transition_of(carry.obs, action, time_step, {**info, **env_info})
+        episodes = carry.episodes.record(time_step.reward, time_step.done)
+        return carry.replace(env_state=env_state, obs=time_step.obs, key=key, episodes=episodes), transition
+
+    def rollout(carry: OnPolicyCarry) -> tuple[OnPolicyCarry, Transition]:
+        return jax.lax.scan(env_step, carry, None, agent.experience.num_steps)
+
+    return rollout
 
 
 def on_policy_program(agent: Agent, envs: VectorEnv) -> Program:
     experience: OnPolicy = agent.experience
+    rollout = on_policy_rollout(agent, envs)
 
     def init(key: jax.Array) -> OnPolicyCarry:
         key, agent_key, reset_key = jax.random.split(key, 3)
         obs, env_state = envs.reset(reset_key)
         return OnPolicyCarry(agent.init(agent_key), env_state, obs, key, EpisodeStats.create(envs.num_envs))
 
-    def env_step(carry: OnPolicyCarry, _) -> tuple[OnPolicyCarry, Transition]:
-        key, act_key, step_key = jax.random.split(carry.key, 3)
-        action, info = agent.act(carry.agent, carry.obs, act_key, carry.episodes.env_steps)
-        time_step, env_state = envs.step(step_key, carry.env_state, agent.env_action(action))
-        transition = transition_of(carry.obs, action, time_step, info)
-        episodes = carry.episodes.record(time_step.reward, time_step.done)
-        return carry.replace(env_state=env_state, obs=time_step.obs, key=key, episodes=episodes), transition
-
     def update(carry: OnPolicyCarry) -> tuple[OnPolicyCarry, dict[str, jax.Array]]:
-        carry, trajectory = jax.lax.scan(env_step, carry, None, experience.num_steps)
+        carry, trajectory = rollout(carry)
         key, learn_key = jax.random.split(carry.key)
         agent_state, metrics = agent.learn(carry.agent, trajectory, learn_key)
         return carry.replace(agent=agent_state, key=key), scalars(metrics)
@@ -205,7 +242,7 @@ def episodes_program(agent: Agent, envs: VectorEnv) -> Program:
             obs, env_state, alive, episodes, key = step_carry
             key, act_key, step_key = jax.random.split(key, 3)
             action, info = agent.act(carry.agent, obs, act_key, episodes.env_steps)
-            time_step, env_state = envs.step(step_key, env_state, agent.env_action(action))
+            time_step, env_state, _ = envs.step(step_key, env_state, agent.env_action(action))
             ended = time_step.done | (t == experience.max_steps - 1)
             episodes = episodes.record(time_step.reward, ended, alive)
             transition = transition_of(obs, action, time_step, {**info, "valid": alive})
@@ -307,7 +344,7 @@ def off_policy_program(agent: Agent, envs: VectorEnv, freeze: Freeze | None = No
         num = freeze.episodes
         policy_keys = jax.random.split(jax.random.fold_in(key, 1), num)
         action = jax.vmap(agent.greedy_policy(agent_state))(monitor.obs, policy_keys)
-        time_step, env_state = side_envs.step(key, monitor.env_state, action)
+        time_step, env_state, _ = side_envs.step(key, monitor.env_state, action)
         running = monitor.running + time_step.reward
         done = time_step.done
         slot = (monitor.finished + jnp.cumsum(done) - 1) % num  # ring slots of this step's finished episodes
@@ -327,7 +364,7 @@ def off_policy_program(agent: Agent, envs: VectorEnv, freeze: Freeze | None = No
         key, act_key, step_key, monitor_key = jax.random.split(carry.key, 4)
         progress = carry.episodes.completed if by_episode else carry.episodes.env_steps
         action, info = agent.act(carry.agent, carry.obs, act_key, progress)
-        time_step, env_state = envs.step(step_key, carry.env_state, agent.env_action(action))
+        time_step, env_state, _ = envs.step(step_key, carry.env_state, agent.env_action(action))
         time_step = time_step.replace(
             obs=time_step.obs.astype(jnp.float32), final_obs=time_step.final_obs.astype(jnp.float32)
         )
