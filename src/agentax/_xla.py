@@ -217,7 +217,7 @@ def enable_compilation_cache() -> Path | None:
     return path
 
 
-def scan(f, init, xs, *, python_loop: bool = False):
+def scan(f, init, xs=None, length: int | None = None, *, python_loop: bool = False):
     """``jax.lax.scan(f, init, xs)``, or, with ``python_loop``, the same steps written out one after
     the other in the traced program (same results; a longer compile).
 
@@ -229,11 +229,11 @@ def scan(f, init, xs, *, python_loop: bool = False):
     import jax.numpy as jnp
 
     if not python_loop:
-        return jax.lax.scan(f, init, xs)
-    length = jax.tree.leaves(xs)[0].shape[0]
+        return jax.lax.scan(f, init, xs, length)
+    length = jax.tree.leaves(xs)[0].shape[0] if length is None else length
     outputs = []
     for i in range(length):
-        init, output = f(init, jax.tree.map(lambda x, i=i: x[i], xs))
+        init, output = f(init, None if xs is None else jax.tree.map(lambda x, i=i: x[i], xs))
         outputs.append(output)
     return init, jax.tree.map(lambda *ys: jnp.stack(ys), *outputs)
 

@@ -174,11 +174,12 @@ class OnPolicyCarry:
 
 
 def on_policy_rollout(
-    agent: Agent, envs: BatchedEnv
+    agent: Agent, envs: BatchedEnv, loop: Callable = jax.lax.scan
 ) -> Callable[[OnPolicyCarry], tuple[OnPolicyCarry, Transition]]:
     """``rollout(carry) -> (carry, trajectory)`` (jittable): ``num_steps`` steps of ``agent.act`` on
     ``envs``, the trajectory a :class:`Transition` ``[num_steps, num_envs]`` whose ``info`` holds
-    ``act``'s entries and the envs' own.
+    ``act``'s entries and the envs' own. ``loop`` (``lax.scan``'s signature) runs the steps: the
+    runner's :func:`agentax._xla.learning_loop` where ``act`` runs a CNN on XLA's CPU backend.
 
     Per step ``key, act_key, step_key = split(carry.key, 3)``. Threefry splits are prefix-stable:
     ``key`` and ``act_key`` are those of a split in two, so on envs that ignore ``step_key`` (the
@@ -194,7 +195,7 @@ def on_policy_rollout(
         return carry.replace(env_state=env_state, obs=time_step.obs, key=key, episodes=episodes), transition
 
     def rollout(carry: OnPolicyCarry) -> tuple[OnPolicyCarry, Transition]:
-        return jax.lax.scan(env_step, carry, None, agent.experience.num_steps)
+        return loop(env_step, carry, None, agent.experience.num_steps)
 
     return rollout
 
