@@ -242,11 +242,16 @@ def learning_loop(obs_shape: tuple[int, ...]) -> Callable:
     """The loop for an agent's learning steps on observations of ``obs_shape`` on this platform:
     the steps written out (:func:`scan` with ``python_loop``) for stacked frames ``[C, H, W]`` on
     XLA's CPU backend, where a convolution inside a loop body runs many times slower (4 Nature-CNN
-    gradient steps of batch 256 took 51 s in a ``lax.scan``); ``jax.lax.scan`` everywhere else."""
-    import functools
+    gradient steps of batch 256 took 51 s in a ``lax.scan``); ``jax.lax.scan`` everywhere else.
 
+    The backend is asked when the loop is traced, not here: asking creates jax's client, and the
+    runner decides first how (:func:`let_xla_use_every_cpu`) once it knows what it runs."""
     import jax
 
-    if len(obs_shape) == 3 and jax.default_backend() == "cpu":
-        return functools.partial(scan, python_loop=True)
-    return jax.lax.scan
+    if len(obs_shape) != 3:
+        return jax.lax.scan
+
+    def loop(f, init, xs=None, length=None):
+        return scan(f, init, xs, length, python_loop=jax.default_backend() == "cpu")
+
+    return loop
