@@ -30,6 +30,7 @@ RANKS: dict[str, int] = {
     "agentax.cli": 9,
     "agentax": 8,  # the package's __init__: the public names, from api
     "agentax.api": 8,
+    "agentax.sweeps": 8,
     "agentax.runners": 7,
     "agentax.agents": 6,  # the registry, presets and the algorithms
     "agentax.search": 6,
@@ -52,7 +53,7 @@ RANKS: dict[str, int] = {
 layer only where the graph stays acyclic, checked apart). A module takes the rank of the longest
 prefix naming it (``agentax.agents.ppo`` is ``agentax.agents``'s 6)."""
 ALGORITHM_MODULES = ("agentax.agents.dqn", "agentax.agents.ppo", "agentax.agents.reinforce")
-MAY_IMPORT_XLA = ("agentax", "agentax.api", "agentax.runners", "agentax.cli")
+MAY_IMPORT_XLA = ("agentax", "agentax.api", "agentax.sweeps", "agentax.runners", "agentax.cli")
 """The platform's workarounds (the CPU hang's cure, the compilation cache) stay in the entry points
 and the runners: no algorithm, env or store shapes itself around a backend."""
 

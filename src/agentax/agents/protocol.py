@@ -169,6 +169,14 @@ def check_fields(
     one of the activations of :mod:`agentax.nets`."""
     from agentax.nets import ACTIVATIONS
 
+    def concrete(names: tuple[str, ...]) -> tuple[str, ...]:  # a sweep's traced values are checked before
+        return tuple(n for n in names if not isinstance(getattr(cfg, n), jax.core.Tracer))
+
+    positive, unit_interval, non_negative = (
+        concrete(positive),
+        concrete(unit_interval),
+        concrete(non_negative),
+    )
     for name in positive:
         if getattr(cfg, name) <= 0:
             raise UsageError(f"{name} must be positive, got {getattr(cfg, name)}")

@@ -39,6 +39,7 @@ COMMANDS: dict[str, str] = {
     "plot": "overlay the learning curves of run folders into one PNG",
     "report": "compare runs across seeds: IQM, mean, median with 95 % bootstrap intervals",
     "search": "policy search: (p, r) of the vacuum robot by grid/random search; GA or CEM on CartPole",
+    "sweep": "hyperparameter settings × seeds in one compiled program, reported with IQM and intervals",
     "solve": "solve a tabular MDP: value / Q-value iteration, TD, Q-learning, SARSA (--plot compares)",
 }
 

@@ -86,8 +86,13 @@ class RunnerConfig:
     ``freeze_episodes`` episodes, played on side envs during training, returned at least this"""
     freeze_episodes: int = 8
     """greedy episodes (and side envs) behind ``freeze_at_return``"""
+    num_settings: int = 1
+    """a sweep's settings traced in this program: its ``num_settings × num_seeds`` agents run
+    setting ``i // num_seeds`` with seed ``seed + i % num_seeds`` (:mod:`agentax.runners.sweep`)"""
 
     def __post_init__(self):
+        if self.num_settings < 1:
+            raise UsageError(f"a sweep needs at least one setting, got {self.num_settings}")
         if self.num_seeds < 1:
             raise UsageError(f"--seeds must be at least 1, got {self.num_seeds}")
         if self.eval_every_chunks < 0:
@@ -127,11 +132,12 @@ def check_fits(algorithm: Program, runner: RunnerConfig) -> None:
     Counts the carry of one seed (parameters, optimizer state, env states, replay) times the seeds,
     twice: the program's buffers and the host copy a checkpoint makes. One seed is not checked (its
     settings are the algorithm's to refuse), so the default run pays no extra trace."""
-    if runner.num_seeds == 1:
+    agents = runner.num_seeds * runner.num_settings
+    if agents == 1:
         return
-    one_seed = jax.eval_shape(algorithm.init, jax.random.key(0))
+    one_seed = jax.eval_shape(init_from_seeds(algorithm), np.zeros(1, np.int32))
     per_seed = sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(one_seed) if hasattr(x, "dtype"))
-    need, have = 2 * per_seed * runner.num_seeds, available_memory()
+    need, have = 2 * per_seed * agents, available_memory()
     if have is not None and need > have:
         fitting = max(have // max(2 * per_seed, 1), 0)
         raise UsageError(
@@ -149,13 +155,16 @@ def freeze_of(runner: RunnerConfig) -> Freeze | None:
 
 
 def seeds_of(runner: RunnerConfig) -> np.ndarray:
-    """The seeds of the runner's agents ``[num_seeds]``: agent k uses ``seed + k``, alone or in a batch."""
-    return np.arange(runner.seed, runner.seed + runner.num_seeds, dtype=np.int32)
+    """The seeds of the runner's agents ``[num_settings × num_seeds]``: agent k uses ``seed + k``
+    (``seed + k % num_seeds`` in a sweep), alone or in a batch."""
+    return np.tile(
+        np.arange(runner.seed, runner.seed + runner.num_seeds, dtype=np.int32), runner.num_settings
+    )
 
 
 def init_from_seeds(algorithm: Program) -> Callable[[jax.Array], Any]:
     """``seeds [S] -> carry`` with a leading seed axis: ``algorithm.init(jax.random.key(seed))`` each."""
-    return jax.vmap(lambda seed: algorithm.init(jax.random.key(seed)))
+    return jax.vmap(lambda seed: algorithm.init(jax.random.key(seed)), axis_name=SEED_AXIS)
 
 
 def make_chunk(algorithm: Program, env: Environment, updates_per_chunk: int, eval_episodes: int):
