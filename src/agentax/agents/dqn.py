@@ -53,7 +53,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from agentax.agents.protocol import PRIORITY, Agent, EnvSpec, Loop, OffPolicy
+from agentax.agents.protocol import PRIORITY, Agent, EnvSpec, Loop, OffPolicy, check_fields
 from agentax.envs.core import Discrete
 from agentax.errors import UsageError
 from agentax.nets import QNetwork, is_image, random_shift, support
@@ -164,12 +164,13 @@ class DQNConfig:
 
     def validate(self) -> DQNConfig:
         """Raise ``UsageError`` naming the first bad value; return ``self``."""
+        check_fields(
+            self,
+            positive=("learning_rate", "target_update_tau"),
+            unit_interval=("discount_factor", "target_update_tau"),
+            non_negative=("noisy_sigma0",),
+        )
         checks = [
-            (
-                0.0 <= self.discount_factor <= 1.0,
-                f"discount_factor must be in [0, 1], got {self.discount_factor}",
-            ),
-            (self.learning_rate > 0, f"learning_rate must be positive, got {self.learning_rate}"),
             (self.loss in ("mse", "huber"), f"unknown loss {self.loss!r}; choose from mse, huber"),
             (
                 self.optimizer in ("adam", "rmsprop"),
@@ -183,10 +184,6 @@ class DQNConfig:
             (
                 self.target_update_period >= 0,
                 f"target_update_period must be >= 0, got {self.target_update_period}",
-            ),
-            (
-                0.0 < self.target_update_tau <= 1.0,
-                f"target_update_tau must be in (0, 1], got {self.target_update_tau}",
             ),
             (self.batch_size >= 1 and self.buffer_size >= 1, "batch_size and buffer_size must be at least 1"),
             (self.num_envs >= 1, f"num_envs must be at least 1, got {self.num_envs}"),
@@ -202,7 +199,6 @@ class DQNConfig:
             ),
             (self.num_atoms >= 2, f"num_atoms must be at least 2, got {self.num_atoms}"),
             (self.v_min < self.v_max, f"v_min must be below v_max, got {self.v_min} and {self.v_max}"),
-            (self.noisy_sigma0 >= 0, f"noisy_sigma0 must be >= 0, got {self.noisy_sigma0}"),
             (
                 self.augment in AUGMENTATIONS,
                 f"unknown augment {self.augment!r}; choose from {', '.join(AUGMENTATIONS)}",

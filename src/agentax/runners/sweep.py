@@ -84,7 +84,7 @@ def traceable(make_program: Callable[[Any], Program], cfg: Any, name: str) -> bo
     try:
         carry = jax.eval_shape(init, jax.random.split(jax.random.key(0), 1))
         jax.eval_shape(jax.vmap(program.update, axis_name=SEED_AXIS), carry)
-    except (jax.errors.ConcretizationTypeError, TypeError):
+    except (TypeError, ValueError, jax.errors.UnexpectedTracerError):  # a shape, a branch, static data
         return False
     return True
 
