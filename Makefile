@@ -38,7 +38,7 @@ lint: $(STAMP)
 lock:
 	rm -rf .lockenv && $(PYTHON) -m venv .lockenv
 	.lockenv/bin/pip install --quiet --upgrade pip
-	.lockenv/bin/pip install --quiet -e '.[dev,atari,ray]' setuptools
+	.lockenv/bin/pip install --quiet -e '.[dev,atari,ray,sweep]' setuptools
 	.lockenv/bin/pip freeze --all --exclude-editable | grep -v "^pip==" > requirements.lock
 	rm -rf .lockenv
 

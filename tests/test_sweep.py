@@ -92,3 +92,21 @@ def test_random_settings_stay_in_their_ranges_and_repeat_with_the_seed():
     assert 0.3 < np.mean(np.log10(rates) < -3.5) < 0.7  # log-uniform: half below the log midpoint
     assert {type(d["num_envs"]) for d in drawn} == {int} and all(2 <= d["num_envs"] <= 16 for d in drawn)
     assert drawn == random_settings(ranges, types, 200, seed=3)
+
+
+@pytest.mark.timeout(300)
+def test_optuna_asks_batches_and_a_rerun_asks_the_same(tmp_path):
+    """Two batches of two TPE trials, each batch one program; the same command again reads every
+    batch back (its asked settings enqueued) and reports the same trials and scores."""
+    pytest.importorskip("optuna")
+    ranges = dict([parse_range("learning_rate=1e-4:1e-2:log")])
+    asked = {"method": "optuna", "trials": 4, "batch": 2, "ranges": ranges, "out": tmp_path / "o", **SMALL}
+    first = sweep("ppo", **asked)
+    assert len(first.settings) == 4 and len(list((tmp_path / "o").glob("program-*"))) == 2
+    assert all(1e-4 <= row["learning_rate"] <= 1e-2 for row in first.settings)
+    again = sweep("ppo", **asked)
+    assert [(r["learning_rate"], r["scores"]) for r in again.settings] == [
+        (r["learning_rate"], r["scores"]) for r in first.settings
+    ]
+    with pytest.raises(UsageError, match="suggests traced values only"):
+        sweep("ppo", **{**asked, "ranges": {"num_envs": (2.0, 8.0, False)}, "out": tmp_path / "p"})

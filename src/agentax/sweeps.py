@@ -24,6 +24,7 @@ import itertools
 import json
 import math
 import shlex
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -116,6 +117,9 @@ def sweep(
     grid: dict[str, str] | None = None,
     ranges: dict[str, tuple[float, float, bool]] | None = None,
     random: int = 0,
+    method: str = "auto",
+    trials: int = 0,
+    batch: int = 8,
     seeds: int = 8,
     seed: int = 0,
     preset: str = "auto",
@@ -123,22 +127,19 @@ def sweep(
     out: str | Path | None = None,
     progress: bool = True,
 ) -> SweepResult:
-    """Train every setting of ``grid`` (name → "v1,v2,...", their product) or ``random`` draws from
-    ``ranges`` with ``seeds`` seeds each; write and return the sweep (see the module docstring).
-    ``out`` naming an unfinished sweep of the same request resumes it."""
+    """Train every setting of ``grid`` (name → "v1,v2,...", their product), ``random`` draws from
+    ``ranges``, or (``method="optuna"``) ``trials`` settings Optuna's TPE suggests in ``ranges``,
+    ``batch`` at a time as one program; ``seeds`` seeds each. Writes and returns the sweep (see the
+    module docstring); ``out`` naming an unfinished sweep of the same request resumes it."""
     from agentax import _xla
-    from agentax.api import algorithm, choose_preset, compiled_program, config_to_dict
+    from agentax.api import algorithm, choose_preset, compiled_program
     from agentax.envs import JAX_ENVS, make_jax
     from agentax.runners.compiled import RunnerConfig
     from agentax.runners.sweep import float_fields, traceable
 
     grid, ranges = grid or {}, ranges or {}
-    if bool(grid) == bool(random):
-        raise UsageError(
-            "give the settings as --grid NAME=V1,V2,... or as --random N with --range NAME=LOW:HIGH"
-        )
-    if random and not ranges:
-        raise UsageError("--random N draws from ranges: give at least one --range NAME=LOW:HIGH[:log]")
+    method = method if method != "auto" else ("grid" if grid else "random")
+    _check_request(method, grid, ranges, random, trials, batch)
     if env not in JAX_ENVS:
         raise UsageError(
             f"a sweep runs in the compiled runner, on a JAX env ({', '.join(JAX_ENVS)}), not {env!r}"
@@ -159,11 +160,6 @@ def sweep(
     not_numbers = [n for n in names if fields[n] not in (int, float, bool)]
     if not_numbers:
         raise UsageError(f"{not_numbers[0]} is not a number and cannot be swept; set it with agentax train")
-    if grid:
-        axes = {n: parse_values(fields[n], text, n) for n, text in grid.items()}
-        settings = [dict(zip(axes, combo, strict=True)) for combo in itertools.product(*axes.values())]
-    else:
-        settings = random_settings(ranges, fields, random, seed)
     jax_env = make_jax(env)
 
     def make_program(cfg):
@@ -171,13 +167,20 @@ def sweep(
 
     traced = [n for n in names if n in float_fields(base) and traceable(make_program, base, n)]
     static = [n for n in names if n not in traced]
+    if method == "optuna" and static:
+        raise UsageError(
+            f"--method optuna suggests traced values only (one program a batch); {static[0]} sets a shape "
+            "or a branch of the program: fix it with --preset or sweep it with --grid"
+        )
+    if method == "grid":
+        axes = {n: parse_values(fields[n], text, n) for n, text in grid.items()}
+        settings = [dict(zip(axes, combo, strict=True)) for combo in itertools.product(*axes.values())]
+    elif method == "random":
+        settings = random_settings(ranges, fields, random, seed)
+    else:
+        settings = []  # asked batch by batch
     for setting in settings:  # every setting validated before anything runs
-        candidate = dataclasses.replace(base, **setting)
-        if hasattr(candidate, "validate"):
-            candidate.validate()
-    groups: dict[tuple, list[int]] = {}
-    for i, setting in enumerate(settings):
-        groups.setdefault(tuple(setting[n] for n in static), []).append(i)
+        _validated(base, setting)
 
     path = Path(out) if out is not None else _default_sweep_dir(algo, env)
     request = {
@@ -187,21 +190,16 @@ def sweep(
         "seeds": seeds,
         "seed": seed,
         "total_steps": base.total_steps,
-        "settings": settings,
+        "method": method,
+        **({"settings": settings} if settings else {"ranges": ranges, "trials": trials, "batch": batch}),
         "traced": traced,
         "static": static,
     }
     _open_folder(path, request)
-    if progress:
-        print(
-            f"sweep of {algo} on {env}: {len(settings)} settings × {seeds} seeds in {len(groups)} program(s) "
-            f"into {path}\n  traced inside a program: {', '.join(traced) or 'none'}"
-            f"\n  one program per value: {', '.join(static) or 'none'}",
-            flush=True,
-        )
-    scores: dict[int, np.ndarray] = {}
-    for p, (static_values, members) in enumerate(groups.items()):
-        cfg = dataclasses.replace(base, **dict(zip(static, static_values, strict=True)))
+
+    def train_settings(p: int, members: list[dict[str, Any]]) -> list[np.ndarray]:
+        """Program ``p``: ``members`` (their static values equal) × the seeds; each member's scores."""
+        cfg = dataclasses.replace(base, **{n: members[0][n] for n in static})
         runner = RunnerConfig(
             seed=seed,
             num_seeds=seeds,
@@ -210,28 +208,95 @@ def sweep(
             eval_every_chunks=chosen.eval_every_chunks,
             eval_episodes=chosen.eval_episodes,
         )
-        table = {n: np.repeat([settings[i][n] for i in members], seeds).astype(np.float32) for n in traced}
-        if progress:
-            shown = ", ".join(f"{n}={v}" for n, v in zip(static, static_values, strict=True))
-            print(
-                f"program {p + 1}/{len(groups)}{': ' + shown if shown else ''} ({len(members)} settings)",
-                flush=True,
-            )
-        per_agent = _train_program(
-            path / f"program-{p}",
-            algo,
-            env,
-            preset_name,
-            cfg,
-            runner,
-            table,
-            make_program,
-            config_to_dict,
-            progress,
+        table = {n: np.repeat([m[n] for m in members], seeds).astype(np.float32) for n in traced}
+        per_agent = _train_program(path / f"program-{p}", request, cfg, runner, table, make_program, progress)
+        return [per_agent[j * seeds : (j + 1) * seeds] for j in range(len(members))]
+
+    if method == "optuna":
+        settings, scores = _optuna(path, ranges, trials, batch, seed, train_settings, base, progress)
+        return _write_results(path, request, settings, scores)
+    groups: dict[tuple, list[int]] = {}
+    for i, setting in enumerate(settings):
+        groups.setdefault(tuple(setting[n] for n in static), []).append(i)
+    if progress:
+        print(
+            f"sweep of {algo} on {env}: {len(settings)} settings × {seeds} seeds in {len(groups)} program(s) "
+            f"into {path}\n  traced inside a program: {', '.join(traced) or 'none'}"
+            f"\n  one program per value: {', '.join(static) or 'none'}",
+            flush=True,
         )
-        for j, i in enumerate(members):
-            scores[i] = per_agent[j * seeds : (j + 1) * seeds]
-    return _write_results(path, request, settings, scores, static)
+    scores: dict[int, np.ndarray] = {}
+    for p, members in enumerate(groups.values()):
+        if progress:
+            shown = ", ".join(f"{n}={settings[members[0]][n]}" for n in static)
+            print(f"program {p + 1}/{len(groups)}{': ' + shown if shown else ''} ({len(members)} settings)")
+        for i, member_scores in zip(members, train_settings(p, [settings[i] for i in members]), strict=True):
+            scores[i] = member_scores
+    return _write_results(path, request, settings, scores)
+
+
+def _check_request(method: str, grid: dict, ranges: dict, random: int, trials: int, batch: int) -> None:
+    """One line for a request that names no settings, or two kinds of them."""
+    if method not in ("grid", "random", "optuna"):
+        raise UsageError(f"unknown --method {method!r}; choose from grid, random, optuna")
+    if method == "optuna":
+        if grid or random:
+            raise UsageError(
+                "--method optuna suggests its own settings: give --range flags, not --grid or --random"
+            )
+        if trials < 1 or batch < 1 or not ranges:
+            raise UsageError("--method optuna needs --trials N (and --batch K) and at least one --range")
+        return
+    if bool(grid) == bool(random):
+        raise UsageError(
+            "give the settings as --grid NAME=V1,V2,... or as --random N with --range NAME=LOW:HIGH"
+        )
+    if random and not ranges:
+        raise UsageError("--random N draws from ranges: give at least one --range NAME=LOW:HIGH[:log]")
+
+
+def _validated(base: Any, setting: dict[str, Any]) -> None:
+    candidate = dataclasses.replace(base, **setting)
+    if hasattr(candidate, "validate"):
+        candidate.validate()
+
+
+def _optuna(path: Path, ranges, trials: int, batch: int, seed: int, train_settings, base, progress: bool):
+    """Optuna's ask-and-tell, a batch of trials at a time, each batch one program; a trial's value
+    is the IQM of its seeds. A batch's settings are kept (``asked-<b>.json``) before it trains, so a
+    resumed sweep asks the same ones again (enqueued) and the TPE sampler, told the same results,
+    carries on as it would have."""
+    import optuna
+
+    from agentax.report import iqm
+    from agentax.runs import write_json
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    study = optuna.create_study(direction="maximize", sampler=optuna.samplers.TPESampler(seed=seed))
+    distributions = {
+        n: optuna.distributions.FloatDistribution(low, high, log=log)
+        for n, (low, high, log) in ranges.items()
+    }
+    settings: list[dict[str, Any]] = []
+    scores: dict[int, np.ndarray] = {}
+    batches = -(-trials // batch)
+    for b in range(batches):
+        asked_path = path / f"asked-{b}.json"
+        if asked_path.exists():
+            for params in json.loads(asked_path.read_text()):
+                study.enqueue_trial(params)
+        asked = [study.ask(distributions) for _ in range(min(batch, trials - b * batch))]
+        members = [dict(t.params) for t in asked]
+        for member in members:
+            _validated(base, member)
+        write_json(asked_path, members)
+        if progress:
+            print(f"optuna batch {b + 1}/{batches}: {len(members)} trials in one program", flush=True)
+        for trial, member, member_scores in zip(asked, members, train_settings(b, members), strict=True):
+            study.tell(trial, float(iqm(np.asarray(member_scores))))
+            scores[len(settings)] = member_scores
+            settings.append(member)
+    return settings, scores
 
 
 def _default_sweep_dir(algo: str, env: str) -> Path:
@@ -256,11 +321,10 @@ def _open_folder(path: Path, request: dict[str, Any]) -> None:
     write_json(asked, request)
 
 
-def _train_program(
-    folder: Path, algo, env, preset_name, cfg, runner, table, make_program, config_to_dict, progress
-) -> np.ndarray:
+def _train_program(folder: Path, request, cfg, runner, table, make_program, progress: bool) -> np.ndarray:
     """One program of the sweep in its run folder (resumed from its checkpoint, or read back when
     it finished): the final evaluation's mean return of each agent ``[settings × seeds]``."""
+    from agentax.api import config_to_dict
     from agentax.envs import make_jax
     from agentax.runners import compiled
     from agentax.runners.sweep import sweep_program
@@ -275,16 +339,15 @@ def _train_program(
         run = Run.open(folder)
     else:
         if folder.exists():  # made but never checkpointed: start it again
-            import shutil
-
             shutil.rmtree(folder)
-        config = run_config(algo, env, preset_name, "sweep", runner, config_to_dict(cfg))
+        settings = config_to_dict(cfg)
+        config = run_config(request["algo"], request["env"], request["preset"], "sweep", runner, settings)
         run = Run.create(folder, {**config, "table": {n: c.tolist() for n, c in table.items()}})
-    result = compiled.train(program, make_jax(env), runner, run, resume=resume, progress=progress)
+    result = compiled.train(program, make_jax(request["env"]), runner, run, resume=resume, progress=progress)
     return np.asarray([s["mean_return"] for s in result.eval["per_seed"]])
 
 
-def _write_results(path: Path, request, settings, scores, static) -> SweepResult:
+def _write_results(path: Path, request, settings, scores) -> SweepResult:
     from agentax.report import aggregate
     from agentax.runs import write_json
 
@@ -310,7 +373,7 @@ def _write_results(path: Path, request, settings, scores, static) -> SweepResult
         writer = csv.DictWriter(file, [*settings[0], *RESULTS_COLUMNS])
         writer.writeheader()
         writer.writerows([{k: v for k, v in row.items() if k != "scores"} for row in rows])
-    best = max(rows, key=lambda row: row["iqm"])
+    best = max(rows, key=lambda row: (row["iqm"], row["mean"]))  # ties (a solved env) by the mean
     setting = {n: best[n] for n in settings[0]}
     flags = " ".join(f"--{n.replace('_', '-')} {shlex.quote(str(v))}" for n, v in setting.items())
     command = (

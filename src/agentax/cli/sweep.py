@@ -1,4 +1,5 @@
-"""``agentax sweep ALGO --env ID --grid NAME=V1,V2 [--grid ...] | --random N --range NAME=LOW:HIGH[:log]``.
+"""``agentax sweep ALGO --env ID --grid NAME=V1,V2 [--grid ...] | --random N --range NAME=LOW:HIGH[:log]
+| --method optuna --trials N --batch K --range ...``.
 
 Trains every setting with ``--seeds`` seeds on the compiled runner, the settings whose names can be
 traced side by side in one program (:mod:`agentax.sweeps`), and prints one row per setting: the IQM,
@@ -27,7 +28,14 @@ class SweepArgs:
     random: int = 0
     """draw this many settings from the --range flags instead of a grid"""
     range: Annotated[tuple[str, ...], tyro.conf.UseAppendAction] = ()
-    """NAME=LOW:HIGH or NAME=LOW:HIGH:log (with --random)"""
+    """NAME=LOW:HIGH or NAME=LOW:HIGH:log (with --random or --method optuna)"""
+    method: str = "auto"
+    """grid, random, or optuna (TPE: --trials N settings asked --batch K at a time, each batch one
+    program); auto: grid with --grid, else random"""
+    trials: int = 0
+    """--method optuna: settings to try in all"""
+    batch: int = 8
+    """--method optuna: settings asked at once and trained side by side in one program"""
     seeds: int = 8
     """seeds per setting (the same seeds for every setting)"""
     seed: int = 0
@@ -62,6 +70,9 @@ def main(argv: list[str]) -> int:
         grid=grid,
         ranges=ranges,
         random=args.random,
+        method=args.method,
+        trials=args.trials,
+        batch=args.batch,
         seeds=args.seeds,
         seed=args.seed,
         preset=args.preset,
