@@ -3,6 +3,9 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+# gymnax declares gymnasium<1.4 (agentax pins 1.4.0) and imports gymnasium only for what agentax does
+# not call: installed without its declared dependencies; what it imports is in the lock (extra gymnax).
+GYMNAX := gymnax==1.0.1
 
 .PHONY: demo test test-long bench lint docs lock clean
 
@@ -10,6 +13,7 @@ $(STAMP): pyproject.toml requirements.lock
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -r requirements.lock
+	$(PY) -m pip install --quiet --no-deps $(GYMNAX)
 	$(PY) -m pip install --quiet --no-deps --no-build-isolation -e .
 	touch $(STAMP)
 
@@ -38,7 +42,7 @@ lint: $(STAMP)
 lock:
 	rm -rf .lockenv && $(PYTHON) -m venv .lockenv
 	.lockenv/bin/pip install --quiet --upgrade pip
-	.lockenv/bin/pip install --quiet -e '.[dev,atari,ray,sweep]' setuptools
+	.lockenv/bin/pip install --quiet -e '.[dev,atari,ray,sweep,gymnax]' setuptools
 	.lockenv/bin/pip freeze --all --exclude-editable | grep -v "^pip==" > requirements.lock
 	rm -rf .lockenv
 

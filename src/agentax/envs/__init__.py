@@ -19,6 +19,7 @@ from agentax.envs.gym import (
     is_gymnasium_id,
     register_envs,
 )
+from agentax.envs.gymnax import factories as gymnax_envs
 from agentax.envs.mdp import lecture_mdp_env
 from agentax.envs.vacuum import Vacuum
 from agentax.errors import UsageError
@@ -28,6 +29,7 @@ JAX_ENVS: dict[str, Callable[[], Environment]] = {
     "CartPole-v1": cartpole_v1,
     "Vacuum-v0": Vacuum,
     "LectureMDP-v0": lecture_mdp_env,
+    **gymnax_envs(),  # gymnax/<ID>, where gymnax is installed
 }
 
 
@@ -86,7 +88,7 @@ def make_host_env(
     return GymnasiumEnv(host_env_id(env_id), num_envs)
 
 
-register_envs(JAX_ENVS)
+register_envs({k: v for k, v in JAX_ENVS.items() if "/" not in k})  # gymnax/ ids are gymnax's own
 
 __all__ = [
     "JAX_ENVS",

@@ -1,0 +1,78 @@
+"""gymnax's envs through agentax's adapter: gymnax's own step, transition for transition, and
+training on the compiled runner (vmapped seeds, a sweep)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import agentax
+
+gymnax = pytest.importorskip("gymnax")
+
+from agentax.envs.gymnax import GymnaxEnv  # noqa: E402
+from agentax.sweeps import sweep  # noqa: E402
+
+
+@pytest.mark.parametrize("name", ["Breakout-MinAtar", "Asterix-MinAtar", "CartPole-v1", "Catch-bsuite"])
+def test_the_adapter_steps_as_gymnax_steps(name):
+    """600 random steps from the same keys through gymnax's ``step`` and the adapter's: the same
+    observations (flattened), rewards, terminations, truncations and final observations."""
+    theirs, params = gymnax.make(name)
+    ours = GymnaxEnv(name)
+    num_actions = ours.action_space().n
+    reset_key, run_key = jax.random.split(jax.random.key(7))
+    obs, state = theirs.reset(reset_key, params)
+    our_obs, our_state = ours.reset(reset_key, params)
+    np.testing.assert_array_equal(our_obs, np.ravel(obs))
+
+    def step(carry, key):
+        state, our_state = carry
+        action_key, step_key = jax.random.split(key)
+        action = jax.random.randint(action_key, (), 0, num_actions)
+        obs, state, reward, terminated, truncated, info = theirs.step(step_key, state, action, params)
+        ts, our_state = ours.step(step_key, our_state, action, params)
+        mine = (ts.obs, ts.reward, ts.terminated, ts.truncated, ts.final_obs)
+        gymnax_view = (jnp.ravel(obs), reward, terminated, truncated, jnp.ravel(info["final_observation"]))
+        return (state, our_state), (mine, gymnax_view)
+
+    _, (mine, gymnax_view) = jax.jit(
+        lambda k: jax.lax.scan(step, (state, our_state), jax.random.split(k, 600))
+    )(run_key)
+    for got, want in zip(mine, gymnax_view, strict=True):
+        np.testing.assert_array_equal(np.asarray(got, np.float32), np.asarray(want, np.float32))
+    assert np.asarray(mine[2]).any(), "the steps should reach at least one episode's end"
+
+
+@pytest.mark.timeout(300)
+def test_ppo_learns_gymnax_cartpole_on_the_compiled_runner(tmp_path):
+    """Two seeds vmapped, made by id through agentax.make: far above random play (~22)."""
+    assert isinstance(agentax.make("gymnax/Breakout-MinAtar"), GymnaxEnv)
+    run = agentax.train(
+        "ppo",
+        env="gymnax/CartPole-v1",
+        preset="cartpole-fast",
+        seeds=2,
+        total_steps=20_480,
+        stop_at_return=None,
+        out=tmp_path / "g",
+        progress=False,
+    )
+    assert min(s["mean_return"] for s in run.final_eval["per_seed"]) > 150, run.final_eval
+
+
+@pytest.mark.timeout(300)
+def test_a_sweep_runs_on_a_minatar_game(tmp_path):
+    swept = sweep(
+        "pqn",
+        "gymnax/Breakout-MinAtar",
+        grid={"learning_rate": "3e-4,1e-3"},
+        seeds=1,
+        total_steps=4_096,
+        out=tmp_path / "s",
+        progress=False,
+    )
+    assert [row["learning_rate"] for row in swept.settings] == [3e-4, 1e-3]
+    assert all(np.isfinite(row["scores"]).all() for row in swept.settings)
