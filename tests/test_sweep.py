@@ -65,6 +65,21 @@ def test_a_finished_sweep_is_read_back_and_another_request_is_refused(swept):
         sweep("ppo", grid={"learning_rate": "1e-3"}, out=swept.path, **SMALL)
 
 
+@pytest.mark.timeout(300)
+def test_two_workers_give_each_setting_the_numbers_of_one_process(swept, tmp_path):
+    """Each program's settings split over two processes (a program each): the same scores."""
+    split = sweep(
+        "ppo", grid={"learning_rate": "1e-3,3e-3", "num_envs": "4,8"}, workers=2, out=tmp_path / "w", **SMALL
+    )
+    assert sorted(p.name for p in split.path.glob("program-*")) == [
+        "program-0-0",
+        "program-0-1",
+        "program-1-0",
+        "program-1-1",
+    ]
+    assert [row["scores"] for row in split.settings] == [row["scores"] for row in swept.settings]
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [

@@ -18,11 +18,13 @@ sweep starts from seed ``k``'s keys).
 
 from __future__ import annotations
 
+import concurrent.futures
 import csv
 import dataclasses
 import itertools
 import json
 import math
+import multiprocessing
 import shlex
 import shutil
 from dataclasses import dataclass
@@ -125,6 +127,7 @@ def sweep(
     preset: str = "auto",
     total_steps: int | None = None,
     out: str | Path | None = None,
+    workers: int = 1,
     progress: bool = True,
 ) -> SweepResult:
     """Train every setting of ``grid`` (name → "v1,v2,...", their product), ``random`` draws from
@@ -140,6 +143,8 @@ def sweep(
     grid, ranges = grid or {}, ranges or {}
     method = method if method != "auto" else ("grid" if grid else "random")
     _check_request(method, grid, ranges, random, trials, batch)
+    if workers < 1:
+        raise UsageError(f"--workers must be at least 1, got {workers}")
     if env not in JAX_ENVS:
         raise UsageError(
             f"a sweep runs in the compiled runner, on a JAX env ({', '.join(JAX_ENVS)}), not {env!r}"
@@ -191,6 +196,7 @@ def sweep(
         "seed": seed,
         "total_steps": base.total_steps,
         "method": method,
+        "workers": workers,
         **({"settings": settings} if settings else {"ranges": ranges, "trials": trials, "batch": batch}),
         "traced": traced,
         "static": static,
@@ -208,8 +214,18 @@ def sweep(
             eval_every_chunks=chosen.eval_every_chunks,
             eval_episodes=chosen.eval_episodes,
         )
-        table = {n: np.repeat([m[n] for m in members], seeds).astype(np.float32) for n in traced}
-        per_agent = _train_program(path / f"program-{p}", request, cfg, runner, table, make_program, progress)
+        parts = np.array_split(np.arange(len(members)), min(workers, len(members)))
+        jobs = []
+        for w, part in enumerate(parts):
+            table = {n: np.repeat([members[j][n] for j in part], seeds).astype(np.float32) for n in traced}
+            folder = path / (f"program-{p}" if len(parts) == 1 else f"program-{p}-{w}")
+            jobs.append((folder, request, cfg, dataclasses.replace(runner, num_settings=len(part)), table))
+        if len(jobs) == 1:
+            per_agent = _train_program(*jobs[0], progress)
+        else:  # one process a worker, each with its own one-CPU XLA client
+            context = multiprocessing.get_context("spawn")
+            with concurrent.futures.ProcessPoolExecutor(len(jobs), mp_context=context) as pool:
+                per_agent = np.concatenate(list(pool.map(_train_program, *zip(*jobs, strict=True))))
         return [per_agent[j * seeds : (j + 1) * seeds] for j in range(len(members))]
 
     if method == "optuna":
@@ -321,10 +337,11 @@ def _open_folder(path: Path, request: dict[str, Any]) -> None:
     write_json(asked, request)
 
 
-def _train_program(folder: Path, request, cfg, runner, table, make_program, progress: bool) -> np.ndarray:
+def _train_program(folder: Path, request, cfg, runner, table, progress: bool = False) -> np.ndarray:
     """One program of the sweep in its run folder (resumed from its checkpoint, or read back when
-    it finished): the final evaluation's mean return of each agent ``[settings × seeds]``."""
-    from agentax.api import config_to_dict
+    it finished): the final evaluation's mean return of each agent ``[settings × seeds]``. Its
+    arguments are data, so a worker process can run it."""
+    from agentax.api import algorithm, compiled_program, config_to_dict
     from agentax.envs import make_jax
     from agentax.runners import compiled
     from agentax.runners.sweep import sweep_program
@@ -333,7 +350,8 @@ def _train_program(folder: Path, request, cfg, runner, table, make_program, prog
     done = folder / "eval.json"
     if done.exists():
         return np.asarray([s["mean_return"] for s in json.loads(done.read_text())["per_seed"]])
-    program = sweep_program(make_program, cfg, table)
+    module, env = algorithm(request["algo"]), make_jax(request["env"])
+    program = sweep_program(lambda config: compiled_program(module, env, config), cfg, table)
     resume = folder.exists() and bool(checkpoints(folder))
     if resume:
         run = Run.open(folder)
@@ -343,7 +361,7 @@ def _train_program(folder: Path, request, cfg, runner, table, make_program, prog
         settings = config_to_dict(cfg)
         config = run_config(request["algo"], request["env"], request["preset"], "sweep", runner, settings)
         run = Run.create(folder, {**config, "table": {n: c.tolist() for n, c in table.items()}})
-    result = compiled.train(program, make_jax(request["env"]), runner, run, resume=resume, progress=progress)
+    result = compiled.train(program, env, runner, run, resume=resume, progress=progress)
     return np.asarray([s["mean_return"] for s in result.eval["per_seed"]])
 
 

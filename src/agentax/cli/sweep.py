@@ -44,6 +44,9 @@ class SweepArgs:
     """the preset every setting starts from"""
     total_steps: int | None = None
     """env steps per agent (default: the preset's)"""
+    workers: int = 1
+    """processes to split each program's settings over (one a CPU core; XLA's CPU client runs the
+    compiled runner on one core); an interrupted sweep resumes with the same number"""
     out: str | None = None
     """the sweep folder (default runs/sweep-ALGO-ENV-TIME); an unfinished sweep there resumes"""
     json: bool = False
@@ -78,6 +81,7 @@ def main(argv: list[str]) -> int:
         preset=args.preset,
         total_steps=args.total_steps,
         out=args.out,
+        workers=args.workers,
         progress=args.progress,
     )
     if args.json:
