@@ -114,6 +114,26 @@ PPO_PRESETS: dict[str, Preset] = {
         "4 epochs × 4 minibatches, GAE 0.95, entropy 0.01; no value clipping), 10M agent steps, Nature CNN",
         eval_episodes=10,
     ),
+    "minatar": Preset(
+        PPOConfig(
+            total_steps=10_000_000,
+            num_envs=64,
+            num_steps=128,
+            learning_rate=5e-3,
+            discount_factor=0.99,
+            gae_lambda=0.95,
+            num_minibatches=8,
+            update_epochs=4,
+            clip_eps=0.2,
+            ent_coef=1e-4,
+            vf_coef=0.5,
+            max_grad_norm=0.5,
+            activation="relu",
+        ),
+        "MinAtar (gymnax/*-MinAtar): purejaxql's ppo_minatar settings (64 envs × 128 steps, lr 5e-3 "
+        "annealed, 4 epochs × 8 minibatches, entropy 1e-4), 10M steps, an MLP on the flattened channels",
+        updates_per_chunk=10,
+    ),
 }
 
 
@@ -324,6 +344,26 @@ PQN_PRESETS: dict[str, Preset] = {
         "2 epochs × 16 minibatches of 128, RAdam 5e-4 annealed, ε 1 → 0.01 over the first 10 %",
         eval_episodes=10,
     ),
+    "minatar": Preset(
+        PQNConfig(
+            total_steps=10_000_000,
+            num_envs=128,
+            num_steps=32,
+            learning_rate=5e-4,
+            anneal_lr=True,
+            discount_factor=0.99,
+            q_lambda=0.65,
+            update_epochs=2,
+            num_minibatches=32,
+            max_grad_norm=10.0,
+            epsilon_start=1.0,
+            epsilon_end=0.05,
+            exploration_fraction=0.1,
+        ),
+        "MinAtar (gymnax/*-MinAtar): purejaxql's pqn_minatar settings (128 envs × 32 steps, Q(λ 0.65), "
+        "2 epochs × 32 minibatches, RAdam 5e-4 annealed, ε 1 → 0.05 over 10 %), 10M steps, LayerNorm MLP",
+        updates_per_chunk=20,
+    ),
 }
 
 
@@ -337,15 +377,21 @@ PRESETS: dict[str, dict[str, Preset]] = {
 }
 """algorithm → preset name → preset; every algorithm has a ``"default"``"""
 
+MINATAR = {
+    f"gymnax/{game}-MinAtar": "minatar"
+    for game in ("Asterix", "Breakout", "Freeway", "Seaquest", "SpaceInvaders")
+}
+
 DEFAULT_PRESETS: dict[str, dict[str, str]] = {
     "ppo": {
         "atari": "atari",
         "CartPole-v0": "cartpole-fast",
         "CartPole-v1": "cartpole-fast",
         "Pendulum-v1": "pendulum",
+        **MINATAR,
     },
     "dqn": {"atari": "lecture-atari"},
-    "pqn": {"atari": "atari"},
+    "pqn": {"atari": "atari", **MINATAR},
 }
 """algorithm → env → the preset ``--preset auto`` picks for it ("atari": every Atari game; any other
 env, or an algorithm missing here: "default")"""
