@@ -275,10 +275,11 @@ def test_a_killed_actor_process_is_replaced_and_the_run_finishes(cluster, tmp_pa
     agent, remake = make(ppo, cfg)
     run = Run.create(tmp_path, CONFIG)
     killed: list[int] = []
+    finished = threading.Event()  # the killer acts only while the run runs
 
     def kill_one_collector_after_the_first_row():
         deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and not killed:
+        while time.monotonic() < deadline and not killed and not finished.is_set():
             rows = (
                 (tmp_path / "metrics.csv").read_text().count("\n")
                 if (tmp_path / "metrics.csv").exists()
@@ -293,8 +294,9 @@ def test_a_killed_actor_process_is_replaced_and_the_run_finishes(cluster, tmp_pa
     killer = threading.Thread(target=kill_one_collector_after_the_first_row, daemon=True)
     killer.start()
     result = ray_runner.train(agent, "CartPole-v1", RayRunnerConfig(seed=0, actors=2), run, make_agent=remake)
+    finished.set()
     killer.join()
-    assert killed, "no collector process was found to kill"
+    assert killed, "no collector process was found to kill while the run ran"
     assert result.updates == cfg.num_updates  # the run went on to its end
     assert result.rows[-1]["actor_restarts"] == 1
     assert (tmp_path / "eval.json").is_file()

@@ -66,6 +66,7 @@ def test_a_finished_sweep_is_read_back_and_another_request_is_refused(swept):
 
 
 @pytest.mark.timeout(300)
+@pytest.mark.xdist_group("ray")  # its worker processes stay off the time of the Ray tests' processes
 def test_two_workers_give_each_setting_the_numbers_of_one_process(swept, tmp_path):
     """Each program's settings split over two processes (a program each): the same scores."""
     split = sweep(
