@@ -35,17 +35,8 @@ import numpy as np
 
 from agentax.errors import UsageError
 
-RESULTS_COLUMNS = (
-    "iqm",
-    "iqm_low",
-    "iqm_high",
-    "mean",
-    "mean_low",
-    "mean_high",
-    "median",
-    "median_low",
-    "median_high",
-)
+STATISTICS = ("iqm", "mean", "median")  # report.aggregate's, each with its interval
+RESULTS_COLUMNS = tuple(f"{name}{end}" for name in STATISTICS for end in ("", "_low", "_high"))
 
 
 @dataclass(frozen=True)
@@ -372,21 +363,11 @@ def _write_results(path: Path, request, settings, scores) -> SweepResult:
     rows = []
     for i, setting in enumerate(settings):
         stats = aggregate(scores[i], reps=5_000, seed=i)
-        rows.append(
-            {
-                **setting,
-                "iqm": stats["iqm"],
-                "iqm_low": stats["iqm_ci"][0],
-                "iqm_high": stats["iqm_ci"][1],
-                "mean": stats["mean"],
-                "mean_low": stats["mean_ci"][0],
-                "mean_high": stats["mean_ci"][1],
-                "median": stats["median"],
-                "median_low": stats["median_ci"][0],
-                "median_high": stats["median_ci"][1],
-                "scores": [float(s) for s in scores[i]],
-            }
-        )
+        intervals = {
+            f"{n}{end}": stats[f"{n}_ci"][k] for n in STATISTICS for k, end in enumerate(("_low", "_high"))
+        }
+        rows.append({**setting, **{n: stats[n] for n in STATISTICS}, **intervals})
+        rows[-1]["scores"] = [float(s) for s in scores[i]]
     with open(path / "results.csv", "w", newline="") as file:
         writer = csv.DictWriter(file, [*settings[0], *RESULTS_COLUMNS])
         writer.writeheader()

@@ -295,6 +295,17 @@ DQN_PRESETS: dict[str, Preset] = {
 
 # ---------------------------------------------------------------- PQN
 
+PQN_ATARI = PQNConfig(  # purejaxql's pqn_atari; Q(λ 0.65), γ 0.99, ε from 1 over 10 %: PQNConfig's defaults
+    total_steps=10_000_000,
+    num_envs=128,
+    num_steps=32,
+    learning_rate=2.5e-4,
+    anneal_lr=False,
+    update_epochs=2,
+    num_minibatches=32,
+    epsilon_end=0.001,
+)
+
 PQN_PRESETS: dict[str, Preset] = {
     "default": Preset(
         PQNConfig(),
@@ -305,61 +316,27 @@ PQN_PRESETS: dict[str, Preset] = {
         stop_at_solved=True,
     ),
     "atari": Preset(
-        PQNConfig(
-            total_steps=10_000_000,
-            num_envs=128,
-            num_steps=32,
-            learning_rate=2.5e-4,
-            anneal_lr=False,
-            discount_factor=0.99,
-            q_lambda=0.65,
-            update_epochs=2,
-            num_minibatches=32,
-            max_grad_norm=10.0,
-            epsilon_start=1.0,
-            epsilon_end=0.001,
-            exploration_fraction=0.1,
-        ),
+        PQN_ATARI,
         "purejaxql's pqn_atari settings (128 envs × 32 steps, Q(λ 0.65), 2 epochs × 32 minibatches, "
         "RAdam 2.5e-4, ε 1 → 0.001 over the first 10 %), 10M agent steps, Nature CNN with LayerNorm",
         eval_episodes=10,
     ),
     "breakout-hour": Preset(
-        PQNConfig(
+        dataclasses.replace(
+            PQN_ATARI,
             total_steps=600_000,
             num_envs=64,
-            num_steps=32,
             learning_rate=5e-4,
             anneal_lr=True,
-            discount_factor=0.99,
-            q_lambda=0.65,
-            update_epochs=2,
             num_minibatches=16,
-            max_grad_norm=10.0,
-            epsilon_start=1.0,
             epsilon_end=0.01,
-            exploration_fraction=0.1,
         ),
         "an hour of Breakout on a 2-core CPU (~200 agent steps/s): 600k agent steps, 64 envs × 32 steps, "
         "2 epochs × 16 minibatches of 128, RAdam 5e-4 annealed, ε 1 → 0.01 over the first 10 %",
         eval_episodes=10,
     ),
     "minatar": Preset(
-        PQNConfig(
-            total_steps=10_000_000,
-            num_envs=128,
-            num_steps=32,
-            learning_rate=5e-4,
-            anneal_lr=True,
-            discount_factor=0.99,
-            q_lambda=0.65,
-            update_epochs=2,
-            num_minibatches=32,
-            max_grad_norm=10.0,
-            epsilon_start=1.0,
-            epsilon_end=0.05,
-            exploration_fraction=0.1,
-        ),
+        dataclasses.replace(PQN_ATARI, learning_rate=5e-4, anneal_lr=True, epsilon_end=0.05),
         "MinAtar (gymnax/*-MinAtar): purejaxql's pqn_minatar settings (128 envs × 32 steps, Q(λ 0.65), "
         "2 epochs × 32 minibatches, RAdam 5e-4 annealed, ε 1 → 0.05 over 10 %), 10M steps, LayerNorm MLP",
         updates_per_chunk=20,
