@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import json
 import sys
 import time
 from dataclasses import dataclass
@@ -37,7 +38,7 @@ import jax
 import numpy as np
 
 from agentax.agents import algorithm, algorithm_config, config_from_dict, config_to_dict, presets_of
-from agentax.errors import UsageError
+from agentax.errors import TrainingInterrupted, UsageError
 from agentax.evaluate import EvalStats
 from agentax.policies import Policy
 from agentax.runners import RUNNERS
@@ -58,6 +59,9 @@ class RunArgs:
     """seed of the first agent (agent k uses seed + k)"""
     seeds: int = 1
     """independent agents trained together (vmapped into one program)"""
+    workers: int = 1
+    """compiled runner: processes the seeds are split over, one per core (each seed's numbers as in
+    one process; --stop-at-return then stops each worker once its own seeds reach the return)"""
     stop_at_return: str = "auto"
     """stop once the evaluation mean reaches this number; 'none' trains for all of total_steps; 'auto' uses
     the env's solved threshold in solving presets"""
@@ -99,6 +103,8 @@ class RunArgs:
         """Raise ``UsageError`` on a value no runner accepts; return ``self``."""
         if self.seeds < 1:
             raise UsageError(f"--seeds must be at least 1, got {self.seeds}")
+        if self.workers < 1:
+            raise UsageError(f"--workers must be at least 1, got {self.workers}")
         if self.freeze_at_return not in ("auto", "none"):
             try:
                 float(self.freeze_at_return)
@@ -194,7 +200,6 @@ class Run:
     @property
     def final_eval(self) -> dict[str, Any]:
         """eval.json: the evaluation at the end of training, pooled and ``per_seed``."""
-        import json
 
         path = self.path / "eval.json"
         if not path.is_file():
@@ -275,6 +280,13 @@ def compiled_program(module: Any, env: Any, cfg: Any, runner: Any = None) -> Any
         raise UsageError(f"--freeze-at-return: {error}") from None
 
 
+def _best_seed(run_dir: Path) -> int:
+    """The index of the run's best seed by its final evaluation (eval.json), else 0."""
+    path = Path(run_dir) / "eval.json"
+    per_seed = json.loads(path.read_text()).get("per_seed", []) if path.is_file() else []
+    return int(np.argmax([s["mean_return"] for s in per_seed])) if per_seed else 0
+
+
 def _restore_learned(run_dir: Path, config: dict[str, Any]) -> Policy:
     """The greedy policy of a learning algorithm's run (its best seed), from its newest good checkpoint."""
 
@@ -288,6 +300,15 @@ def _restore_learned(run_dir: Path, config: dict[str, Any]) -> Policy:
         from agentax.runners.compiled import restore_policy as restore_compiled
 
         env, runner = make_jax(config["env"]), RunnerConfig(**config["runner"])
+        if runner.workers > 1:  # the best seed's worker
+            from agentax.runners.workers import split, worker_dir
+
+            parts = split(runner)
+            best = _best_seed(run_dir)
+            w = next(w for w, part in enumerate(parts) if best < part.seed - runner.seed + part.num_seeds)
+            local = best - (parts[w].seed - runner.seed)
+            program = compiled_program(module, env, cfg, parts[w])
+            return restore_compiled(worker_dir(run_dir, w), program, parts[w], local)
         return restore_compiled(run_dir, compiled_program(module, env, cfg, runner), runner)
     from agentax.runners.host import restore_policy as restore_host
 
@@ -420,6 +441,7 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Preset, *, quiet: bool
             stop_at_return=stop,
             freeze_at_return=run_args.freeze(preset, kind),
             freeze_episodes=run_args.freeze_episodes,
+            workers=run_args.workers,
         )
         # refused before anything is written: what the program cannot do, more seeds than memory holds
         check_fits(compiled_program(module, env, cfg, runner), runner)
@@ -427,8 +449,18 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Preset, *, quiet: bool
         run = RunFolder.create(
             out, run_config(algo, run_args.env, run_args.preset, "compiled", runner, settings)
         )
-        _announce(f"training {algo} on {run_args.env} ({run_args.seeds} seed(s)) into {out}", quiet)
+        from agentax.runners.workers import split
+
+        shown = f", {len(split(runner))} workers" if runner.workers > 1 else ""
+        _announce(f"training {algo} on {run_args.env} ({run_args.seeds} seed(s){shown}) into {out}", quiet)
+        if runner.workers > 1:
+            return _train_workers(run, runner, resume=False, progress=run_args.progress)
         return _train_compiled(module, env, cfg, runner, run, resume=False, progress=run_args.progress)
+    if run_args.workers > 1:
+        raise UsageError(
+            f"--workers splits the compiled runner's seeds over processes; the {kind} runner trains one "
+            "seed (train a JAX env with --runner compiled, or drop the flag)"
+        )
     return _start_host(algo, module, run_args, cfg, preset, kind, out, quiet)
 
 
@@ -541,7 +573,8 @@ def resume(run_dir: str | Path, progress: bool = True, *, quiet: bool = False) -
 
     run_dir = Path(run_dir)
     config = _upgraded(read_config(run_dir))
-    latest_checkpoint(run_dir)  # a clear error before anything starts if there is none
+    if config.get("runner", {}).get("workers", 1) == 1:  # (workers without one start again)
+        latest_checkpoint(run_dir)  # a clear error before anything starts if there is none
     algo = config["algo"]
     module = algorithm(algo)
     cfg = config_from_dict(algorithm_config(algo), config["config"])
@@ -564,8 +597,108 @@ def resume(run_dir: str | Path, progress: bool = True, *, quiet: bool = False) -
         )
     from agentax.envs import make_jax
 
+    if runner.workers > 1:
+        return _train_workers(RunFolder.open(run_dir), runner, resume=True, progress=progress)
     env = make_jax(config["env"])
     return _train_compiled(module, env, cfg, runner, RunFolder.open(run_dir), resume=True, progress=progress)
+
+
+def _train_workers(run: Any, runner: Any, *, resume: bool, progress: bool) -> Run:
+    """Train the seeds of ``runner`` split over ``runner.workers`` processes
+    (:mod:`agentax.runners.workers`), each in ``worker-<w>/`` (resumed, or read back where it
+    finished), then write the run's merged metrics, eval.json and curve.png."""
+    import shutil
+
+    from agentax.curves import plot_curves
+    from agentax.runners.session import TrainResult
+    from agentax.runners.workers import FINAL_RETURNS, map_processes, merge_rows, split, worker_dir
+    from agentax.runs import Run as RunFolder
+    from agentax.runs import read_json, read_metrics
+
+    start_time = time.perf_counter()
+    parts = split(runner)
+    jobs = [(str(run.path), w, part, resume, progress and w == 0) for w, part in enumerate(parts)]
+    try:
+        timings = map_processes(_train_worker, jobs)
+    except KeyboardInterrupt:  # each worker stopped at its safe point: the run resumes as a whole
+        raise TrainingInterrupted(str(run.path)) from None
+    except Exception as error:
+        if getattr(error, "run_dir", None):  # a worker's folder: resume the run it belongs to
+            error.run_dir = str(run.path)
+        raise
+    folders = [worker_dir(run.path, w) for w in range(len(parts))]
+    rows = merge_rows([read_metrics(f) for f in folders], [part.num_seeds for part in parts])
+    for written in ("metrics.csv", "tensorboard"):  # rewritten whole, a resumed run's too
+        target = run.path / written
+        shutil.rmtree(target) if target.is_dir() else target.unlink(missing_ok=True)
+    merged = RunFolder(run.path, run.config)
+    for row in rows:
+        merged.log(row)
+    finals = [read_json(f / FINAL_RETURNS) for f in folders]
+    solved = [t["solved_env_steps"] for t in timings]
+    result = TrainResult(
+        state=None,
+        updates=int(rows[-1]["updates"]),
+        env_steps=float(rows[-1]["env_steps"]),
+        eval={},
+        rows=rows,
+        solved_env_steps=None if None in solved else max(solved),
+        solved_seconds=None if None in solved else max(t["solved_seconds"] for t in timings),
+        compile_seconds=max(t["compile_seconds"] for t in timings),
+        train_seconds=max(t["train_seconds"] for t in timings),
+    )
+    result.eval = merged.write_eval(
+        np.concatenate([np.asarray(f["returns"]) for f in finals]),
+        np.concatenate([np.asarray(f["lengths"]) for f in finals]),
+        env_steps=result.env_steps,
+        updates=result.updates,
+        solved_env_steps=result.solved_env_steps,
+        solved_seconds=result.solved_seconds,
+        compile_seconds=result.compile_seconds,
+        train_seconds=result.train_seconds,
+        workers=len(parts),
+    )
+    merged.close()
+    plot_curves([run.path], run.path / "curve.png")
+    return Run(run.path, run.config, result, time.perf_counter() - start_time)
+
+
+def _train_worker(run_dir: str, w: int, runner: Any, resume: bool, progress: bool) -> dict[str, Any]:
+    """Worker ``w`` of a run (in a process of its own): its seeds (``runner``) as a compiled run in
+    ``worker-<w>/``, resumed from its checkpoint if there is one; its timings. A worker that had
+    finished is only read back."""
+    import shutil
+
+    from agentax.envs import make_jax
+    from agentax.runners.workers import FINAL_RETURNS, worker_dir
+    from agentax.runs import Run as RunFolder
+    from agentax.runs import checkpoints, read_config, read_json, write_json
+
+    folder = worker_dir(run_dir, w)
+    done = folder / FINAL_RETURNS
+    if done.is_file():
+        return read_json(done)["timings"]
+    config = read_config(run_dir)
+    module = algorithm(config["algo"])
+    cfg = config_from_dict(algorithm_config(config["algo"]), config["config"])
+    resumed = resume and (folder / "config.json").is_file() and bool(checkpoints(folder))
+    if resumed:
+        run = RunFolder.open(folder)
+    else:
+        if folder.exists():  # made but never checkpointed: start it again
+            shutil.rmtree(folder)
+        run = RunFolder.create(folder, {**config, "runner": dataclasses.asdict(runner)})
+    trained = _train_compiled(
+        module, make_jax(config["env"]), cfg, runner, run, resume=resumed, progress=progress
+    )
+    result = trained.result
+    timings = {
+        name: getattr(result, name)
+        for name in ("solved_env_steps", "solved_seconds", "compile_seconds", "train_seconds")
+    }
+    returns, lengths = result.final_returns
+    write_json(done, {"returns": returns.tolist(), "lengths": lengths.tolist(), "timings": timings})
+    return timings
 
 
 def _overridden(cfg: Any, overrides: dict[str, Any]) -> Any:

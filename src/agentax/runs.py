@@ -112,6 +112,14 @@ def write_json(path: Path, obj: Any) -> None:
     write_atomic(Path(path), (json.dumps(obj, indent=2, default=_json_default) + "\n").encode())
 
 
+def read_json(path: str | Path) -> Any:
+    """A JSON file agentax wrote (a clear error where it is not JSON)."""
+    try:
+        return json.loads(Path(path).read_text())
+    except json.JSONDecodeError as error:
+        raise UsageError(f"{path} is not valid JSON ({error}); was it written by agentax?") from None
+
+
 def run_config(algo: str, env_id: str, preset: str, runner_kind: str, runner: Any, config: dict) -> dict:
     """What a trainer's ``config.json`` holds: the algorithm, env, preset, runner and its settings."""
     runner = dataclasses.asdict(runner) if dataclasses.is_dataclass(runner) else dict(runner)

@@ -18,13 +18,11 @@ sweep starts from seed ``k``'s keys).
 
 from __future__ import annotations
 
-import concurrent.futures
 import csv
 import dataclasses
 import itertools
 import json
 import math
-import multiprocessing
 import shlex
 import shutil
 from dataclasses import dataclass
@@ -130,6 +128,7 @@ def sweep(
     from agentax.envs import JAX_ENVS, make_jax
     from agentax.runners.compiled import RunnerConfig
     from agentax.runners.sweep import float_fields, traceable
+    from agentax.runners.workers import map_processes
 
     grid, ranges = grid or {}, ranges or {}
     method = method if method != "auto" else ("grid" if grid else "random")
@@ -211,12 +210,10 @@ def sweep(
             table = {n: np.repeat([members[j][n] for j in part], seeds).astype(np.float32) for n in traced}
             folder = path / (f"program-{p}" if len(parts) == 1 else f"program-{p}-{w}")
             jobs.append((folder, request, cfg, dataclasses.replace(runner, num_settings=len(part)), table))
-        if len(jobs) == 1:
-            per_agent = _train_program(*jobs[0], progress)
-        else:  # one process a worker, each with its own one-CPU XLA client
-            context = multiprocessing.get_context("spawn")
-            with concurrent.futures.ProcessPoolExecutor(len(jobs), mp_context=context) as pool:
-                per_agent = np.concatenate(list(pool.map(_train_program, *zip(*jobs, strict=True))))
+        # several jobs: one process a worker, each with its own one-CPU XLA client (the first shows progress)
+        per_agent = np.concatenate(
+            map_processes(_train_program, [(*job, progress and w == 0) for w, job in enumerate(jobs)])
+        )
         return [per_agent[j * seeds : (j + 1) * seeds] for j in range(len(members))]
 
     if method == "optuna":

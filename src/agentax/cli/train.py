@@ -115,6 +115,7 @@ def main(argv: list[str]) -> int:
         print("       agentax train --resume DIR")
         print("                         [--runner compiled|host|parallel|ray] [--actors N] [--policy-lag L]")
         print("                         [--ray-address auto|HOST:PORT] [--cpus-per-actor C]")
+        print("                         [--workers N]  (compiled runner: the seeds over N processes)")
         print(f"algorithms: {', '.join(ALGORITHMS)} (agentax train ALGO --help for its flags and presets)")
         return 0
     if argv[0] == "--resume" or argv[0].startswith("--resume="):

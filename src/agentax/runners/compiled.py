@@ -89,12 +89,17 @@ class RunnerConfig:
     num_settings: int = 1
     """a sweep's settings traced in this program: its ``num_settings × num_seeds`` agents run
     setting ``i // num_seeds`` with seed ``seed + i % num_seeds`` (:mod:`agentax.runners.sweep`)"""
+    workers: int = 1
+    """processes the seeds are split over, one per core, each a program of its own
+    (:mod:`agentax.runners.workers`; :func:`train` runs one worker's seeds)"""
 
     def __post_init__(self):
         if self.num_settings < 1:
             raise UsageError(f"a sweep needs at least one setting, got {self.num_settings}")
         if self.num_seeds < 1:
             raise UsageError(f"--seeds must be at least 1, got {self.num_seeds}")
+        if self.workers < 1:
+            raise UsageError(f"--workers must be at least 1, got {self.workers}")
         if self.eval_every_chunks < 0:
             raise UsageError(f"eval_every_chunks must not be negative, got {self.eval_every_chunks}")
         for name in ("updates_per_chunk", "eval_episodes", "freeze_episodes"):
@@ -404,7 +409,7 @@ def train(
         return result  # stopped early by max_chunks: resumable, not finished
 
     state, _, returns, lengths = call(state, Chunk(0, 0, True, evaluations))
-    result.state = state
+    result.state, result.final_returns = state, (np.asarray(returns), np.asarray(lengths))
     result.eval = logger.finish(
         np.asarray(returns),
         np.asarray(lengths),

@@ -45,6 +45,8 @@ class TrainResult:
     solved_seconds: float | None = None
     compile_seconds: float = 0.0
     train_seconds: float = 0.0
+    final_returns: tuple[Any, Any] | None = None
+    """the compiled runner's final evaluation: returns and lengths ``[seeds, episodes]``"""
 
 
 def agent_keys(seed: int) -> tuple[jax.Array, jax.Array, jax.Array]:

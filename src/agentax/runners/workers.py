@@ -1,0 +1,166 @@
+"""The compiled runner on every core: a run's seeds split over worker processes, one per core.
+
+The compiled runner's XLA client runs on one CPU, the cure for the hang of programs vmapped over
+seeds (:mod:`agentax._xla`). Several CPU devices in one process are no way round it: a program
+sharded over two (``--xla_force_host_platform_device_count=2``, by ``jit`` shardings or ``pmap``)
+hung on its first call, pinned or not (see the design page). Processes are: a run with
+``RunnerConfig.workers > 1`` spawns that many, and worker ``w`` trains a contiguous slice of the
+seeds (:func:`split`) as an ordinary compiled run in ``<run>/worker-<w>/`` (its own metrics,
+checkpoints and resume). The run folder gets their rows merged (:func:`merge_rows`: seed columns
+renumbered, means weighted by seeds), eval.json over every seed, and curve.png.
+
+Seed ``k`` starts from the keys it has in one process and runs the same chunks, so its numbers are
+the ones one process gives it. One exception: ``stop_at_return`` stops each worker once its own
+seeds all reach the return, not once every seed of the run does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import multiprocessing
+import os
+import signal
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from queue import Empty
+from typing import Any
+
+import numpy as np
+
+FINAL_RETURNS = "final-returns.json"
+"""What a finished worker leaves beside its eval.json: the final evaluation's returns and lengths
+``[seeds, episodes]``, from which the run's pooled eval.json is written."""
+
+
+def split(runner: Any) -> list[Any]:
+    """The runner config of each worker: ``runner.workers`` contiguous slices of the seeds (as even
+    as they divide; never more workers than seeds), each with ``workers=1``."""
+    count = min(runner.workers, runner.num_seeds)
+    sizes = [len(part) for part in np.array_split(np.arange(runner.num_seeds), count)]
+    starts = np.cumsum([0, *sizes[:-1]])
+    return [
+        dataclasses.replace(runner, seed=runner.seed + int(start), num_seeds=size, workers=1)
+        for start, size in zip(starts, sizes, strict=True)
+    ]
+
+
+def worker_dir(run_dir: str | Path, w: int) -> Path:
+    return Path(run_dir) / f"worker-{w}"
+
+
+def map_processes(fn: Callable[..., Any], jobs: Sequence[tuple]) -> list[Any]:
+    """``[fn(*job) for job in jobs]``, each job in a spawned process of its own (each creates its
+    own one-CPU XLA client) when there are several; ``fn`` must be importable by name.
+
+    The workers leave the terminal's process group, so Ctrl-C (or SIGTERM, which the CLI turns into
+    it) reaches this process only, which passes it on once to every worker still running and waits
+    for them to stop at their safe point (a checkpoint to resume from) before it raises. A worker's
+    error stops the others the same way and is raised here."""
+    if len(jobs) == 1:
+        return [fn(*jobs[0])]
+    context = multiprocessing.get_context("spawn")
+    queue = context.Queue()
+    processes = [context.Process(target=_job, args=(fn, job, i, queue)) for i, job in enumerate(jobs)]
+    for process in processes:
+        process.start()
+    results: dict[int, tuple[bool, Any]] = {}
+    try:
+        _collect(queue, processes, results, stop_on_error=True)
+    except KeyboardInterrupt:
+        _interrupt(processes)
+        _collect(queue, processes, results, stop_on_error=False)
+        raise
+    finally:
+        for process in processes:
+            process.join()
+    failures = [value for ok, value in results.values() if not ok]
+    lost = [i for i, p in enumerate(processes) if i not in results]
+    if failures:
+        raise failures[0]
+    if lost:
+        code = processes[lost[0]].exitcode
+        raise RuntimeError(f"worker {lost[0]} died without a result (exit code {code})")
+    return [results[i][1] for i in range(len(jobs))]
+
+
+def _collect(queue: Any, processes: Sequence[Any], results: dict, *, stop_on_error: bool) -> None:
+    """Wait for the workers' results (a worker that dies without one ends the wait); on the first
+    error, with ``stop_on_error``, interrupt the others and wait for them too."""
+    while len(results) < len(processes):
+        try:
+            i, ok, value = queue.get(timeout=0.5)
+        except Empty:
+            if not any(p.is_alive() for p in processes) and queue.empty():
+                return
+            continue
+        results[i] = (ok, value)
+        if not ok and stop_on_error:
+            stop_on_error = False
+            _interrupt(processes)
+
+
+def _job(fn: Callable[..., Any], job: tuple, i: int, queue: Any) -> None:
+    os.setpgrp()  # out of the terminal's group: interrupts come from the parent, once
+    try:
+        queue.put((i, True, fn(*job)))
+    except BaseException as error:  # sent back to be raised in the parent
+        queue.put((i, False, error))
+
+
+def _interrupt(processes: Sequence[Any]) -> None:
+    for process in processes:
+        if process.is_alive():
+            os.kill(process.pid, signal.SIGINT)
+
+
+LATEST = ("wall_seconds",)
+"""Columns whose merged value is the workers' largest (they run at once)."""
+
+
+def merge_rows(tables: Sequence[Sequence[dict[str, float]]], seeds: Sequence[int]) -> list[dict[str, float]]:
+    """One run's rows from its workers' (row ``i`` of each, as far as each got): per-seed columns
+    (``return_seed<k>``, ``eval_seed<k>``) renumbered across the run, ``mean_return`` and
+    ``eval_return`` over every seed present, ``wall_seconds`` the latest, the other metrics the
+    mean over workers weighted by their ``seeds``."""
+    offsets = np.cumsum([0, *seeds[:-1]])
+    merged = []
+    for i in range(max(map(len, tables))):
+        present = [(t[i], n, o) for t, n, o in zip(tables, seeds, offsets, strict=True) if i < len(t)]
+        row: dict[str, float] = {}
+        for prefix in ("return_seed", "eval_seed"):
+            for source, _, offset in present:
+                for name, value in source.items():
+                    if name.startswith(prefix) and name[len(prefix) :].isdigit():
+                        row[f"{prefix}{offset + int(name[len(prefix) :])}"] = value
+        for name in dict.fromkeys(name for source, _, _ in present for name in source):
+            if name in row or name.startswith(("return_seed", "eval_seed")):
+                continue
+            values = [(source.get(name, math.nan), n) for source, n, _ in present]
+            if name in LATEST:
+                row[name] = max(v for v, _ in values)
+            elif name == "mean_return" or name == "eval_return":
+                prefix = "return_seed" if name == "mean_return" else "eval_seed"
+                per_seed = [v for k, v in row.items() if k.startswith(prefix) and math.isfinite(v)]
+                row[name] = float(np.mean(per_seed)) if per_seed else math.nan
+            else:
+                finite = [(v, n) for v, n in values if math.isfinite(v)]
+                total = sum(n for _, n in finite)
+                row[name] = sum(v * n for v, n in finite) / total if finite else math.nan
+        merged.append(_ordered(row, present[0][0]))
+    return merged
+
+
+def _ordered(row: dict[str, float], like: dict[str, float]) -> dict[str, float]:
+    """``row``'s columns in the order of a worker's (seed columns where that worker's were)."""
+    order: list[str] = []
+    for name in like:
+        for prefix in ("return_seed", "eval_seed"):
+            if name == f"{prefix}0":
+                order += sorted((k for k in row if k.startswith(prefix)), key=lambda k: int(k[len(prefix) :]))
+        if not name.startswith(("return_seed", "eval_seed")):
+            order.append(name)
+    return {**{k: row[k] for k in order if k in row}, **row}
+
+
+__all__ = ["FINAL_RETURNS", "map_processes", "merge_rows", "split", "worker_dir"]

@@ -1,0 +1,122 @@
+"""The compiled runner's seeds split over worker processes (``--workers N``, agentax.runners.workers)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+import agentax
+from agentax.cli import main
+from agentax.runners.compiled import RunnerConfig
+from agentax.runners.workers import merge_rows, split
+from agentax.runs import read_metrics
+
+NAN = math.nan
+
+
+def test_the_seeds_split_into_contiguous_slices_one_worker_each():
+    parts = split(RunnerConfig(seed=5, num_seeds=5, workers=2, eval_episodes=3))
+    assert [(p.seed, p.num_seeds, p.workers, p.eval_episodes) for p in parts] == [(5, 3, 1, 3), (8, 2, 1, 3)]
+    assert [p.num_seeds for p in split(RunnerConfig(num_seeds=2, workers=4))] == [1, 1]
+
+
+def test_merged_rows_renumber_the_seeds_and_weight_the_means_by_them():
+    first = [
+        {"env_steps": 10, "mean_return": 2, "return_seed0": 1, "return_seed1": 3, "eval_return": 6}
+        | {"eval_seed0": 4, "eval_seed1": 8, "steps_per_second": 100, "wall_seconds": 1, "loss": 1},
+        {"env_steps": 20, "mean_return": 9, "return_seed0": 9, "return_seed1": NAN, "eval_return": NAN}
+        | {"eval_seed0": NAN, "eval_seed1": NAN, "steps_per_second": 50, "wall_seconds": 2, "loss": 1},
+    ]
+    second = [
+        {"env_steps": 10, "mean_return": 5, "return_seed0": 5, "eval_return": 9, "eval_seed0": 9}
+        | {"steps_per_second": 40, "wall_seconds": 3, "loss": 4}
+    ]
+    rows = merge_rows([first, second], [2, 1])
+    assert list(rows[0]) == [
+        "env_steps",
+        "mean_return",
+        *("return_seed0", "return_seed1", "return_seed2"),
+        "eval_return",
+        *("eval_seed0", "eval_seed1", "eval_seed2"),
+        *("steps_per_second", "wall_seconds", "loss"),
+    ]
+    assert rows[0]["mean_return"] == 3 and rows[0]["return_seed2"] == 5  # (1 + 3 + 5) / 3
+    assert rows[0]["eval_return"] == 7 and rows[0]["eval_seed2"] == 9
+    assert rows[0]["loss"] == 2 and rows[0]["steps_per_second"] == 80  # (2 × 1 + 4) / 3, (200 + 40) / 3
+    assert rows[0]["wall_seconds"] == 3 and rows[0]["env_steps"] == 10
+    # the second worker stopped first: the row holds the first one's seeds only
+    assert (
+        rows[1]["mean_return"] == 9 and "return_seed2" not in rows[1] and math.isnan(rows[1]["eval_return"])
+    )
+
+
+def test_workers_refuse_a_runner_that_trains_one_seed(capsys):
+    host = ["train", "ppo", "--env", "CartPole-v1", "--runner", "host", "--workers", "2", "--out", "unused"]
+    assert main(host) == 2
+    assert "--workers splits the compiled runner's seeds" in capsys.readouterr().err
+    assert main(["train", "ppo", "--workers", "0"]) == 2
+    assert "--workers must be at least 1, got 0" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_seeds_over_two_workers_survive_sigterm_and_resume_to_the_numbers_of_one_process(tmp_path):
+    """Fault injection by the path users take: ``agentax train --seeds 3 --workers 2``, SIGTERM once
+    both workers have checkpointed, ``agentax train --resume``; then every seed's curve and final
+    evaluation equal a one-process run's, and the run's policy (its best seed's worker) plays."""
+    out, total = tmp_path / "run", 80 * 512  # 80 updates of PPO's default 4 envs × 128 steps
+    env = {**os.environ, "AGENTAX_JAX_CACHE": str(tmp_path / "cache")}
+    flags = ["--preset", "default", "--seeds", "3", "--total-steps", str(total), "--stop-at-return", "none"]
+    command = [sys.executable, "-m", "agentax.cli", "train", "ppo", *flags, "--workers", "2"]
+    process = subprocess.Popen(
+        [*command, "--out", str(out), "--no-progress"],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    try:
+        deadline = time.monotonic() + 200
+        while process.poll() is None and not all(
+            list((out / f"worker-{w}" / "checkpoints").glob("ckpt-*.msgpack")) for w in (0, 1)
+        ):
+            assert time.monotonic() < deadline, "the workers wrote no checkpoint"
+            time.sleep(0.02)
+        process.send_signal(signal.SIGTERM)
+        _, err = process.communicate(timeout=100)
+    finally:
+        process.kill()
+    assert process.returncode == 143, err[-2000:].decode()
+    assert f"continue with: agentax train --resume {out}" in err.decode()
+    assert not (out / "eval.json").exists(), "the run finished before SIGTERM reached it"
+    resumed = subprocess.run(
+        [sys.executable, "-m", "agentax.cli", "train", "--resume", str(out), "--no-progress"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=200,
+    )
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+
+    alone = agentax.train(
+        "ppo", preset="default", seeds=3, total_steps=total, stop_at_return="none", out=tmp_path / "one"
+    )
+    split_rows, one_rows = read_metrics(out), read_metrics(alone.path)
+    assert [r["env_steps"] for r in split_rows] == [r["env_steps"] for r in one_rows]
+    columns = [f"{p}{k}" for p in ("return_seed", "eval_seed") for k in range(3)]
+    np.testing.assert_allclose(
+        [[r[c] for c in columns] for r in split_rows], [[r[c] for c in columns] for r in one_rows], rtol=1e-5
+    )
+    finals = json.loads((out / "eval.json").read_text())
+    assert finals["workers"] == 2 and finals["episodes"] == alone.final_eval["episodes"]
+    assert [s["mean_return"] for s in finals["per_seed"]] == [
+        s["mean_return"] for s in alone.final_eval["per_seed"]
+    ]
+    assert agentax.load(out).evaluate(episodes=2).episodes == 2
