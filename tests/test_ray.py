@@ -244,6 +244,31 @@ def test_ppo_on_ray_actors_learns_and_gives_the_thread_actors_numbers(cluster, t
     assert {f for f in files if "tfevents" not in f} == {f for f in thread_files if "tfevents" not in f}
 
 
+@pytest.mark.timeout(240)
+def test_the_compiled_runners_workers_run_as_ray_tasks_on_both_nodes_with_one_process_numbers(
+    cluster, tmp_path
+):
+    """Issue 20: ``--workers 2 --ray-address`` puts each worker (a slice of the seeds, one CPU) on
+    a node of the 2-node cluster; every seed's numbers are those of one process."""
+    import agentax
+
+    common = dict(preset="default", seeds=3, total_steps=20 * 512, stop_at_return="none", progress=False)
+    on_ray = agentax.train("ppo", workers=2, ray_address=cluster.address, out=tmp_path / "ray", **common)
+    alone = agentax.train("ppo", out=tmp_path / "one", **common)
+    columns = [f"{p}{k}" for p in ("return_seed", "eval_seed") for k in range(3)]
+    np.testing.assert_allclose(
+        [[r[c] for c in columns] for r in on_ray.metrics], [[r[c] for c in columns] for r in alone.metrics]
+    )
+    assert [s["mean_return"] for s in on_ray.final_eval["per_seed"]] == [
+        s["mean_return"] for s in alone.final_eval["per_seed"]
+    ]
+    nodes = {
+        json.loads((tmp_path / "ray" / f"worker-{w}" / "final-returns.json").read_text())["node"]
+        for w in (0, 1)
+    }
+    assert len(nodes) == 2 and all("Ray node" in n for n in nodes), nodes  # one CPU a node: one worker each
+
+
 @pytest.mark.timeout(180)
 def test_dqn_on_ray_actors_learns_and_resumes_with_its_replay(cluster, tmp_path):
     cfg = dataclasses.replace(presets.preset("dqn", "default").config, total_steps=30_000)

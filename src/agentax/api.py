@@ -83,7 +83,7 @@ class RunArgs:
     """parallel runner, on-policy: parameter versions between collecting and learning (0: sequential)"""
     ray_address: str | None = None
     """ray runner: the Ray cluster to join ('auto', or HOST:PORT of `ray start --head`); default: a
-    local Ray for this run, shut down after it"""
+    local Ray for this run, shut down after it. Compiled runner: run the --workers as Ray tasks there"""
     cpus_per_actor: float = 1.0
     """ray runner: CPUs Ray reserves for each actor process"""
     env_backend: str = "auto"
@@ -442,9 +442,15 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Preset, *, quiet: bool
             freeze_at_return=run_args.freeze(preset, kind),
             freeze_episodes=run_args.freeze_episodes,
             workers=run_args.workers,
+            ray_address=run_args.ray_address,
         )
         # refused before anything is written: what the program cannot do, more seeds than memory holds
         check_fits(compiled_program(module, env, cfg, runner), runner)
+        if runner.ray_address is not None and runner.workers == 1:
+            raise UsageError(
+                "--ray-address sends the compiled runner's --workers to a Ray cluster: give --workers N "
+                "(or --runner ray for the Ray runner's actors)"
+            )
         settings = config_to_dict(cfg)
         run = RunFolder.create(
             out, run_config(algo, run_args.env, run_args.preset, "compiled", runner, settings)
@@ -617,9 +623,9 @@ def _train_workers(run: Any, runner: Any, *, resume: bool, progress: bool) -> Ru
 
     start_time = time.perf_counter()
     parts = split(runner)
-    jobs = [(str(run.path), w, part, resume, progress and w == 0) for w, part in enumerate(parts)]
+    jobs = [(str(run.path.resolve()), w, part, resume, progress and w == 0) for w, part in enumerate(parts)]
     try:
-        timings = map_processes(_train_worker, jobs)
+        timings = map_processes(_train_worker, jobs, runner.ray_address)
     except KeyboardInterrupt:  # each worker stopped at its safe point: the run resumes as a whole
         raise TrainingInterrupted(str(run.path)) from None
     except Exception as error:
@@ -670,7 +676,7 @@ def _train_worker(run_dir: str, w: int, runner: Any, resume: bool, progress: boo
     import shutil
 
     from agentax.envs import make_jax
-    from agentax.runners.workers import FINAL_RETURNS, worker_dir
+    from agentax.runners.workers import FINAL_RETURNS, node, worker_dir
     from agentax.runs import Run as RunFolder
     from agentax.runs import checkpoints, read_config, read_json, write_json
 
@@ -697,7 +703,8 @@ def _train_worker(run_dir: str, w: int, runner: Any, resume: bool, progress: boo
         for name in ("solved_env_steps", "solved_seconds", "compile_seconds", "train_seconds")
     }
     returns, lengths = result.final_returns
-    write_json(done, {"returns": returns.tolist(), "lengths": lengths.tolist(), "timings": timings})
+    finals = {"returns": returns.tolist(), "lengths": lengths.tolist(), "timings": timings, "node": node()}
+    write_json(done, finals)
     return timings
 
 

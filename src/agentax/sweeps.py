@@ -117,6 +117,7 @@ def sweep(
     total_steps: int | None = None,
     out: str | Path | None = None,
     workers: int = 1,
+    ray_address: str | None = None,
     progress: bool = True,
 ) -> SweepResult:
     """Train every setting of ``grid`` (name → "v1,v2,...", their product), ``random`` draws from
@@ -208,12 +209,11 @@ def sweep(
         jobs = []
         for w, part in enumerate(parts):
             table = {n: np.repeat([members[j][n] for j in part], seeds).astype(np.float32) for n in traced}
-            folder = path / (f"program-{p}" if len(parts) == 1 else f"program-{p}-{w}")
+            folder = path.resolve() / (f"program-{p}" if len(parts) == 1 else f"program-{p}-{w}")
             jobs.append((folder, request, cfg, dataclasses.replace(runner, num_settings=len(part)), table))
         # several jobs: one process a worker, each with its own one-CPU XLA client (the first shows progress)
-        per_agent = np.concatenate(
-            map_processes(_train_program, [(*job, progress and w == 0) for w, job in enumerate(jobs)])
-        )
+        shown = [(*job, progress and w == 0) for w, job in enumerate(jobs)]
+        per_agent = np.concatenate(map_processes(_train_program, shown, ray_address))
         return [per_agent[j * seeds : (j + 1) * seeds] for j in range(len(members))]
 
     if method == "optuna":

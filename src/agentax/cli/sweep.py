@@ -47,6 +47,9 @@ class SweepArgs:
     workers: int = 1
     """processes to split each program's settings over (one a CPU core; XLA's CPU client runs the
     compiled runner on one core); an interrupted sweep resumes with the same number"""
+    ray_address: str | None = None
+    """run the workers as Ray tasks on this cluster ('auto' or HOST:PORT of `ray start --head`); the
+    sweep folder must be on a filesystem every node shares"""
     out: str | None = None
     """the sweep folder (default runs/sweep-ALGO-ENV-TIME); an unfinished sweep there resumes"""
     json: bool = False
@@ -82,6 +85,7 @@ def main(argv: list[str]) -> int:
         total_steps=args.total_steps,
         out=args.out,
         workers=args.workers,
+        ray_address=args.ray_address,
         progress=args.progress,
     )
     if args.json:

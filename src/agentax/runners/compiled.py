@@ -92,6 +92,9 @@ class RunnerConfig:
     workers: int = 1
     """processes the seeds are split over, one per core, each a program of its own
     (:mod:`agentax.runners.workers`; :func:`train` runs one worker's seeds)"""
+    ray_address: str | None = None
+    """run the workers as Ray tasks of one CPU on this cluster (on any node; the run folder on a
+    filesystem every node shares)"""
 
     def __post_init__(self):
         if self.num_settings < 1:

@@ -28,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from agentax.errors import UsageError
+
 FINAL_RETURNS = "final-returns.json"
 """What a finished worker leaves beside its eval.json: the final evaluation's returns and lengths
 ``[seeds, episodes]``, from which the run's pooled eval.json is written."""
@@ -49,14 +51,19 @@ def worker_dir(run_dir: str | Path, w: int) -> Path:
     return Path(run_dir) / f"worker-{w}"
 
 
-def map_processes(fn: Callable[..., Any], jobs: Sequence[tuple]) -> list[Any]:
+def map_processes(fn: Callable[..., Any], jobs: Sequence[tuple], ray_address: str | None = None) -> list[Any]:
     """``[fn(*job) for job in jobs]``, each job in a spawned process of its own (each creates its
     own one-CPU XLA client) when there are several; ``fn`` must be importable by name.
 
     The workers leave the terminal's process group, so Ctrl-C (or SIGTERM, which the CLI turns into
     it) reaches this process only, which passes it on once to every worker still running and waits
     for them to stop at their safe point (a checkpoint to resume from) before it raises. A worker's
-    error stops the others the same way and is raised here."""
+    error stops the others the same way and is raised here.
+
+    With ``ray_address`` the jobs are Ray tasks of one CPU each on that cluster instead
+    (:func:`map_ray`)."""
+    if ray_address is not None:
+        return map_ray(fn, jobs, ray_address)
     if len(jobs) == 1:
         return [fn(*jobs[0])]
     context = multiprocessing.get_context("spawn")
@@ -114,6 +121,51 @@ def _interrupt(processes: Sequence[Any]) -> None:
             os.kill(process.pid, signal.SIGINT)
 
 
+def map_ray(fn: Callable[..., Any], jobs: Sequence[tuple], address: str) -> list[Any]:
+    """``[fn(*job) for job in jobs]`` as Ray tasks of one CPU each, on any node of the cluster at
+    ``address`` (joined as the Ray runner joins it). Each job's first element is the folder it
+    writes in, so every node must see that folder (one machine, or a shared filesystem): a task
+    that cannot says so. Ctrl-C cancels the tasks (each stops at its safe point) and raises."""
+    from agentax.runners.ray import ray_session
+
+    with ray_session(address) as ray:
+        task = ray.remote(num_cpus=1, max_retries=0)(_ray_job)
+        refs = [task.remote(fn, job) for job in jobs]
+        try:
+            return ray.get(refs)
+        except KeyboardInterrupt:
+            for ref in refs:
+                ray.cancel(ref)  # a KeyboardInterrupt in the task: it checkpoints and ends
+            ray.wait(refs, num_returns=len(refs), timeout=60)
+            raise
+        except ray.exceptions.RayTaskError as error:  # the task's own error, as raised there
+            raise (error.cause if isinstance(error.cause, BaseException) else error) from None
+
+
+def node() -> str:
+    """Where this process runs: the host name, and the Ray node's id inside a Ray task."""
+    import socket
+    import sys
+
+    ray = sys.modules.get("ray")
+    if ray is not None and ray.is_initialized():
+        return f"{socket.gethostname()} (Ray node {ray.get_runtime_context().get_node_id()[:12]})"
+    return socket.gethostname()
+
+
+def _ray_job(fn: Callable[..., Any], job: tuple) -> Any:
+    """One job in a Ray task; its first element is the (absolute) folder it writes in."""
+    folder = Path(job[0])
+    if not folder.parent.is_dir():
+        import socket
+
+        raise UsageError(
+            f"a worker on {socket.gethostname()} cannot see {folder.parent}: a run or sweep on a Ray "
+            "cluster writes its folder from every node, so --out must be on a filesystem they all share"
+        )
+    return fn(*job)
+
+
 LATEST = ("wall_seconds",)
 """Columns whose merged value is the workers' largest (they run at once)."""
 
@@ -163,4 +215,4 @@ def _ordered(row: dict[str, float], like: dict[str, float]) -> dict[str, float]:
     return {**{k: row[k] for k in order if k in row}, **row}
 
 
-__all__ = ["FINAL_RETURNS", "map_processes", "merge_rows", "split", "worker_dir"]
+__all__ = ["FINAL_RETURNS", "map_processes", "map_ray", "merge_rows", "node", "split", "worker_dir"]
