@@ -115,8 +115,8 @@ def host_row() -> list:
     ]
 
 
-def cli_row(cache: str) -> list:
-    """The whole ``agentax train dqn --env CartPole-v1`` process; ``cache``: a compilation cache folder."""
+def cli_row(cache: str, algo: str = "dqn") -> list:
+    """The whole ``agentax train ALGO --env CartPole-v1`` process; ``cache``: a compilation cache folder."""
     with tempfile.TemporaryDirectory() as out:
         env = dict(os.environ, AGENTAX_JAX_CACHE=cache)
         command = [
@@ -124,7 +124,7 @@ def cli_row(cache: str) -> list:
             "-m",
             "agentax.cli",
             "train",
-            "dqn",
+            algo,
             "--env",
             "CartPole-v1",
             "--out",
@@ -162,14 +162,17 @@ def run() -> dict:
         "SB3 DQN ÷ this",
     ]
     rows = [compiled_row(1), compiled_row(8), host_row()]
-    with tempfile.TemporaryDirectory() as cache:
-        cold = cli_row(cache)
-        warm = sorted((cli_row(cache) for _ in range(WARM_REPEATS)), key=lambda r: r[0])[WARM_REPEATS // 2]
-    for label, (seconds, mean_return, _) in (("cold", cold), ("warm", warm)):
+    processes = []
+    for algo in ("dqn", "pqn"):  # PQN: its default preset, Q(λ) from 16 envs' rollouts, no replay
+        with tempfile.TemporaryDirectory() as cache:
+            cold = cli_row(cache, algo)
+            runs = sorted((cli_row(cache, algo) for _ in range(WARM_REPEATS)), key=lambda r: r[0])
+            processes += [(algo, "cold", cold), (algo, "warm", runs[WARM_REPEATS // 2])]
+    for algo, label, (seconds, mean_return, _) in processes:
         solved = "1/1" if mean_return >= SOLVED else "0/1"
         rows.append(
             [
-                f"`agentax train dqn` process, {label} compile cache",
+                f"`agentax train {algo}` process, {label} compile cache",
                 1,
                 solved,
                 None,
@@ -208,7 +211,8 @@ def run() -> dict:
         "(4 envs, SAME_STEP autoreset) through the host runner (`agentax.runners.host.train`: an Actor's "
         "Driver fills the replay, the same `dqn.learn` learns, 128 steps per compiled call); its "
         "wall-clock includes compilation and the periodic evaluations. The process rows run "
-        "`python -m agentax.cli train dqn --env CartPole-v1` in a subprocess: first with an empty "
+        "`python -m agentax.cli train dqn --env CartPole-v1` (and `train pqn`: PQN's default preset, "
+        "16 envs × 32 steps, Q(λ), no replay, stopping when solved) in a subprocess: first with an empty "
         "cache (it traces and compiles), then with the cache the first run filled (stored programs and "
         "their compiled code: no tracing, no compiling; the median of 3 runs)."
     )
