@@ -37,6 +37,41 @@ def test_q_lambda_targets_by_hand():
     )
 
 
+@pytest.mark.timeout(120)
+def test_targets_from_acts_q_values_equal_a_second_forward_pass():
+    """On an EnvPool-style rollout (``info["valid"]``: ``next_obs[t]`` is ``obs[t + 1]``) PQN
+    bootstraps from ``act``'s ``max_q`` and passes only the last next observations through the
+    network; the update equals the one that passes every ``next_obs`` (no ``valid``)."""
+    import jax
+
+    from agentax.agents.protocol import EnvSpec
+    from agentax.envs import make_jax
+    from agentax.replay import Transition
+
+    cfg = pqn.PQNConfig(num_envs=4, num_steps=8, num_minibatches=2, update_epochs=2)
+    agent = pqn.make_agent(EnvSpec.of(make_jax("CartPole-v1")), cfg)
+    state = agent.init(jax.random.key(0))
+    observations = jax.random.normal(jax.random.key(1), (9, 4, 4))  # [T + 1, E, obs]
+    actions, info = jax.vmap(lambda obs: agent.act(state, obs, jax.random.key(2), 0))(observations[:-1])
+    ends = jax.random.bernoulli(jax.random.key(3), 0.1, (8, 4))
+    rollout = Transition(
+        obs=observations[:-1],
+        action=actions,
+        reward=jnp.ones((8, 4)),
+        next_obs=observations[1:],
+        terminated=ends,
+        truncated=jnp.zeros((8, 4), bool),
+        num_steps=jnp.ones((8, 4), jnp.int32),
+        info=info,
+    )
+    reused, _ = agent.learn(
+        state, rollout.replace(info={**info, "valid": jnp.ones((8, 4), bool)}), jax.random.key(4)
+    )
+    passed, _ = agent.learn(state, rollout, jax.random.key(4))
+    for a, b in zip(jax.tree.leaves(reused.params), jax.tree.leaves(passed.params), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+
+
 @pytest.mark.timeout(180)
 def test_pqn_solves_cartpole_on_the_compiled_runner(tmp_path):
     """The default preset, two seeds vmapped: every seed's greedy policy averages at least 475

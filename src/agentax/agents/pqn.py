@@ -18,7 +18,12 @@ agentax's terms (``OnPolicy`` experience), so every runner that trains PPO train
 On stacked frames (Atari) the Q-network is the Nature CNN with LayerNorm before every ReLU
 (purejaxql's ``pqn_atari``). A runner may mark steps that are no transitions of the game in
 ``info["valid"]`` (EnvPool's reset step, :mod:`agentax.envs.envpool_xla`): the loss leaves them out,
-and the step before such a step is done, so no target is carried across it.
+and the step before such a step is done, so no target is carried across it. Such a rollout's
+``next_obs[t]`` is ``obs[t + 1]`` (EnvPool returns an ending step's last observation, then resets in
+a step of its own), and the compiled Atari runner learns with the parameters that acted: there the
+targets reuse ``act``'s ``max_a Q(s_{t+1}, a)`` (``info["max_q"]``) and only the last step's next
+observations go through the network again — one forward pass of the rollout fewer, of the ~8 an
+update makes (act, the targets' pass, 2 epochs of forward and backward).
 """
 
 from __future__ import annotations
@@ -176,7 +181,11 @@ def learn(
     """One PQN iteration on a rollout ``[T, E]``: Q(λ) targets, then epochs of minibatch SGD, run by
     ``loop`` (``lax.scan``'s signature; the runner chooses it)."""
     tx = optimizer(cfg)
-    next_q = q_values(state.params, rollout.next_obs).max(axis=-1)  # (T, E)
+    if "valid" in rollout.info:  # next_obs[t] is obs[t + 1]: act's Q-values, and the last step's
+        last = q_values(state.params, rollout.next_obs[-1]).max(axis=-1)  # (E,)
+        next_q = jnp.concatenate([rollout.info["max_q"][1:], last[None]])  # (T, E)
+    else:
+        next_q = q_values(state.params, rollout.next_obs).max(axis=-1)  # (T, E)
     done = rollout.terminated | rollout.truncated
     targets = q_lambda_returns(
         rollout.reward, next_q, rollout.terminated, done, cfg.discount_factor, cfg.q_lambda
@@ -223,7 +232,7 @@ def make_agent(spec: EnvSpec, cfg: PQNConfig, *, loop: Loop = jax.lax.scan) -> A
         q = q_values(state.params, obs)  # (E, num_actions)
         epsilon = epsilon_at(cfg, progress)
         action = jax.vmap(epsilon_greedy, in_axes=(0, 0, None))(jax.random.split(key, q.shape[0]), q, epsilon)
-        return action, {"epsilon": jnp.full(q.shape[0], epsilon, jnp.float32)}
+        return action, {"epsilon": jnp.full(q.shape[0], epsilon, jnp.float32), "max_q": q.max(axis=-1)}
 
     def greedy_policy(state: PQNState) -> Policy:
         return lambda obs, key: jnp.argmax(q_values(state.params, obs)).astype(jnp.int32)
