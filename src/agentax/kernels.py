@@ -15,7 +15,8 @@ the library is missing, it is ``lax.conv_general_dilated`` exactly.
 - ``auto`` (the default): ``onednn`` where the library loads, else ``xla``.
 
 ``AGENTAX_CONV_THREADS`` sets oneDNN's OpenMP threads (default: the CPUs this process may use
-when the library is loaded). XLA's own CPU client runs one intra-op thread here (the hang's cure,
+when the library is loaded; ``OMP_WAIT_POLICY`` defaults to ``PASSIVE``, so that idle OpenMP
+threads sleep instead of spinning on a core that XLA or an env thread needs). XLA's own CPU client runs one intra-op thread here (the hang's cure,
 :mod:`agentax._xla`), so the convolutions take both cores while XLA's elementwise work takes one.
 
 Under ``jax.vmap`` (seeds vmapped by the compiled runner) the FFI calls get the batch as leading
@@ -56,6 +57,9 @@ def _load() -> tuple[ctypes.CDLL | None, str]:
     path = Path(os.environ.get("AGENTAX_ONEDNN_LIB", LIBRARY))
     if not path.is_file():
         return None, f"{path} is missing (make builds it from csrc/onednn_conv.cc)"
+    # OpenMP threads that sleep between convolutions rather than spin: spinning ones take the core
+    # from XLA's own thread and the env threads (read when libgomp starts, so set before loading).
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     try:
         library = ctypes.CDLL(str(path))
     except OSError as error:
@@ -124,20 +128,23 @@ def _onednn_conv2d(x: jax.Array, w: jax.Array, stride: tuple[int, int], bf16: bo
     return _onednn_forward(x, w, stride, bf16)[0]
 
 
+def _compute(x: jax.Array, bf16: bool) -> jax.Array:
+    """``x`` in the type the kernel computes in (the weights are converted inside, once per call)."""
+    return x.astype(jnp.bfloat16) if bf16 else x
+
+
 def _onednn_forward(x, w, stride, bf16):
-    xc = x.astype(jnp.bfloat16) if bf16 else x
     out = jax.ShapeDtypeStruct(_out_shape(x.shape, w.shape, stride), x.dtype)
-    return _call("agentax_conv_fwd", out, xc, w, stride), (xc, w)
+    return _call("agentax_conv_fwd", out, _compute(x, bf16), w, stride), (x, w)
 
 
 def _onednn_backward(stride, bf16, residuals, dy):
-    xc, w = residuals
-    dyc = dy.astype(jnp.bfloat16) if bf16 else dy
-    # oneDNN's bf16 input gradient is bf16 (its bf16 -> f32 variant is not implemented)
-    dx_shape = jax.ShapeDtypeStruct((*xc.shape[:3], w.shape[2]), dyc.dtype)
-    dx = _call("agentax_conv_bwd_data", dx_shape, dyc, w, stride).astype(dy.dtype)
-    dw = _call("agentax_conv_bwd_w", jax.ShapeDtypeStruct(w.shape, w.dtype), xc, dyc, stride)
-    return dx, dw
+    x, w = residuals
+    dyc = _compute(dy, bf16)
+    # In bf16 the input gradient comes back in bf16 (oneDNN 3.2 has no bf16 -> f32 variant of it).
+    dx = _call("agentax_conv_bwd_data", jax.ShapeDtypeStruct(x.shape, dyc.dtype), dyc, w, stride)
+    dw = _call("agentax_conv_bwd_w", jax.ShapeDtypeStruct(w.shape, w.dtype), _compute(x, bf16), dyc, stride)
+    return dx.astype(x.dtype), dw
 
 
 _onednn_conv2d.defvjp(_onednn_forward, _onednn_backward)
