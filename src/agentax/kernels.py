@@ -16,8 +16,9 @@ the library is missing, it is ``lax.conv_general_dilated`` exactly.
 
 ``AGENTAX_CONV_THREADS`` sets oneDNN's OpenMP threads (default: the CPUs this process may use
 when the library is loaded; ``OMP_WAIT_POLICY`` defaults to ``PASSIVE``, so that idle OpenMP
-threads sleep instead of spinning on a core that XLA or an env thread needs). XLA's own CPU client runs one intra-op thread here (the hang's cure,
-:mod:`agentax._xla`), so the convolutions take both cores while XLA's elementwise work takes one.
+threads sleep instead of spinning on a core that XLA or an env thread needs). XLA's own CPU client
+runs one intra-op thread here (the hang's cure, :mod:`agentax._xla`), so the convolutions take both
+cores while XLA's elementwise work takes one.
 
 Under ``jax.vmap`` (seeds vmapped by the compiled runner) the FFI calls get the batch as leading
 dimensions (``vmap_method="expand_dims"``): with shared weights it folds into the convolution's
@@ -67,7 +68,8 @@ def _load() -> tuple[ctypes.CDLL | None, str]:
     for name in TARGETS:
         jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(getattr(library, name)), platform="cpu")
     threads = os.environ.get("AGENTAX_CONV_THREADS", "")
-    count = int(threads) if threads else len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 0
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 0
+    count = int(threads) if threads else usable
     library.agentax_conv_set_threads(ctypes.c_int(count))
     return library, ""
 
@@ -88,7 +90,9 @@ def backend() -> str:
     if chosen == "auto":
         return "onednn" if available() else "xla"
     if chosen != "xla" and not available():
-        raise RuntimeError(f"AGENTAX_CONV={chosen} but the oneDNN kernel is unavailable: {unavailable_reason()}")
+        raise RuntimeError(
+            f"AGENTAX_CONV={chosen} but the oneDNN kernel is unavailable: {unavailable_reason()}"
+        )
     return chosen
 
 
