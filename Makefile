@@ -7,15 +7,30 @@ STAMP := $(VENV)/.installed
 # not call: installed without its declared dependencies; what it imports is in the lock (extra gymnax).
 GYMNAX := gymnax==1.0.1
 
-.PHONY: demo test test-long bench lint docs lock clean
+.PHONY: kernel demo test test-long bench lint docs lock clean
 
-$(STAMP): pyproject.toml requirements.lock
+# The oneDNN convolution kernel (agentax.kernels): compiled against the onednn wheels of the lock
+# (x86-64 Linux), which put libdnnl and its headers under $(VENV)/lib and $(VENV)/include. Without
+# them, or without a compiler, the install goes on and agentax uses XLA's convolutions.
+CXX ?= g++
+KERNEL := src/agentax/_onednn_conv.so
+DNNL_LIB := $(abspath $(VENV))/lib
+
+$(STAMP): pyproject.toml requirements.lock csrc/onednn_conv.cc
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -r requirements.lock
 	$(PY) -m pip install --quiet --no-deps $(GYMNAX)
 	$(PY) -m pip install --quiet --no-deps --no-build-isolation -e .
+	$(MAKE) --no-print-directory kernel || echo "agentax: oneDNN kernel not built; convolutions use XLA's"
 	touch $(STAMP)
+
+kernel:
+	test -f $(DNNL_LIB)/libdnnl.so.3 && test -f $(VENV)/include/oneapi/dnnl/dnnl.hpp
+	$(CXX) -O3 -std=c++17 -shared -fPIC -fopenmp -Wno-return-type csrc/onednn_conv.cc -o $(KERNEL).tmp \
+		-I$(VENV)/include -I"$$($(PY) -c 'import jax; print(jax.ffi.include_dir())')" \
+		-L$(DNNL_LIB) -l:libdnnl.so.3 -Wl,-rpath,$(DNNL_LIB)
+	mv $(KERNEL).tmp $(KERNEL)
 
 demo: $(STAMP)
 	$(VENV)/bin/agentax demo
@@ -42,9 +57,9 @@ lint: $(STAMP)
 lock:
 	rm -rf .lockenv && $(PYTHON) -m venv .lockenv
 	.lockenv/bin/pip install --quiet --upgrade pip
-	.lockenv/bin/pip install --quiet -e '.[dev,atari,ray,sweep,gymnax]' setuptools
+	.lockenv/bin/pip install --quiet -e '.[dev,atari,ray,sweep,gymnax,onednn]' setuptools
 	.lockenv/bin/pip freeze --all --exclude-editable | grep -v "^pip==" > requirements.lock
 	rm -rf .lockenv
 
 clean:
-	rm -rf $(VENV) .pytest_cache
+	rm -rf $(VENV) .pytest_cache $(KERNEL)

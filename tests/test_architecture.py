@@ -46,6 +46,7 @@ RANKS: dict[str, int] = {
     "agentax.returns": 4,
     "agentax.policies": 4,
     "agentax.envs": 3,
+    "agentax.kernels": 3,
     "agentax.errors": 2,
     "agentax._xla": 2,
 }

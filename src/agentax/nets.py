@@ -15,6 +15,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from agentax import kernels
+
 ACTIVATIONS = {"elu": nn.elu, "relu": nn.relu, "tanh": nn.tanh, "gelu": nn.gelu, "swish": nn.swish}
 
 
@@ -60,13 +62,21 @@ class NatureCNN(nn.Module):
 def nature_convolutions(frames: jax.Array, layer_norm: bool = False) -> jax.Array:
     """The Nature CNN's three convolutions, inside the calling module: uint8 ``[..., 4, 84, 84]``
     → ``[..., 3136]`` features (the frames divided by 255 first; ``layer_norm``: LayerNorm over
-    each position's channels before each ReLU)."""
+    each position's channels before each ReLU). The convolutions are :mod:`agentax.kernels`' (oneDNN
+    on the CPU where built, XLA's otherwise: ``AGENTAX_CONV``), with flax's parameters unchanged."""
     batch_shape = frames.shape[:-3]
     x = frames.reshape(-1, *frames.shape[-3:]).astype(jnp.float32) / 255.0
     x = jnp.transpose(x, (0, 2, 3, 1))  # [N, C, H, W] -> [N, H, W, C]
     init = nn.initializers.orthogonal(jnp.sqrt(2.0))
     for features, size, stride in ((32, 8, 4), (64, 4, 2), (64, 3, 1)):
-        x = nn.Conv(features, (size, size), (stride, stride), padding="VALID", kernel_init=init)(x)
+        x = nn.Conv(
+            features,
+            (size, size),
+            (stride, stride),
+            padding="VALID",
+            kernel_init=init,
+            conv_general_dilated=kernels.conv_general_dilated,
+        )(x)
         x = nn.relu(nn.LayerNorm()(x) if layer_norm else x)
     return x.reshape(*batch_shape, -1)
 

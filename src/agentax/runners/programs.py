@@ -25,7 +25,7 @@ from typing import Any
 
 import jax
 
-from agentax import _xla
+from agentax import _xla, kernels
 
 KEEP = 256
 """Programs kept: past this many, the least recently used go (each is ~0.1-1 MB)."""
@@ -58,6 +58,7 @@ def fingerprint(description: dict[str, Any], example_args: Any) -> str:
         "backend": jax.default_backend(),
         "x64": bool(jax.config.jax_enable_x64),
         "agentax": source_digest(),
+        "conv": kernels.backend(),  # XLA's convolutions or oneDNN's: another program
     }
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:32]
 
@@ -91,7 +92,9 @@ def jit(
             path.unlink(missing_ok=True)
     if exported is None:
         try:
-            exported = export.export(jax.jit(fn))(*example_args)
+            # oneDNN's convolutions are custom calls, allowed here: kernels registers them first
+            allowed = [export.DisabledSafetyCheck.custom_call(target) for target in kernels.TARGETS]
+            exported = export.export(jax.jit(fn), disabled_checks=allowed)(*example_args)
         except Exception:  # not exportable (e.g. a custom pytree in the results): just trace
             return jax.jit(fn, donate_argnums=donate_argnums)
         try:

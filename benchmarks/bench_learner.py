@@ -1,0 +1,278 @@
+"""The Atari learners' update with XLA's convolutions and with oneDNN's (``agentax.kernels``), and
+torch's on the same CPU.
+
+Rows, all measured in this run:
+
+- one Nature-CNN DQN update of batch 32 (target network forward on ``next_obs``, online forward and
+  backward on ``obs``, Adam; ``agentax.agents.dqn.make_learn`` with ``double=False``, no gradient
+  clipping), jitted, with each ``AGENTAX_CONV`` backend: ``xla`` (XLA's default float32), ``onednn``
+  (float32) and ``onednn-bf16`` (bfloat16 on AMX inside the convolutions);
+- the same update in torch 2.13 (``.bench-venv``, a subprocess): float32 and bf16 autocast, both on
+  oneDNN, channels-last, ``torch.set_num_threads`` = the CPUs this process may use;
+- one PQN learning iteration of the ``breakout-hour`` preset (Q(λ) targets over a 32 × 64 rollout,
+  then 2 epochs × 16 minibatches of 128 through the Nature CNN with LayerNorm, RAdam), per backend.
+
+Each figure is the fastest of several repeats of a timed loop (the machine is shared: the fastest is
+the least disturbed). GFLOP/s counts the multiply-adds of the convolutions and dense layers twice:
+a forward pass of one frame stack is 18.7 MFLOP; a DQN update is 3 forward passes' worth per sample
+(target forward, online forward, the backward's two products per layer) less the first
+convolution's input gradient, which is never computed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+BENCH_VENV = ROOT / ".bench-venv"
+BATCH = 32
+REPEATS = 5
+LOOP = 10
+BACKENDS = ("xla", "onednn", "onednn-bf16")
+LAYERS = ((4, 32, 8, 4, 84), (32, 64, 4, 2, 20), (64, 64, 3, 1, 9))  # in, out, size, stride, input side
+
+
+def layer_flops() -> list[float]:
+    """FLOPs of one frame stack through each conv layer and the dense 512 (2 per multiply-add)."""
+    flops = []
+    for c, o, k, s, side in LAYERS:
+        out = (side - k) // s + 1
+        flops.append(2.0 * out * out * o * k * k * c)
+    flops.append(2.0 * 3136 * 512)
+    return flops
+
+
+def dqn_update_flops(batch: int = BATCH) -> float:
+    """Target forward + online forward + backward (two products per layer, no input gradient for
+    the first convolution) for ``batch`` samples."""
+    per_layer = layer_flops()
+    forward = sum(per_layer)
+    return batch * (2 * forward + 2 * forward - per_layer[0])
+
+
+TORCH_SCRIPT = r"""
+import json, sys, time
+import torch, torch.nn as nn
+threads, batch, repeats, loop = map(int, sys.argv[1:5])
+torch.set_num_threads(threads)
+def net():
+    return nn.Sequential(
+        nn.Conv2d(4, 32, 8, 4), nn.ReLU(), nn.Conv2d(32, 64, 4, 2), nn.ReLU(), nn.Conv2d(64, 64, 3, 1),
+        nn.ReLU(), nn.Flatten(), nn.Linear(3136, 512), nn.ReLU(), nn.Linear(512, 4),
+    ).to(memory_format=torch.channels_last)
+online, target = net(), net()
+target.load_state_dict(online.state_dict())
+opt = torch.optim.Adam(online.parameters(), lr=1e-4)
+obs = torch.randint(0, 256, (batch, 4, 84, 84), dtype=torch.uint8)
+next_obs = torch.randint(0, 256, (batch, 4, 84, 84), dtype=torch.uint8)
+action = torch.zeros(batch, dtype=torch.long)
+reward = torch.ones(batch)
+def prep(x):
+    return (x.float() / 255.0).contiguous(memory_format=torch.channels_last)
+def update(bf16):
+    with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+        with torch.no_grad():
+            q_next = target(prep(next_obs)).float().max(1).values
+        q = online(prep(obs)).float().gather(1, action[:, None])[:, 0]
+        loss = nn.functional.smooth_l1_loss(q, reward + 0.99 * q_next)
+    opt.zero_grad()
+    loss.backward()
+    opt.step()
+out = {}
+for bf16 in (False, True):
+    for _ in range(3):
+        update(bf16)
+    best = 1e9
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for _ in range(loop):
+            update(bf16)
+        best = min(best, (time.perf_counter() - start) / loop)
+    out["bf16" if bf16 else "f32"] = best * 1e3
+print(json.dumps({"torch": torch.__version__, **out}))
+"""
+
+
+def torch_times() -> tuple[dict | None, str]:
+    """torch's DQN update in ms (f32 and bf16 autocast) from ``.bench-venv``, or None and why not."""
+    python = BENCH_VENV / "bin" / "python"
+    if not python.exists():
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from bench_atari import bench_venv_python
+
+        found, why = bench_venv_python()
+        if found is None:
+            return None, why
+    threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    args = [str(python), "-c", TORCH_SCRIPT, str(threads), str(BATCH), str(REPEATS), str(LOOP)]
+    done = subprocess.run(args, capture_output=True, text=True, timeout=600)
+    if done.returncode != 0:
+        return None, done.stderr.strip()[-300:]
+    return json.loads(done.stdout.strip().splitlines()[-1]), ""
+
+
+def fastest(fn, args, repeats: int = REPEATS, loop: int = LOOP, carry: bool = True) -> float:
+    """The fastest of ``repeats`` timed loops of ``loop`` calls, in ms per call (the state carried)."""
+    import jax
+
+    state, rest = args[0], args[1:]
+    jax.block_until_ready(fn(state, *rest))
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for _ in range(loop):
+            out = fn(state, *rest)
+            if carry:
+                state = out[0]
+        jax.block_until_ready(out)
+        best = min(best, (time.perf_counter() - start) / loop)
+    return best * 1e3
+
+
+def traced_per_backend(make) -> dict:
+    """``{backend: jitted fn}``, each traced and compiled with ``AGENTAX_CONV`` set to it."""
+    import jax
+
+    from agentax import kernels
+
+    fns = {}
+    previous = os.environ.get("AGENTAX_CONV")
+    for backend in BACKENDS:
+        if backend != "xla" and not kernels.available():
+            continue
+        os.environ["AGENTAX_CONV"] = backend
+        fn, args = make()
+        fn = jax.jit(fn)
+        jax.block_until_ready(fn(*args))  # trace and compile now, under this backend
+        fns[backend] = (fn, args)
+    if previous is None:
+        os.environ.pop("AGENTAX_CONV", None)
+    else:
+        os.environ["AGENTAX_CONV"] = previous
+    return fns
+
+
+def dqn_case():
+    import jax
+    import jax.numpy as jnp
+
+    from agentax.agents import dqn
+    from agentax.replay.core import ReplaySample, Transition
+
+    cfg = dqn.DQNConfig(double=False, batch_size=BATCH, max_grad_norm=None, learning_rate=1e-4)
+    rng = np.random.default_rng(0)
+    frames = [jnp.asarray(rng.integers(0, 256, (BATCH, 4, 84, 84), dtype=np.uint8)) for _ in range(2)]
+    transition = Transition(
+        obs=frames[0],
+        action=jnp.asarray(rng.integers(0, 4, BATCH), jnp.int32),
+        reward=jnp.ones(BATCH),
+        next_obs=frames[1],
+        terminated=jnp.zeros(BATCH, bool),
+        truncated=jnp.zeros(BATCH, bool),
+        num_steps=jnp.ones(BATCH, jnp.int32),
+    )
+    sample = ReplaySample(transition, jnp.zeros(BATCH, jnp.int32), jnp.ones(BATCH))
+    state = dqn.init(jax.random.key(0), frames[0][0], 4, cfg)
+    return dqn.make_learn(cfg), (state, sample)
+
+
+def pqn_case():
+    import jax
+    import jax.numpy as jnp
+
+    from agentax.agents import pqn
+    from agentax.agents.presets import PQN_PRESETS
+    from agentax.agents.protocol import EnvSpec
+    from agentax.envs.core import Discrete
+    from agentax.replay.core import Transition
+
+    cfg = PQN_PRESETS["breakout-hour"].config
+    spec = EnvSpec((4, 84, 84), Discrete(4), jnp.uint8)
+    net = pqn.q_network(cfg, spec)
+    steps, envs = cfg.num_steps, cfg.num_envs
+    rng = np.random.default_rng(0)
+    frames = [jnp.asarray(rng.integers(0, 256, (steps, envs, 4, 84, 84), dtype=np.uint8)) for _ in range(2)]
+    rollout = Transition(
+        obs=frames[0],
+        action=jnp.asarray(rng.integers(0, 4, (steps, envs)), jnp.int32),
+        reward=jnp.asarray(rng.random((steps, envs)), jnp.float32),
+        next_obs=frames[1],
+        terminated=jnp.zeros((steps, envs), bool),
+        truncated=jnp.zeros((steps, envs), bool),
+        num_steps=jnp.ones((steps, envs), jnp.int32),
+        info={"epsilon": jnp.zeros((steps, envs))},
+    )
+    params = net.init(jax.random.key(0), frames[0][0, :1])
+    state = pqn.PQNState(params, pqn.optimizer(cfg).init(params), jnp.int32(0))
+    q_values = pqn.q_values_of(net, spec)
+
+    def learn(state, rollout, key):
+        return pqn.learn(state, rollout, key, q_values, cfg)
+
+    return learn, (state, rollout, jax.random.key(1))
+
+
+def run() -> dict:
+    from agentax import kernels
+
+    flops = dqn_update_flops()
+    dqn_fns = traced_per_backend(dqn_case)
+    dqn_ms = {backend: fastest(fn, args) for backend, (fn, args) in dqn_fns.items()}
+    torch, torch_why = torch_times()
+    pqn_fns = traced_per_backend(pqn_case)
+    pqn_ms = {backend: fastest(fn, args, repeats=3, loop=1) for backend, (fn, args) in pqn_fns.items()}
+
+    xla_ms = dqn_ms["xla"]
+    rows = []
+    labels = {
+        "xla": "agentax, XLA f32",
+        "onednn": "agentax, oneDNN f32",
+        "onednn-bf16": "agentax, oneDNN bf16",
+    }
+    for backend, ms in dqn_ms.items():
+        rows.append(["DQN update, batch 32", labels[backend], round(ms, 2), round(flops / ms / 1e6, 1)])
+    if torch is not None:
+        for kind, label in (("f32", "torch f32"), ("bf16", "torch bf16 autocast")):
+            rows.append(
+                ["DQN update, batch 32", label, round(torch[kind], 2), round(flops / torch[kind] / 1e6, 1)]
+            )
+    for backend, ms in pqn_ms.items():
+        rows.append(["PQN breakout-hour iteration", labels[backend], round(ms, 1), ""])
+    impls = {
+        f"conv{i + 1}": kernels.implementation("fwd", (BATCH, side, side, c), (k, o, s), bf16=True)
+        for i, (c, o, k, s, side) in enumerate(LAYERS)
+    }
+    ratios = [
+        f"oneDNN {b.removeprefix('onednn-') if '-' in b else 'f32'} {xla_ms / ms:.2f}×"
+        for b, ms in dqn_ms.items()
+    ]
+    loaded = "loaded" if kernels.available() else f"unavailable: {kernels.unavailable_reason()}"
+    pqn_ratio = (
+        f"; PQN iteration bf16 {pqn_ms['xla'] / pqn_ms['onednn-bf16']:.2f}×"
+        if "onednn-bf16" in pqn_ms
+        else ""
+    )
+    notes = (
+        f"{__doc__.strip()}\n\nRatios to XLA's DQN update in this run: {', '.join(ratios[1:])}{pqn_ratio}. "
+        f"oneDNN {loaded}; bf16 forward implementations: {impls}. "
+        + (f"torch {torch['torch']}." if torch else f"torch not measured: {torch_why}")
+    )
+    return {
+        "name": "learner",
+        "title": "Atari learner update: XLA's and oneDNN's convolutions, and torch's",
+        "headers": ["update", "implementation", "ms per update", "GFLOP/s"],
+        "rows": rows,
+        "notes": notes,
+    }
+
+
+if __name__ == "__main__":
+    result = run()
+    print(json.dumps(result, indent=1))

@@ -1,0 +1,361 @@
+// oneDNN convolutions for XLA's CPU backend, as XLA FFI handlers (agentax.kernels calls them).
+//
+// Three handlers, every array channels-last and every convolution VALID (no padding):
+//   agentax_conv_fwd       x [..., N, H, W, C], w [..., KH, KW, C, O]   -> y  [..., N, OH, OW, O]
+//   agentax_conv_bwd_data  dy [..., N, OH, OW, O], w [..., KH, KW, C, O] -> dx [..., N, H, W, C]
+//   agentax_conv_bwd_w     x [..., N, H, W, C], dy [..., N, OH, OW, O]  -> dw [..., KH, KW, C, O]
+// Inputs are f32 or bf16 (bf16 runs on AMX where the CPU has it), outputs f32 or bf16. The leading
+// dimensions "..." are vmap's (jax.ffi.ffi_call with vmap_method="expand_dims": every input has the
+// same number of them, each either the batch size or 1). Where the weights' leading dimensions are
+// all 1 the batch folds into N (one large convolution); otherwise one convolution per batch entry.
+//
+// Building a oneDNN primitive (choosing its implementation, generating its code) costs far more than
+// running one of these small convolutions, so each is built once per shape and kept in a cache.
+
+#include <omp.h>
+
+#include <atomic>
+#include <cstdint>
+#include <cstring>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "oneapi/dnnl/dnnl.hpp"
+#include "xla/ffi/api/ffi.h"
+
+namespace ffi = xla::ffi;
+using dt = dnnl::memory::data_type;
+using tag = dnnl::memory::format_tag;
+using dims = dnnl::memory::dims;
+
+namespace {
+
+std::atomic<int> g_threads{0};  // 0: OpenMP's own default
+
+dnnl::engine& cpu_engine() {
+  static dnnl::engine engine(dnnl::engine::kind::cpu, 0);
+  return engine;
+}
+
+dnnl::stream& thread_stream() {
+  thread_local dnnl::stream stream(cpu_engine());
+  return stream;
+}
+
+// The scratchpad every primitive asks for (user mode), one per calling thread so that two XLA
+// threads can run convolutions at once.
+void* scratchpad(size_t bytes) {
+  thread_local std::vector<char> buffer;
+  if (buffer.size() < bytes) buffer.resize(bytes);
+  return buffer.data();
+}
+
+// The transient buffers a call needs (bf16 or blocked copies of the weights), per calling thread.
+struct Workspace {
+  std::vector<std::vector<char>> slots;
+  void* get(size_t slot, size_t bytes) {
+    if (slots.size() <= slot) slots.resize(slot + 1);
+    if (slots[slot].size() < bytes) slots[slot].resize(bytes);
+    return slots[slot].data();
+  }
+};
+
+Workspace& workspace() {
+  thread_local Workspace ws;
+  return ws;
+}
+
+dt to_dnnl(ffi::DataType type) {
+  switch (type) {
+    case ffi::DataType::F32:
+      return dt::f32;
+    case ffi::DataType::BF16:
+      return dt::bf16;
+    default:
+      return dt::undef;
+  }
+}
+
+// The geometry of one call: the 4-d convolution and its vmap batch.
+struct Shape {
+  int64_t n, h, w, c, kh, kw, o, oh, ow, sh, sw;
+};
+
+enum class Kind { kFwd, kBwdData, kBwdWeights };
+
+// One cached convolution: its primitive and the reorders that bring the weights (or the weight
+// gradient) between the caller's HWIO layout and the one the primitive chose.
+struct Conv {
+  dnnl::primitive prim;
+  dnnl::memory::desc src_md, wei_md, dst_md;  // as the primitive wants them
+  dnnl::memory::desc user_wei_md;             // HWIO, the caller's data type
+  bool wei_reorder = false;
+  dnnl::reorder wei_prim;
+  dnnl::memory::desc scratch_md;
+  std::string impl;  // oneDNN's name for the implementation it chose
+};
+
+dnnl::memory::desc hwio(const Shape& s, dt type) {
+  // Logical dims OIHW; the layout HWIO (flax's kernel layout).
+  return dnnl::memory::desc({s.o, s.c, s.kh, s.kw}, type, tag::hwio);
+}
+
+std::string key_of(Kind kind, const Shape& s, dt a, dt b, dt out) {
+  std::string key;
+  for (int64_t v : {int64_t(kind), s.n, s.h, s.w, s.c, s.kh, s.kw, s.o, s.sh, s.sw, int64_t(a), int64_t(b),
+                    int64_t(out)}) {
+    key += std::to_string(v);
+    key += ',';
+  }
+  return key;
+}
+
+// Builds the primitive for `kind`; types: fwd (x, w, y), bwd data (dy, w, dx), bwd weights (x, dy, dw).
+std::unique_ptr<Conv> build(Kind kind, const Shape& s, dt a, dt b, dt out) {
+  auto& eng = cpu_engine();
+  dims src_dims{s.n, s.c, s.h, s.w}, dst_dims{s.n, s.o, s.oh, s.ow}, wei_dims{s.o, s.c, s.kh, s.kw};
+  dims strides{s.sh, s.sw}, pad{0, 0};
+  dnnl::primitive_attr attr;
+  attr.set_scratchpad_mode(dnnl::scratchpad_mode::user);
+  auto conv = std::make_unique<Conv>();
+  dt compute = a;  // the type the convolution computes in: its activations'
+  auto any_wei = dnnl::memory::desc(wei_dims, compute, tag::any);
+  auto alg = dnnl::algorithm::convolution_direct;
+  if (kind == Kind::kFwd) {
+    auto src = dnnl::memory::desc(src_dims, a, tag::nhwc);
+    auto dst = dnnl::memory::desc(dst_dims, out, tag::nhwc);
+    auto pd = dnnl::convolution_forward::primitive_desc(eng, dnnl::prop_kind::forward_training, alg, src,
+                                                        any_wei, dst, strides, pad, pad, attr);
+    conv->prim = dnnl::convolution_forward(pd);
+    conv->src_md = pd.src_desc();
+    conv->wei_md = pd.weights_desc();
+    conv->dst_md = pd.dst_desc();
+    conv->user_wei_md = hwio(s, b);
+    conv->scratch_md = pd.scratchpad_desc();
+    conv->impl = pd.impl_info_str();
+  } else {
+    // oneDNN's backward primitives take a forward one as a hint.
+    dt src_type = kind == Kind::kBwdData ? out : a;
+    dt dst_type = kind == Kind::kBwdData ? a : b;
+    auto src = dnnl::memory::desc(src_dims, src_type, tag::nhwc);
+    auto dst = dnnl::memory::desc(dst_dims, dst_type, tag::nhwc);
+    dt wei_type = kind == Kind::kBwdData ? compute : out;  // bwd data: the weights reordered to it
+    auto hint_wei = dnnl::memory::desc(wei_dims, compute, tag::any);
+    auto hint_dst = dnnl::memory::desc(dst_dims, compute, tag::nhwc);
+    auto hint_src = dnnl::memory::desc(src_dims, compute, tag::nhwc);
+    auto hint = dnnl::convolution_forward::primitive_desc(eng, dnnl::prop_kind::forward_training, alg,
+                                                          hint_src, hint_wei, hint_dst, strides, pad, pad);
+    if (kind == Kind::kBwdData) {
+      auto wei = dnnl::memory::desc(wei_dims, wei_type, tag::any);
+      auto pd = dnnl::convolution_backward_data::primitive_desc(eng, alg, src, wei, dst, strides, pad, pad,
+                                                                hint, attr);
+      conv->prim = dnnl::convolution_backward_data(pd);
+      conv->src_md = pd.diff_src_desc();
+      conv->wei_md = pd.weights_desc();
+      conv->dst_md = pd.diff_dst_desc();
+      conv->user_wei_md = hwio(s, b);
+      conv->scratch_md = pd.scratchpad_desc();
+    conv->impl = pd.impl_info_str();
+    } else {
+      auto wei = dnnl::memory::desc(wei_dims, wei_type, tag::any);
+      auto pd = dnnl::convolution_backward_weights::primitive_desc(eng, alg, src, wei, dst, strides, pad,
+                                                                   pad, hint, attr);
+      conv->prim = dnnl::convolution_backward_weights(pd);
+      conv->src_md = pd.src_desc();
+      conv->wei_md = pd.diff_weights_desc();
+      conv->dst_md = pd.diff_dst_desc();
+      conv->user_wei_md = hwio(s, out);
+      conv->scratch_md = pd.scratchpad_desc();
+    conv->impl = pd.impl_info_str();
+    }
+  }
+  conv->wei_reorder = conv->wei_md != conv->user_wei_md;
+  if (conv->wei_reorder) {
+    if (kind == Kind::kBwdWeights) {
+      conv->wei_prim = dnnl::reorder(dnnl::reorder::primitive_desc(eng, conv->wei_md, eng, conv->user_wei_md));
+    } else {
+      conv->wei_prim = dnnl::reorder(dnnl::reorder::primitive_desc(eng, conv->user_wei_md, eng, conv->wei_md));
+    }
+  }
+  return conv;
+}
+
+Conv& cached(Kind kind, const Shape& s, dt a, dt b, dt out) {
+  static std::mutex mutex;
+  static std::unordered_map<std::string, std::unique_ptr<Conv>> cache;
+  std::string key = key_of(kind, s, a, b, out);
+  std::lock_guard<std::mutex> lock(mutex);
+  auto found = cache.find(key);
+  if (found != cache.end()) return *found->second;
+  auto& slot = cache[key];
+  slot = build(kind, s, a, b, out);
+  return *slot;
+}
+
+// Runs one 4-d convolution on raw pointers: fwd (x, w) -> y, bwd data (dy, w) -> dx,
+// bwd weights (x, dy) -> dw; `a`, `b`, `r` are the first input, the second input and the result.
+void run(Kind kind, Conv& conv, void* a, void* b, void* r) {
+  auto& eng = cpu_engine();
+  auto& strm = thread_stream();
+  dnnl::memory scratch(conv.scratch_md, eng, scratchpad(conv.scratch_md.get_size() + 64));
+  if (kind == Kind::kBwdWeights) {
+    dnnl::memory src(conv.src_md, eng, a), dst(conv.dst_md, eng, b);
+    dnnl::memory user_wei(conv.user_wei_md, eng, r);
+    dnnl::memory wei = conv.wei_reorder
+                           ? dnnl::memory(conv.wei_md, eng, workspace().get(0, conv.wei_md.get_size()))
+                           : user_wei;
+    conv.prim.execute(strm, {{DNNL_ARG_SRC, src},
+                             {DNNL_ARG_DIFF_DST, dst},
+                             {DNNL_ARG_DIFF_WEIGHTS, wei},
+                             {DNNL_ARG_SCRATCHPAD, scratch}});
+    if (conv.wei_reorder) conv.wei_prim.execute(strm, wei, user_wei);
+  } else {
+    dnnl::memory user_wei(conv.user_wei_md, eng, b);
+    dnnl::memory wei = user_wei;
+    if (conv.wei_reorder) {
+      wei = dnnl::memory(conv.wei_md, eng, workspace().get(0, conv.wei_md.get_size()));
+      conv.wei_prim.execute(strm, user_wei, wei);
+    }
+    if (kind == Kind::kFwd) {
+      dnnl::memory src(conv.src_md, eng, a), dst(conv.dst_md, eng, r);
+      conv.prim.execute(
+          strm, {{DNNL_ARG_SRC, src}, {DNNL_ARG_WEIGHTS, wei}, {DNNL_ARG_DST, dst}, {DNNL_ARG_SCRATCHPAD, scratch}});
+    } else {
+      dnnl::memory diff_dst(conv.dst_md, eng, a), diff_src(conv.src_md, eng, r);
+      conv.prim.execute(strm, {{DNNL_ARG_DIFF_DST, diff_dst},
+                               {DNNL_ARG_WEIGHTS, wei},
+                               {DNNL_ARG_DIFF_SRC, diff_src},
+                               {DNNL_ARG_SCRATCHPAD, scratch}});
+    }
+  }
+  strm.wait();
+}
+
+// The leading (vmap) dimensions of an array whose last `core` dimensions are the convolution's.
+std::vector<int64_t> lead_of(ffi::Span<const int64_t> d, size_t core) {
+  return std::vector<int64_t>(d.begin(), d.end() - core);
+}
+
+int64_t product(const std::vector<int64_t>& v) {
+  int64_t p = 1;
+  for (int64_t x : v) p *= x;
+  return p;
+}
+
+// The offset (in elements of one batch entry) of output batch entry `i` in an input whose leading
+// dims are `lead` (each equal to `out_lead`'s or 1: broadcast).
+int64_t broadcast_index(int64_t i, const std::vector<int64_t>& lead, const std::vector<int64_t>& out_lead) {
+  int64_t index = 0, stride = 1;
+  for (size_t d = out_lead.size(); d-- > 0;) {
+    int64_t coord = i % out_lead[d];
+    i /= out_lead[d];
+    if (lead[d] != 1) index += coord * stride;
+    stride *= lead[d];
+  }
+  return index;
+}
+
+// Shared by the three handlers: `first` and `second` are the inputs, `result` the output, each with
+// `core` dims (4) after the vmap dims; `x_first`: which of the four-d arrays carries N, H, W, C.
+ffi::Error convolve(Kind kind, ffi::AnyBuffer first, ffi::AnyBuffer second, ffi::Result<ffi::AnyBuffer> result,
+                    int64_t sh, int64_t sw) {
+  dt a = to_dnnl(first.element_type()), b = to_dnnl(second.element_type());
+  dt r = to_dnnl(result->element_type());
+  if (a == dt::undef || b == dt::undef || r == dt::undef)
+    return ffi::Error::InvalidArgument("agentax conv: arrays must be float32 or bfloat16");
+  auto fd = first.dimensions(), sd = second.dimensions(), rd = result->dimensions();
+  if (fd.size() < 4 || fd.size() != sd.size() || fd.size() != rd.size())
+    return ffi::Error::InvalidArgument("agentax conv: arrays of rank 4 plus the same vmap dims expected");
+  size_t lead_rank = fd.size() - 4;
+  auto fl = lead_of(fd, 4), sl = lead_of(sd, 4), rl = lead_of(rd, 4);
+  for (size_t d = 0; d < lead_rank; ++d) {
+    if ((fl[d] != rl[d] && fl[d] != 1) || (sl[d] != rl[d] && sl[d] != 1))
+      return ffi::Error::InvalidArgument("agentax conv: vmap dims do not broadcast");
+  }
+  // Pick the 4-d geometry out of whichever arrays hold it.
+  const int64_t* act;  // [N, H, W, C]
+  const int64_t* wei;  // [KH, KW, C, O]
+  const int64_t* out;  // [N, OH, OW, O]
+  if (kind == Kind::kFwd) {
+    act = fd.begin() + lead_rank, wei = sd.begin() + lead_rank, out = rd.begin() + lead_rank;
+  } else if (kind == Kind::kBwdData) {
+    out = fd.begin() + lead_rank, wei = sd.begin() + lead_rank, act = rd.begin() + lead_rank;
+  } else {
+    act = fd.begin() + lead_rank, out = sd.begin() + lead_rank, wei = rd.begin() + lead_rank;
+  }
+  Shape s{act[0], act[1], act[2], act[3], wei[0], wei[1], wei[3], out[1], out[2], sh, sw};
+  if (wei[2] != s.c || out[3] != s.o || out[0] != s.n || (s.h - s.kh) / sh + 1 != s.oh ||
+      (s.w - s.kw) / sw + 1 != s.ow)
+    return ffi::Error::InvalidArgument("agentax conv: shapes of a VALID convolution expected");
+  int64_t batch = product(rl);
+  // The weights (fwd, bwd data) shared by every batch entry: fold the batch into N.
+  bool fold = kind != Kind::kBwdWeights && product(sl) == 1 && product(fl) == batch;
+  Shape one = s;
+  if (fold) one.n *= batch;
+  try {
+    int threads = g_threads.load();
+    if (threads > 0) omp_set_num_threads(threads);
+    Conv& conv = cached(kind, one, a, b, r);
+    if (fold) {
+      run(kind, conv, first.untyped_data(), second.untyped_data(), result->untyped_data());
+      return ffi::Error::Success();
+    }
+    size_t first_bytes = first.size_bytes() / product(fl), second_bytes = second.size_bytes() / product(sl);
+    size_t result_bytes = result->size_bytes() / batch;
+    for (int64_t i = 0; i < batch; ++i) {
+      char* f = static_cast<char*>(first.untyped_data()) + broadcast_index(i, fl, rl) * first_bytes;
+      char* g = static_cast<char*>(second.untyped_data()) + broadcast_index(i, sl, rl) * second_bytes;
+      char* o = static_cast<char*>(result->untyped_data()) + i * result_bytes;
+      run(kind, conv, f, g, o);
+    }
+  } catch (const dnnl::error& e) {
+    return ffi::Error::Internal(std::string("agentax conv (oneDNN, ") + key_of(kind, one, a, b, r) +
+                                "): " + e.what());
+  }
+  return ffi::Error::Success();
+}
+
+ffi::Error Fwd(ffi::AnyBuffer x, ffi::AnyBuffer w, ffi::Result<ffi::AnyBuffer> y, int64_t sh, int64_t sw) {
+  return convolve(Kind::kFwd, x, w, y, sh, sw);
+}
+ffi::Error BwdData(ffi::AnyBuffer dy, ffi::AnyBuffer w, ffi::Result<ffi::AnyBuffer> dx, int64_t sh, int64_t sw) {
+  return convolve(Kind::kBwdData, dy, w, dx, sh, sw);
+}
+ffi::Error BwdWeights(ffi::AnyBuffer x, ffi::AnyBuffer dy, ffi::Result<ffi::AnyBuffer> dw, int64_t sh,
+                      int64_t sw) {
+  return convolve(Kind::kBwdWeights, x, dy, dw, sh, sw);
+}
+
+}  // namespace
+
+#define AGENTAX_CONV_BINDING                                                                      \
+  ffi::Ffi::Bind().Arg<ffi::AnyBuffer>().Arg<ffi::AnyBuffer>().Ret<ffi::AnyBuffer>().Attr<int64_t>( \
+      "stride_h").Attr<int64_t>("stride_w")
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(agentax_conv_fwd, Fwd, AGENTAX_CONV_BINDING);
+XLA_FFI_DEFINE_HANDLER_SYMBOL(agentax_conv_bwd_data, BwdData, AGENTAX_CONV_BINDING);
+XLA_FFI_DEFINE_HANDLER_SYMBOL(agentax_conv_bwd_w, BwdWeights, AGENTAX_CONV_BINDING);
+
+extern "C" {
+// The OpenMP threads oneDNN runs each convolution on (0: OpenMP's default, the CPUs it saw at start).
+void agentax_conv_set_threads(int threads) { g_threads.store(threads); }
+int agentax_conv_version() { return dnnl_version()->major * 100 + dnnl_version()->minor; }
+// Which implementation oneDNN chose for a convolution (kind 0 fwd, 1 bwd data, 2 bwd weights) of
+// this geometry, computing in bf16 or f32 (for the benchmarks' notes); 0 if it cannot build one.
+int agentax_conv_impl(int kind, int64_t n, int64_t h, int64_t w, int64_t c, int64_t kh, int64_t kw, int64_t o,
+                      int64_t stride, int bf16, char* name, int size) {
+  try {
+    Shape s{n, h, w, c, kh, kw, o, (h - kh) / stride + 1, (w - kw) / stride + 1, stride, stride};
+    dt type = bf16 ? dt::bf16 : dt::f32;
+    Conv& conv = cached(Kind(kind), s, type, type, dt::f32);
+    std::strncpy(name, conv.impl.c_str(), size - 1);
+    name[size - 1] = 0;
+    return 1;
+  } catch (const dnnl::error&) {
+    return 0;
+  }
+}
+}

@@ -1,0 +1,207 @@
+"""oneDNN convolutions on the CPU: the Nature CNN's convolutions and their gradients as XLA FFI calls.
+
+XLA's CPU convolutions are what bound the Atari learners (a Nature-CNN DQN update of batch 32 took
+29 ms here, torch's oneDNN 18.5 ms in f32 and 11.5 ms in bf16 on AMX). :func:`conv2d` calls oneDNN
+(``csrc/onednn_conv.cc``, compiled by ``make`` into ``_onednn_conv.so`` beside this file) for the
+forward convolution, the input gradient and the weight gradient; on any other platform, and where
+the library is missing, it is ``lax.conv_general_dilated`` exactly.
+
+``AGENTAX_CONV`` chooses, read when a program is traced:
+
+- ``xla``: XLA's convolutions everywhere (the golden numbers were made with them);
+- ``onednn``: oneDNN in float32 (fails loudly where the library could not be loaded);
+- ``onednn-bf16``: oneDNN computing in bfloat16 (AMX on Sapphire Rapids); inputs, weights and
+  gradients stay float32 outside, rounded to bfloat16 inside, accumulated in float32;
+- ``auto`` (the default): ``onednn`` where the library loads, else ``xla``.
+
+``AGENTAX_CONV_THREADS`` sets oneDNN's OpenMP threads (default: the CPUs this process may use
+when the library is loaded; ``OMP_WAIT_POLICY`` defaults to ``PASSIVE``, so that idle OpenMP
+threads sleep instead of spinning on a core that XLA or an env thread needs). XLA's own CPU client
+runs one intra-op thread here (the hang's cure, :mod:`agentax._xla`), so the convolutions take both
+cores while XLA's elementwise work takes one.
+
+Under ``jax.vmap`` (seeds vmapped by the compiled runner) the FFI calls get the batch as leading
+dimensions (``vmap_method="expand_dims"``): with shared weights it folds into the convolution's
+batch, with one set of weights per seed the kernel runs one convolution per seed.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import os
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+LIBRARY = Path(__file__).with_name("_onednn_conv.so")
+"""Where ``make`` puts the compiled kernel (``AGENTAX_ONEDNN_LIB`` names another)."""
+TARGETS = ("agentax_conv_fwd", "agentax_conv_bwd_data", "agentax_conv_bwd_w")
+MODES = ("auto", "xla", "onednn", "onednn-bf16")
+NHWC = ("NHWC", "HWIO", "NHWC")
+
+
+def mode() -> str:
+    """``AGENTAX_CONV`` as given (default ``auto``); an unknown value is an error saying the choices."""
+    value = os.environ.get("AGENTAX_CONV", "auto").strip().lower() or "auto"
+    if value not in MODES:
+        raise ValueError(f"AGENTAX_CONV={value!r} is not one of {', '.join(MODES)}")
+    return value
+
+
+@functools.cache
+def _load() -> tuple[ctypes.CDLL | None, str]:
+    """The kernel library with its FFI targets registered for the CPU, or None and why not."""
+    path = Path(os.environ.get("AGENTAX_ONEDNN_LIB", LIBRARY))
+    if not path.is_file():
+        return None, f"{path} is missing (make builds it from csrc/onednn_conv.cc)"
+    # OpenMP threads that sleep between convolutions rather than spin: spinning ones take the core
+    # from XLA's own thread and the env threads (read when libgomp starts, so set before loading).
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    try:
+        library = ctypes.CDLL(str(path))
+    except OSError as error:
+        return None, f"{path} does not load: {error}"
+    for name in TARGETS:
+        jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(getattr(library, name)), platform="cpu")
+    threads = os.environ.get("AGENTAX_CONV_THREADS", "")
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 0
+    count = int(threads) if threads else usable
+    library.agentax_conv_set_threads(ctypes.c_int(count))
+    return library, ""
+
+
+def available() -> bool:
+    """Whether the oneDNN kernel loaded (see :func:`unavailable_reason` when not)."""
+    return _load()[0] is not None
+
+
+def unavailable_reason() -> str:
+    """Why the oneDNN kernel is not available ("" when it is)."""
+    return _load()[1]
+
+
+def backend() -> str:
+    """What :func:`conv2d` uses on the CPU now: ``xla``, ``onednn`` or ``onednn-bf16``."""
+    chosen = mode()
+    if chosen == "auto":
+        return "onednn" if available() else "xla"
+    if chosen != "xla" and not available():
+        raise RuntimeError(
+            f"AGENTAX_CONV={chosen} but the oneDNN kernel is unavailable: {unavailable_reason()}"
+        )
+    return chosen
+
+
+def implementation(kind: str, shape: tuple[int, ...], kernel: tuple[int, int, int], bf16: bool) -> str:
+    """oneDNN's name for the implementation it picks (``kind``: fwd, bwd_data, bwd_w) for input
+    ``shape`` ``(N, H, W, C)`` and ``kernel`` ``(size, out_channels, stride)``: for the benchmark notes."""
+    library = _load()[0]
+    if library is None:
+        return "unavailable"
+    name = ctypes.create_string_buffer(128)
+    size, out, stride = kernel
+    args = [ctypes.c_int64(v) for v in (*shape[:3], shape[3], size, size, out, stride)]
+    found = library.agentax_conv_impl(
+        ctypes.c_int(("fwd", "bwd_data", "bwd_w").index(kind)), *args, ctypes.c_int(bf16), name, 128
+    )
+    return name.value.decode() if found else "none"
+
+
+def xla_conv2d(x: jax.Array, w: jax.Array, stride: tuple[int, int]) -> jax.Array:
+    """XLA's VALID convolution: ``x [N, H, W, C]``, ``w [KH, KW, C, O]`` → ``[N, OH, OW, O]``."""
+    return lax.conv_general_dilated(x, w, stride, "VALID", dimension_numbers=NHWC)
+
+
+def _call(target: str, out: jax.ShapeDtypeStruct, a: jax.Array, b: jax.Array, stride) -> jax.Array:
+    call = jax.ffi.ffi_call(target, out, vmap_method="expand_dims")
+    return call(a, b, stride_h=np.int64(stride[0]), stride_w=np.int64(stride[1]))
+
+
+def _out_shape(x_shape, w_shape, stride) -> tuple[int, ...]:
+    n, h, w, _ = x_shape
+    kh, kw, _, o = w_shape
+    return (n, (h - kh) // stride[0] + 1, (w - kw) // stride[1] + 1, o)
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(2, 3))
+def _onednn_conv2d(x: jax.Array, w: jax.Array, stride: tuple[int, int], bf16: bool) -> jax.Array:
+    return _onednn_forward(x, w, stride, bf16)[0]
+
+
+def _compute(x: jax.Array, bf16: bool) -> jax.Array:
+    """``x`` in the type the kernel computes in (the weights are converted inside, once per call)."""
+    return x.astype(jnp.bfloat16) if bf16 else x
+
+
+def _onednn_forward(x, w, stride, bf16):
+    out = jax.ShapeDtypeStruct(_out_shape(x.shape, w.shape, stride), x.dtype)
+    return _call("agentax_conv_fwd", out, _compute(x, bf16), w, stride), (x, w)
+
+
+def _onednn_backward(stride, bf16, residuals, dy):
+    x, w = residuals
+    dyc = _compute(dy, bf16)
+    # In bf16 the input gradient comes back in bf16 (oneDNN 3.2 has no bf16 -> f32 variant of it).
+    dx = _call("agentax_conv_bwd_data", jax.ShapeDtypeStruct(x.shape, dyc.dtype), dyc, w, stride)
+    dw = _call("agentax_conv_bwd_w", jax.ShapeDtypeStruct(w.shape, w.dtype), _compute(x, bf16), dyc, stride)
+    return dx.astype(x.dtype), dw
+
+
+_onednn_conv2d.defvjp(_onednn_forward, _onednn_backward)
+
+
+def conv2d(x: jax.Array, w: jax.Array, stride: tuple[int, int]) -> jax.Array:
+    """A VALID convolution ``x [N, H, W, C]`` (float32), ``w [KH, KW, C, O]`` → ``[N, OH, OW, O]``:
+    oneDNN on the CPU as :func:`backend` says, XLA's on every other platform; differentiable."""
+    stride = tuple(int(s) for s in stride)
+    chosen = backend()
+    if chosen == "xla" or x.dtype != jnp.float32 or w.dtype != jnp.float32:
+        return xla_conv2d(x, w, stride)
+    bf16 = chosen == "onednn-bf16"
+    return lax.platform_dependent(
+        x,
+        w,
+        cpu=lambda x, w: _onednn_conv2d(x, w, stride, bf16),
+        default=lambda x, w: xla_conv2d(x, w, stride),
+    )
+
+
+def conv_general_dilated(
+    lhs,
+    rhs,
+    window_strides,
+    padding,
+    lhs_dilation=None,
+    rhs_dilation=None,
+    dimension_numbers=None,
+    feature_group_count=1,
+    precision=None,
+):
+    """``lax.conv_general_dilated``'s signature (flax ``nn.Conv(conv_general_dilated=...)``): the
+    convolutions :func:`conv2d` covers (2-d, VALID, NHWC/HWIO, no dilation or groups, default
+    precision) go to it, every other one to ``lax.conv_general_dilated`` unchanged."""
+    plain = (
+        lhs.ndim == 4
+        and padding in ("VALID", ((0, 0), (0, 0)), [(0, 0), (0, 0)])
+        and all(d in (None, (1, 1), [1, 1]) for d in (lhs_dilation, rhs_dilation))
+        and feature_group_count == 1
+        and precision is None
+        and dimension_numbers == lax.conv_dimension_numbers(lhs.shape, rhs.shape, NHWC)
+    )
+    if plain:
+        return conv2d(lhs, rhs, window_strides)
+    return lax.conv_general_dilated(
+        lhs,
+        rhs,
+        window_strides,
+        padding,
+        lhs_dilation=lhs_dilation,
+        rhs_dilation=rhs_dilation,
+        dimension_numbers=dimension_numbers,
+        feature_group_count=feature_group_count,
+        precision=precision,
+    )

@@ -1,0 +1,168 @@
+"""agentax.kernels: oneDNN's convolutions and their gradients against XLA's, and the fallback.
+
+Each comparison is against ``lax.conv_general_dilated`` on the same random arrays: float32 to
+``rtol=1e-4`` (oneDNN sums in another order; the sums are over up to 576 products), bfloat16 to 2 %
+of the largest entry (8 bits of mantissa in the products, accumulated in float32).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from agentax import kernels
+from agentax.nets import NatureCNN
+
+pytestmark = pytest.mark.timeout(120)
+
+NATURE_LAYERS = [  # (input [N, H, W, C], kernel size, out channels, stride) of the Nature CNN
+    ((8, 84, 84, 4), 8, 32, 4),
+    ((8, 20, 20, 32), 4, 64, 2),
+    ((8, 9, 9, 64), 3, 64, 1),
+]
+needs_kernel = pytest.mark.skipif(
+    not kernels.available(), reason=f"the oneDNN kernel is not built: {kernels.unavailable_reason()}"
+)
+
+
+def arrays(shape, size, out, seed=0):
+    x_key, w_key, dy_key = jax.random.split(jax.random.key(seed), 3)
+    x = jax.random.normal(x_key, shape)
+    w = jax.random.normal(w_key, (size, size, shape[-1], out)) / np.sqrt(size * size * shape[-1])
+    return x, w, dy_key
+
+
+def value_and_grads(x, w, dy_key, stride):
+    """The convolution, and the gradients of ``sum(conv * r)`` for a fixed random ``r``."""
+
+    def loss(x, w):
+        y = kernels.conv2d(x, w, (stride, stride))
+        return jnp.sum(y * jax.random.normal(dy_key, y.shape)), y
+
+    (_, y), (dx, dw) = jax.jit(jax.value_and_grad(loss, argnums=(0, 1), has_aux=True))(x, w)
+    return y, dx, dw
+
+
+def assert_close(actual, desired, bf16):
+    actual, desired = np.asarray(actual), np.asarray(desired)
+    if bf16:
+        scale = np.abs(desired).max()
+        np.testing.assert_allclose(actual, desired, rtol=0, atol=0.02 * scale)
+    else:
+        np.testing.assert_allclose(actual, desired, rtol=1e-4, atol=1e-4 * np.abs(desired).max())
+
+
+@needs_kernel
+@pytest.mark.parametrize("bf16", [False, True], ids=["f32", "bf16"])
+@pytest.mark.parametrize("layer", NATURE_LAYERS, ids=["conv1", "conv2", "conv3"])
+def test_forward_and_both_gradients_match_xla(monkeypatch, layer, bf16):
+    shape, size, out, stride = layer
+    x, w, dy_key = arrays(shape, size, out)
+    monkeypatch.setenv("AGENTAX_CONV", "xla")
+    expected = value_and_grads(x, w, dy_key, stride)
+    monkeypatch.setenv("AGENTAX_CONV", "onednn-bf16" if bf16 else "onednn")
+    actual = value_and_grads(x, w, dy_key, stride)
+    assert actual[0].shape == expected[0].shape == (shape[0], *actual[0].shape[1:3], out)
+    for a, e in zip(actual, expected, strict=True):
+        assert a.dtype == e.dtype == jnp.float32
+        assert_close(a, e, bf16)
+
+
+@needs_kernel
+def test_the_ffi_call_is_in_the_program(monkeypatch):
+    """The oneDNN path really runs oneDNN (else the comparisons above could not fail)."""
+    x, w, _ = arrays((2, 9, 9, 64), 3, 64)
+    monkeypatch.setenv("AGENTAX_CONV", "onednn")
+    loss = jax.value_and_grad(lambda x, w: kernels.conv2d(x, w, (1, 1)).sum(), (0, 1))
+    text = jax.jit(loss).lower(x, w).as_text()
+    assert all(target in text for target in kernels.TARGETS)
+    monkeypatch.setenv("AGENTAX_CONV", "xla")
+    assert "agentax_conv" not in jax.jit(lambda x, w: kernels.conv2d(x, w, (1, 1))).lower(x, w).as_text()
+
+
+@needs_kernel
+@pytest.mark.parametrize("shared_weights", [True, False], ids=["shared-weights", "weights-per-seed"])
+def test_vmapped_over_seeds(monkeypatch, shared_weights):
+    """vmap over 3 seeds: weights shared (the batch folds into N) or one set per seed (one
+    convolution per seed), forward and gradients equal to XLA's."""
+    shape, size, out, stride = NATURE_LAYERS[1]
+    x, w, dy_key = arrays((3, *shape), size, out)
+    if not shared_weights:
+        w = jax.random.normal(dy_key, (3, size, size, shape[-1], out)) / np.sqrt(size * size * shape[-1])
+
+    def run():
+        w_axis = None if shared_weights else 0
+        return jax.vmap(lambda x, w: value_and_grads(x, w, dy_key, stride), in_axes=(0, w_axis))(x, w)
+
+    monkeypatch.setenv("AGENTAX_CONV", "xla")
+    expected = run()
+    monkeypatch.setenv("AGENTAX_CONV", "onednn")
+    actual = run()
+    for a, e in zip(actual, expected, strict=True):
+        assert a.shape == e.shape
+        assert_close(a, e, bf16=False)
+
+
+@needs_kernel
+def test_under_scan_with_donation(monkeypatch):
+    """SGD steps on one convolution under lax.scan, the parameters donated: as with XLA's."""
+    shape, size, out, stride = NATURE_LAYERS[2]
+    x, w, _ = arrays(shape, size, out)
+
+    def train(w):
+        def step(w, _):
+            grad = jax.grad(lambda w: jnp.mean(kernels.conv2d(x, w, (stride, stride)) ** 2))(w)
+            return w - 0.1 * grad, None
+
+        return jax.lax.scan(step, w, None, length=3)[0]
+
+    monkeypatch.setenv("AGENTAX_CONV", "xla")
+    expected = jax.jit(train, donate_argnums=0)(jnp.copy(w))
+    monkeypatch.setenv("AGENTAX_CONV", "onednn")
+    assert_close(jax.jit(train, donate_argnums=0)(jnp.copy(w)), expected, bf16=False)
+
+
+def test_xla_mode_is_xlas_convolution_exactly(monkeypatch):
+    monkeypatch.setenv("AGENTAX_CONV", "xla")
+    x, w, _ = arrays((2, 20, 20, 32), 4, 64)
+    direct = jax.lax.conv_general_dilated(x, w, (2, 2), "VALID", dimension_numbers=("NHWC", "HWIO", "NHWC"))
+    np.testing.assert_array_equal(kernels.conv2d(x, w, (2, 2)), direct)
+
+
+def test_a_missing_library_falls_back_to_xla_exactly(monkeypatch, tmp_path):
+    """``auto`` without the library is XLA's convolution bit for bit; ``onednn`` says what is missing."""
+    monkeypatch.setattr(kernels, "_load", lambda: (None, f"{tmp_path}/none.so is missing"))
+    monkeypatch.setenv("AGENTAX_CONV", "auto")
+    assert kernels.backend() == "xla"
+    frames = jax.random.randint(jax.random.key(1), (2, 4, 84, 84), 0, 256).astype(jnp.uint8)
+    net = NatureCNN()
+    params = net.init(jax.random.key(0), frames)
+    fallback = net.apply(params, frames)
+    monkeypatch.setenv("AGENTAX_CONV", "xla")
+    np.testing.assert_array_equal(fallback, net.apply(params, frames))
+    monkeypatch.setenv("AGENTAX_CONV", "onednn")
+    with pytest.raises(RuntimeError, match="none.so is missing"):
+        kernels.backend()
+
+
+def test_an_unknown_mode_is_an_error(monkeypatch):
+    monkeypatch.setenv("AGENTAX_CONV", "cudnn")
+    with pytest.raises(ValueError, match="auto, xla, onednn, onednn-bf16"):
+        kernels.mode()
+
+
+@needs_kernel
+def test_the_nature_cnn_keeps_its_parameters_and_output(monkeypatch):
+    """Parameter names and shapes do not depend on the kernel (checkpoints load either way), and the
+    network's output agrees with XLA's."""
+    frames = jax.random.randint(jax.random.key(1), (4, 4, 84, 84), 0, 256).astype(jnp.uint8)
+    net = NatureCNN(layer_norm=True)
+    monkeypatch.setenv("AGENTAX_CONV", "xla")
+    params = net.init(jax.random.key(0), frames)
+    expected = net.apply(params, frames)
+    monkeypatch.setenv("AGENTAX_CONV", "onednn")
+    onednn_params = net.init(jax.random.key(0), frames)
+    assert jax.tree.map(jnp.shape, onednn_params) == jax.tree.map(jnp.shape, params)
+    np.testing.assert_allclose(net.apply(params, frames), expected, rtol=1e-4, atol=1e-4)
