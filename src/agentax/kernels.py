@@ -14,11 +14,13 @@ the library is missing, it is ``lax.conv_general_dilated`` exactly.
   gradients stay float32 outside, rounded to bfloat16 inside, accumulated in float32;
 - ``auto`` (the default): ``onednn`` where the library loads, else ``xla``.
 
-``AGENTAX_CONV_THREADS`` sets oneDNN's OpenMP threads (default: the CPUs this process may use
-when the library is loaded; ``OMP_WAIT_POLICY`` defaults to ``PASSIVE``, so that idle OpenMP
-threads sleep instead of spinning on a core that XLA or an env thread needs). XLA's own CPU client
-runs one intra-op thread here (the hang's cure, :mod:`agentax._xla`), so the convolutions take both
-cores while XLA's elementwise work takes one.
+``AGENTAX_CONV_THREADS`` sets oneDNN's OpenMP threads (default 1; ``OMP_WAIT_POLICY`` defaults to
+``PASSIVE``, so that idle OpenMP threads sleep instead of spinning on a core that XLA or an env
+thread needs). One thread, because two gained nothing here and could stall: with one core busy
+elsewhere, a DQN update took 30.4 ms with two threads against 28.7 with one in float32, and 276 ms
+against 19 in bfloat16, nearly all of it in the AMX weight gradient of the third convolution
+(oneDNN 3.2, 2026-12-02). The compiled Atari runner's other work (EnvPool's threads, XLA's
+elementwise ops) has the other core.
 
 Under ``jax.vmap`` (seeds vmapped by the compiled runner) the FFI calls get the batch as leading
 dimensions (``vmap_method="expand_dims"``): with shared weights it folds into the convolution's
@@ -67,10 +69,10 @@ def _load() -> tuple[ctypes.CDLL | None, str]:
         return None, f"{path} does not load: {error}"
     for name in TARGETS:
         jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(getattr(library, name)), platform="cpu")
-    threads = os.environ.get("AGENTAX_CONV_THREADS", "")
-    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 0
-    count = int(threads) if threads else usable
-    library.agentax_conv_set_threads(ctypes.c_int(count))
+    threads = os.environ.get("AGENTAX_CONV_THREADS", "1")
+    if not threads.isdigit() or int(threads) < 1:
+        raise ValueError(f"AGENTAX_CONV_THREADS={threads!r}: give a whole number of threads, at least 1")
+    library.agentax_conv_set_threads(ctypes.c_int(int(threads)))
     return library, ""
 
 
