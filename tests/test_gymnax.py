@@ -123,3 +123,22 @@ def test_pqn_with_the_minatar_torso_learns_breakout_minatar(tmp_path):
     )
     assert run.config["config"]["conv_torso"]
     assert run.final_eval["mean_return"] > 1.5, run.final_eval
+
+
+def test_ppo_and_pqn_put_the_minatar_torso_before_their_heads():
+    """``conv_torso``: PPO's actor and critic share one MinAtarCNN, PQN's Q-head sits on one; both
+    map a batch of flat boards to ``[batch, 3]`` (and PPO's values to ``[batch]``)."""
+    from agentax.agents import ppo, pqn
+
+    spec = EnvSpec.of(GymnaxEnv("Breakout-MinAtar"))
+    obs = jnp.zeros((5, 400))
+    actor_critic = ppo.network(ppo.PPOConfig(conv_torso=True), spec)
+    params = actor_critic.init(jax.random.key(0), obs)
+    assert set(params["params"]) == {"MinAtarCNN_0", "Dense_0", "Dense_1"}  # the torso, the two heads
+    assert params["params"]["MinAtarCNN_0"]["conv_kernel"].shape == (3, 3, 4, 16)
+    logits, value = actor_critic.apply(params, obs)
+    assert logits.shape == (5, 3) and value.shape == (5,)
+    q_net = pqn.q_network(pqn.PQNConfig(conv_torso=True), spec)
+    q_params = q_net.init(jax.random.key(0), obs)
+    assert q_net.apply(q_params, obs).shape == (5, 3)
+    assert {"LayerNorm_0", "LayerNorm_1"} <= set(q_params["params"]["layers_0"])  # PQN's LayerNorms
