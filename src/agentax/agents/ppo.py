@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from agentax.agents.protocol import Agent, EnvSpec, Loop, OnPolicy, check_fields
+from agentax.agents.protocol import Agent, EnvSpec, Loop, OnPolicy, check_fields, image_shape_for
 from agentax.envs.core import Box, Discrete
 from agentax.errors import UsageError
 from agentax.nets import (
@@ -85,6 +85,9 @@ class PPOConfig:
     """widths of the actor's and the critic's hidden layers"""
     activation: str = "tanh"
     """activation of the hidden layers: elu, relu, tanh, gelu or swish"""
+    conv_torso: bool = False
+    """MinAtar's conv torso (conv 16 3×3, dense 128) shared by actor and critic instead of the MLPs
+    (``hidden`` unused), on an env whose flat observations are an image (``EnvSpec.image_shape``)"""
 
     def validate(self) -> PPOConfig:
         """Raise a UsageError naming the first bad value (run by ``make_agent`` and the CLI)."""
@@ -141,7 +144,10 @@ def action_dim(spec: EnvSpec) -> int:
 
 def network(cfg: PPOConfig, spec: EnvSpec) -> ActorCritic:
     cnn = is_image(spec.obs_shape)
-    return ActorCritic(action_dim(spec), is_continuous(spec), tuple(cfg.hidden), cfg.activation, cnn)
+    image_shape = image_shape_for(cfg.conv_torso, spec)
+    return ActorCritic(
+        action_dim(spec), is_continuous(spec), tuple(cfg.hidden), cfg.activation, cnn, image_shape
+    )
 
 
 def optimizer(cfg: PPOConfig) -> optax.GradientTransformation:

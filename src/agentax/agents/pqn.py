@@ -38,10 +38,10 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from agentax.agents.protocol import Agent, EnvSpec, Loop, OnPolicy, check_fields
+from agentax.agents.protocol import Agent, EnvSpec, Loop, OnPolicy, check_fields, image_shape_for
 from agentax.envs.core import Discrete
 from agentax.errors import UsageError
-from agentax.nets import MLP, NatureCNN, is_image
+from agentax.nets import MLP, MinAtarCNN, NatureCNN, is_image
 from agentax.policies import Policy, epsilon_greedy, linear_schedule
 from agentax.replay import Transition
 from agentax.returns import masked_mean, q_lambda_returns
@@ -72,6 +72,9 @@ class PQNConfig:
     """fraction of total_steps over which ε falls from epsilon_start to epsilon_end"""
     hidden: tuple[int, ...] = (128, 128)
     activation: str = "relu"
+    conv_torso: bool = False
+    """MinAtar's conv torso (conv 16 3×3, dense 128, LayerNorm) instead of the MLP (``hidden``
+    unused), on an env whose flat observations are an image (``EnvSpec.image_shape``)"""
 
     @property
     def steps_per_update(self) -> int:
@@ -119,10 +122,14 @@ class PQNState:
 
 def q_network(cfg: PQNConfig, spec: EnvSpec) -> nn.Module:
     """``obs [..., *obs_shape] -> Q [..., num_actions]`` with LayerNorm after every hidden layer: an
-    MLP of ``hidden`` on flat observations, the Nature CNN on stacked frames."""
+    MLP of ``hidden`` on flat observations, the Nature CNN on stacked frames, MinAtar's conv torso
+    with ``conv_torso``."""
     num_actions = num_actions_of(spec)
     if is_image(spec.obs_shape):
         return nn.Sequential([NatureCNN(layer_norm=True), nn.Dense(num_actions)])
+    image_shape = image_shape_for(cfg.conv_torso, spec)
+    if image_shape is not None:
+        return nn.Sequential([MinAtarCNN(image_shape, layer_norm=True), nn.Dense(num_actions)])
     return MLP(cfg.hidden, cfg.activation, out=num_actions, layer_norm=True)
 
 

@@ -61,11 +61,15 @@ to ``make_agent(spec, cfg, loop=...)``; an agent never asks which backend it is 
 
 @dataclass(frozen=True)
 class EnvSpec:
-    """What an agent needs to know of an env: one observation's shape and dtype, the action space."""
+    """What an agent needs to know of an env: one observation's shape and dtype, the action space,
+    and for a flat observation that is an image laid out flat, the image's shape."""
 
     obs_shape: tuple[int, ...]
     action_space: Discrete | Box
     obs_dtype: Any = jnp.float32
+    image_shape: tuple[int, ...] | None = None
+    """``[H, W, C]`` when the flat observation is an image flattened (MinAtar's channels, the env's
+    ``image_shape``): a network that wants the image reshapes the vector back; None otherwise"""
 
     @classmethod
     def of(cls, env: Any, env_params: Any = None) -> EnvSpec:
@@ -75,7 +79,8 @@ class EnvSpec:
             obs_space, action_space = env.observation_space(params), env.action_space(params)
         else:
             obs_space, action_space = env.observation_space(), env.action_space()
-        return cls(tuple(obs_space.shape), action_space, jnp.dtype(obs_space.dtype))
+        image_shape = getattr(env, "image_shape", None)
+        return cls(tuple(obs_space.shape), action_space, jnp.dtype(obs_space.dtype), image_shape)
 
 
 @dataclass(frozen=True)
@@ -189,3 +194,15 @@ def check_fields(
     if activation is not None and getattr(cfg, activation) not in ACTIVATIONS:
         choices = ", ".join(ACTIVATIONS)
         raise UsageError(f"unknown {activation} {getattr(cfg, activation)!r}; choose from {choices}")
+
+
+def image_shape_for(conv_torso: bool, spec: EnvSpec) -> tuple[int, ...] | None:
+    """The ``[H, W, C]`` a conv torso reshapes flat observations to (``spec.image_shape``) when the
+    config asks for one, else None; a ``UsageError`` when it asks on an env without an image."""
+    if not conv_torso:
+        return None
+    if spec.image_shape is None or len(spec.obs_shape) != 1:
+        raise UsageError(
+            f"conv_torso needs flat observations of an image (a gymnax MinAtar game), not {spec.obs_shape}"
+        )
+    return tuple(spec.image_shape)

@@ -10,7 +10,12 @@ gymnax's step, transition for transition (``tests/test_gymnax.py`` replays it), 
 ``final_obs`` its ``info["final_observation"]``.
 
 Observations of more than one axis (MinAtar's ``[10, 10, C]`` channels) are flattened to a vector,
-so every agent's MLP takes them; the Nature CNN of agentax's Atari agents expects 84 × 84 frames.
+so every agent's MLP, every runner and every replay buffer takes them unchanged; the image's shape
+stays known as :attr:`GymnaxEnv.image_shape` (and ``EnvSpec.image_shape``), so a network that wants
+the image (:class:`agentax.nets.MinAtarCNN`, ``--conv-torso``) reshapes the vector back, a free
+reshape inside the network. Why not hand agents the ``[10, 10, C]`` array: a 3-axis observation means
+stacked uint8 Atari frames ``[C, H, W]`` to agentax's agents and replay (``nets.is_image``), and a
+second image layout would have to be told apart everywhere an observation's shape is read.
 
 **How gymnax is carried.** gymnax 1.0.1 declares ``gymnasium<1.4`` while agentax pins gymnasium
 1.4.0; gymnax imports gymnasium only to convert spaces to Gymnasium's, which this adapter does not
@@ -72,6 +77,8 @@ class GymnaxEnv(Environment):
         self.name, self.id = name, PREFIX + name
         self.gymnax_env, self._params = gymnax.make(name)
         space = self.gymnax_env.observation_space(self._params)
+        self.image_shape: tuple[int, ...] | None = tuple(space.shape) if len(space.shape) == 3 else None
+        """``[H, W, C]`` of an image observation before flattening (MinAtar: ``[10, 10, C]``), else None"""
         self._obs_shape = (int(np.prod(space.shape)),)
         self._obs_space = Box(_flat(space.low, space.shape), _flat(space.high, space.shape), self._obs_shape)
 
