@@ -147,6 +147,31 @@ def test_a_missing_library_falls_back_to_xla_exactly(monkeypatch, tmp_path):
         kernels.backend()
 
 
+@pytest.mark.parametrize(
+    ("loads", "amx", "chosen"), [(True, True, "onednn-bf16"), (True, False, "onednn"), (False, True, "xla")]
+)
+def test_auto_takes_bf16_on_amx_float32_elsewhere_and_xla_without_the_library(
+    monkeypatch, loads, amx, chosen
+):
+    monkeypatch.setattr(kernels, "_load", lambda: (object() if loads else None, "" if loads else "missing"))
+    monkeypatch.setattr(kernels, "has_amx_bf16", lambda: amx)
+    monkeypatch.setenv("AGENTAX_CONV", "auto")
+    assert kernels.backend() == chosen
+
+
+@needs_kernel
+def test_a_bad_thread_count_is_one_clear_error(monkeypatch):
+    kernels._load.cache_clear()
+    monkeypatch.setenv("AGENTAX_CONV_THREADS", "two")
+    try:
+        with pytest.raises(ValueError, match="AGENTAX_CONV_THREADS='two': give a whole number"):
+            kernels._load()
+    finally:
+        kernels._load.cache_clear()
+        monkeypatch.delenv("AGENTAX_CONV_THREADS")
+        kernels._load()
+
+
 def test_an_unknown_mode_is_an_error(monkeypatch):
     monkeypatch.setenv("AGENTAX_CONV", "cudnn")
     with pytest.raises(ValueError, match="auto, xla, onednn, onednn-bf16"):

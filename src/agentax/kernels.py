@@ -12,7 +12,10 @@ the library is missing, it is ``lax.conv_general_dilated`` exactly.
 - ``onednn``: oneDNN in float32 (fails loudly where the library could not be loaded);
 - ``onednn-bf16``: oneDNN computing in bfloat16 (AMX on Sapphire Rapids); inputs, weights and
   gradients stay float32 outside, rounded to bfloat16 inside, accumulated in float32;
-- ``auto`` (the default): ``onednn`` where the library loads, else ``xla``.
+- ``auto`` (the default): ``onednn-bf16`` where the library loads and the CPU has AMX's bfloat16
+  tiles, ``onednn`` where it loads on another CPU, else ``xla``. bfloat16 by default because it
+  learns: PQN's ``breakout-hour`` preset with it scored 68.3 ± 15.8 on Breakout in 50 minutes here,
+  and each convolution and gradient stays within 2 % of float32's (``tests/test_kernels.py``).
 
 ``AGENTAX_CONV_THREADS`` sets oneDNN's OpenMP threads (default 1; ``OMP_WAIT_POLICY`` defaults to
 ``PASSIVE``, so that idle OpenMP threads sleep instead of spinning on a core that XLA or an env
@@ -86,11 +89,23 @@ def unavailable_reason() -> str:
     return _load()[1]
 
 
+@functools.cache
+def has_amx_bf16() -> bool:
+    """Whether this CPU has AMX's bfloat16 tiles (Linux's ``amx_bf16`` flag in /proc/cpuinfo)."""
+    try:
+        return any(
+            line.startswith("flags") and "amx_bf16" in line.split()
+            for line in Path("/proc/cpuinfo").read_text().splitlines()
+        )
+    except OSError:
+        return False
+
+
 def backend() -> str:
     """What :func:`conv2d` uses on the CPU now: ``xla``, ``onednn`` or ``onednn-bf16``."""
     chosen = mode()
     if chosen == "auto":
-        return "onednn" if available() else "xla"
+        return ("onednn-bf16" if has_amx_bf16() else "onednn") if available() else "xla"
     if chosen != "xla" and not available():
         raise RuntimeError(
             f"AGENTAX_CONV={chosen} but the oneDNN kernel is unavailable: {unavailable_reason()}"
