@@ -10,7 +10,9 @@ Rows, all measured in this run:
 - the same update in torch 2.13 (``.bench-venv``, a subprocess): float32 and bf16 autocast, both on
   oneDNN, channels-last, ``torch.set_num_threads`` = the CPUs this process may use;
 - one PQN learning iteration of the ``breakout-hour`` preset (Q(λ) targets over a 32 × 64 rollout,
-  then 2 epochs × 16 minibatches of 128 through the Nature CNN with LayerNorm, RAdam), per backend.
+  then 2 epochs × 16 minibatches of 128 through the Nature CNN with LayerNorm, RAdam), per backend,
+  its SGD steps in the loop the runners use (``agentax._xla.learning_loop``: written out on the CPU,
+  where XLA's convolutions inside a ``lax.scan`` run many times slower).
 
 Each figure is the fastest of several repeats of a timed loop (the machine is shared: the fastest is
 the least disturbed). GFLOP/s counts the multiply-adds of the convolutions and dense layers twice:
@@ -187,6 +189,7 @@ def pqn_case():
     import jax
     import jax.numpy as jnp
 
+    from agentax import _xla
     from agentax.agents import pqn
     from agentax.agents.presets import PQN_PRESETS
     from agentax.agents.protocol import EnvSpec
@@ -213,8 +216,10 @@ def pqn_case():
     state = pqn.PQNState(params, pqn.optimizer(cfg).init(params), jnp.int32(0))
     q_values = pqn.q_values_of(net, spec)
 
+    loop = _xla.learning_loop(spec.obs_shape)  # the runners' loop: written out for frames on the CPU
+
     def learn(state, rollout, key):
-        return pqn.learn(state, rollout, key, q_values, cfg)
+        return pqn.learn(state, rollout, key, q_values, cfg, loop)
 
     return learn, (state, rollout, jax.random.key(1))
 
