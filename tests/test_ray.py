@@ -249,7 +249,7 @@ def test_the_compiled_runners_workers_run_as_ray_tasks_on_both_nodes_with_one_pr
     cluster, tmp_path
 ):
     """Issue 20: ``--workers 2 --ray-address`` puts each worker (a slice of the seeds, one CPU) on
-    a node of the 2-node cluster; every seed's numbers are those of one process."""
+    a node of the 2-node cluster; over these 20 updates every seed's numbers are one process's."""
     import agentax
 
     common = dict(preset="default", seeds=3, total_steps=20 * 512, stop_at_return="none", progress=False)

@@ -191,7 +191,7 @@ def test_sigterm_checkpoints_says_how_to_continue_and_exits_143(tmp_path):
     checkpoint comes with the first row, so a run stopped in its first seconds resumes too."""
     out = tmp_path / "run"
     env = {**os.environ, "AGENTAX_JAX_CACHE": str(tmp_path / "cache")}
-    total = 60 * 512
+    total = 400 * 512  # long enough that SIGTERM lands after the first checkpoint, before the end
     command = [sys.executable, "-m", "agentax.cli", "train", "ppo", "--preset", "default"]
     command += ["--total-steps", str(total), "--stop-at-return", "none", "--out", str(out), "--no-progress"]
     process = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)

@@ -68,11 +68,13 @@ def test_workers_refuse_a_runner_that_trains_one_seed(capsys):
 
 @pytest.mark.slow
 @pytest.mark.timeout(300)
-def test_seeds_over_two_workers_survive_sigterm_and_resume_to_the_numbers_of_one_process(tmp_path):
+def test_seeds_over_two_workers_survive_sigterm_and_resume_to_the_numbers_of_an_uninterrupted_run(tmp_path):
     """Fault injection by the path users take: ``agentax train --seeds 3 --workers 2``, SIGTERM once
     both workers have checkpointed, ``agentax train --resume``; then every seed's curve and final
-    evaluation equal a one-process run's, and the run's policy (its best seed's worker) plays."""
-    out, total = tmp_path / "run", 80 * 512  # 80 updates of PPO's default 4 envs × 128 steps
+    evaluation equal an uninterrupted run's, and the run's policy (its best seed's worker) plays.
+    (Against one process of 3 seeds they agree only at first: XLA's program for a batch of 1 or 2
+    seeds rounds differently from the one for 3, and over 300 updates a seed's episodes part.)"""
+    out, total = tmp_path / "run", 300 * 512  # 300 updates of PPO's default 4 envs × 128 steps
     env = {**os.environ, "AGENTAX_JAX_CACHE": str(tmp_path / "cache")}
     flags = ["--preset", "default", "--seeds", "3", "--total-steps", str(total), "--stop-at-return", "none"]
     command = [sys.executable, "-m", "agentax.cli", "train", "ppo", *flags, "--workers", "2"]
@@ -105,8 +107,14 @@ def test_seeds_over_two_workers_survive_sigterm_and_resume_to_the_numbers_of_one
     )
     assert resumed.returncode == 0, resumed.stderr[-2000:]
 
-    alone = agentax.train(
-        "ppo", preset="default", seeds=3, total_steps=total, stop_at_return="none", out=tmp_path / "one"
+    alone = agentax.train(  # the same split, never interrupted
+        "ppo",
+        preset="default",
+        seeds=3,
+        workers=2,
+        total_steps=total,
+        stop_at_return="none",
+        out=tmp_path / "one",
     )
     split_rows, one_rows = read_metrics(out), read_metrics(alone.path)
     assert [r["env_steps"] for r in split_rows] == [r["env_steps"] for r in one_rows]

@@ -60,8 +60,8 @@ class RunArgs:
     seeds: int = 1
     """independent agents trained together (vmapped into one program)"""
     workers: int = 1
-    """compiled runner: processes the seeds are split over, one per core (each seed's numbers as in
-    one process; --stop-at-return then stops each worker once its own seeds reach the return)"""
+    """compiled runner: processes the seeds are split over, one per core (the same split gives the
+    same numbers; --stop-at-return then stops each worker once its own seeds reach the return)"""
     stop_at_return: str = "auto"
     """stop once the evaluation mean reaches this number; 'none' trains for all of total_steps; 'auto' uses
     the env's solved threshold in solving presets"""

@@ -9,8 +9,11 @@ seeds (:func:`split`) as an ordinary compiled run in ``<run>/worker-<w>/`` (its 
 checkpoints and resume). The run folder gets their rows merged (:func:`merge_rows`: seed columns
 renumbered, means weighted by seeds), eval.json over every seed, and curve.png.
 
-Seed ``k`` starts from the keys it has in one process and runs the same chunks, so its numbers are
-the ones one process gives it. One exception: ``stop_at_return`` stops each worker once its own
+Seed ``k`` starts from the keys it has in one process and runs the same chunks. Its numbers match
+one process's at first, not for good: XLA's program for a slice of 1 or 2 seeds rounds differently
+from the one for all of them, and over a few hundred updates a seed's episodes part (seen with 3
+seeds as 2 + 1 over 300 PPO updates). The same split gives the same numbers, interrupted and
+resumed or not (tested). And ``stop_at_return`` ``stop_at_return`` stops each worker once its own
 seeds all reach the return, not once every seed of the run does.
 """
 
