@@ -187,7 +187,7 @@ def test_killed_run_resumes_to_the_full_number_of_steps(tmp_path):
 
 @pytest.mark.timeout(240)
 @pytest.mark.xfail(
-    reason="open (2026-12-02): on a fresh clone the run ended normally (exit 0) after SIGTERM; passes in the dev tree; not yet understood",
+    reason="open: on a fresh clone the run ended with exit 0 after SIGTERM (passes in the dev tree)",
     strict=False,
 )
 def test_sigterm_checkpoints_says_how_to_continue_and_exits_143(tmp_path):

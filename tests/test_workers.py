@@ -69,7 +69,7 @@ def test_workers_refuse_a_runner_that_trains_one_seed(capsys):
 @pytest.mark.slow
 @pytest.mark.timeout(300)
 @pytest.mark.xfail(
-    reason="open (2026-12-02): on a fresh clone the run ended normally (exit 0) after SIGTERM; passes in the dev tree; not yet understood",
+    reason="open: on a fresh clone the run ended with exit 0 after SIGTERM (passes in the dev tree)",
     strict=False,
 )
 def test_seeds_over_two_workers_survive_sigterm_and_resume_to_the_numbers_of_an_uninterrupted_run(tmp_path):
