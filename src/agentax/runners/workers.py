@@ -169,10 +169,6 @@ def _ray_job(fn: Callable[..., Any], job: tuple) -> Any:
     return fn(*job)
 
 
-LATEST = ("wall_seconds",)
-"""Columns whose merged value is the workers' largest (they run at once)."""
-
-
 def merge_rows(tables: Sequence[Sequence[dict[str, float]]], seeds: Sequence[int]) -> list[dict[str, float]]:
     """One run's rows from its workers' (row ``i`` of each, as far as each got): per-seed columns
     (``return_seed<k>``, ``eval_seed<k>``) renumbered across the run, ``mean_return`` and
@@ -192,7 +188,7 @@ def merge_rows(tables: Sequence[Sequence[dict[str, float]]], seeds: Sequence[int
             if name in row or name.startswith(("return_seed", "eval_seed")):
                 continue
             values = [(source.get(name, math.nan), n) for source, n, _ in present]
-            if name in LATEST:
+            if name == "wall_seconds":  # the workers run at once: the latest
                 row[name] = max(v for v, _ in values)
             elif name == "mean_return" or name == "eval_return":
                 prefix = "return_seed" if name == "mean_return" else "eval_seed"
