@@ -67,13 +67,20 @@ def make(module, cfg):
     return module.make_agent(spec, cfg), lambda: module.make_agent(spec, cfg)
 
 
-def collector_pids() -> list[int]:
-    """The Ray actor processes of ``train.ray``'s collectors (Ray titles them ``ray::Collector...``)."""
+def collector_pids(cluster) -> list[int]:
+    """The Ray actor processes of ``train.ray``'s collectors (Ray titles them ``ray::Collector...``)
+    on ``cluster``'s nodes (started by its raylets; the other test process may run a Ray of its own)."""
+    raylets = {node.all_processes["raylet"][0].process.pid for node in cluster.list_all_nodes()}
     found = []
     for process in psutil.process_iter(["pid", "cmdline"]):
         cmdline = process.info["cmdline"] or []
-        if cmdline and cmdline[0].startswith("ray::Collector"):
-            found.append(process.info["pid"])
+        if not (cmdline and cmdline[0].startswith("ray::Collector")):
+            continue
+        try:
+            if raylets & {parent.pid for parent in process.parents()}:
+                found.append(process.info["pid"])
+        except psutil.NoSuchProcess:
+            continue
     return found
 
 
@@ -312,7 +319,7 @@ def test_a_killed_actor_process_is_replaced_and_the_run_finishes(cluster, tmp_pa
                 if (tmp_path / "metrics.csv").exists()
                 else 0
             )
-            pids = collector_pids()
+            pids = collector_pids(cluster)
             if rows >= 2 and pids:  # the header and a row
                 os.kill(pids[0], signal.SIGKILL)
                 killed.append(pids[0])
@@ -327,14 +334,14 @@ def test_a_killed_actor_process_is_replaced_and_the_run_finishes(cluster, tmp_pa
     assert result.updates == cfg.num_updates  # the run went on to its end
     assert result.rows[-1]["actor_restarts"] == 1
     assert (tmp_path / "eval.json").is_file()
-    assert wait_for_no_collectors(), collector_pids()
+    assert wait_for_no_collectors(cluster), collector_pids(cluster)
 
 
-def wait_for_no_collectors(seconds: float = 10.0) -> bool:
+def wait_for_no_collectors(cluster, seconds: float = 10.0) -> bool:
     deadline = time.monotonic() + seconds
-    while collector_pids() and time.monotonic() < deadline:
+    while collector_pids(cluster) and time.monotonic() < deadline:
         time.sleep(0.1)
-    return not collector_pids()
+    return not collector_pids(cluster)
 
 
 @pytest.mark.timeout(120)
@@ -345,7 +352,7 @@ def test_a_learner_error_ends_the_run_and_its_actor_processes(cluster, tmp_path)
         ray_runner.train(
             agent, "CartPole-v1", RayRunnerConfig(actors=2), Run.create(tmp_path, CONFIG), make_agent=remake
         )
-    assert wait_for_no_collectors(), collector_pids()
+    assert wait_for_no_collectors(cluster), collector_pids(cluster)
 
 
 @pytest.mark.timeout(60)
@@ -390,7 +397,7 @@ def test_a_lost_node_whose_cpus_the_run_needs_ends_it_with_the_resume_hint(clust
     assert removed and time.monotonic() - removed[0] < 30  # not a hang
     assert lost.value.run_dir == str(run.path)
     assert any((tmp_path / "checkpoints").iterdir())  # what --resume continues
-    assert wait_for_no_collectors(), collector_pids()
+    assert wait_for_no_collectors(cluster), collector_pids(cluster)
     assert ray.cluster_resources()["CPU"] == 2  # the fixture's two nodes, for the tests after this one
 
 

@@ -96,8 +96,11 @@ def main(argv: list[str] | None = None) -> int:
 
 @contextlib.contextmanager
 def terminate_as_interrupt() -> Iterator[list[int]]:
-    """While inside, SIGTERM raises SIGINT, so a run stops as on Ctrl-C (each runner already ends
-    cleanly on it: a checkpoint, its threads and actors joined); the list holds the signals seen."""
+    """While inside, SIGTERM acts as Ctrl-C does, so a run stops at its safe point (each runner
+    already ends cleanly on it: a checkpoint, its threads and actors joined); the list holds the
+    signals seen. It calls the SIGINT handler in force, or raises ``KeyboardInterrupt`` where SIGINT
+    is ignored: a job started with ``&`` by a script (``nohup agentax train ... &``) inherits an
+    ignored SIGINT, and a raised SIGINT would then be lost."""
     seen: list[int] = []
     if threading.current_thread() is not threading.main_thread():
         yield seen
@@ -105,7 +108,10 @@ def terminate_as_interrupt() -> Iterator[list[int]]:
 
     def forward(signum, frame):
         seen.append(signum)
-        signal.raise_signal(signal.SIGINT)
+        handler = signal.getsignal(signal.SIGINT)
+        if not callable(handler):
+            raise KeyboardInterrupt
+        handler(signal.SIGINT, frame)
 
     previous = signal.signal(signal.SIGTERM, forward)
     try:

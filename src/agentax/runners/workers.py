@@ -112,6 +112,7 @@ def _collect(queue: Any, processes: Sequence[Any], results: dict, *, stop_on_err
 
 def _job(fn: Callable[..., Any], job: tuple, i: int, queue: Any) -> None:
     os.setpgrp()  # out of the terminal's group: interrupts come from the parent, once
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # even where the parent's was ignored (``&``)
     try:
         queue.put((i, True, fn(*job)))
     except BaseException as error:  # sent back to be raised in the parent
