@@ -1,5 +1,5 @@
 """Atari (Breakout) throughput: envs, the DQN learning step, the frame replay, DQN against
-Stable-Baselines3, PPO on both host runners.
+Stable-Baselines3, PPO and PQN on every runner that takes them.
 
 Rows, all measured in this run, one after the other:
 
@@ -16,10 +16,10 @@ Rows, all measured in this run, one after the other:
 - **DQN against Stable-Baselines3**: agent steps per second of a whole training process after
   learning starts, SB3's DQN (``.bench-venv``: torch on the CPU, its Atari wrappers) and
   ``agentax train dqn`` (host runner, parallel runner with one actor) at the same settings;
-- **PPO**: agent steps per second of PPO's ``atari`` preset on the host runner, the parallel
-  runner (policy lag 1) and the compiled Atari runner (EnvPool stepped inside the jitted rollout),
-  after the first update (which compiles). ``python benchmarks/bench_atari.py ppo`` measures these
-  rows alone and prints them.
+- **PPO and PQN**: agent steps per second of PPO's ``atari`` preset and PQN's ``breakout-hour`` on
+  the host runner, the parallel runner (policy lag 1) and the compiled Atari runner (EnvPool stepped
+  inside the jitted rollout), after the first update (which compiles). ``python
+  benchmarks/bench_atari.py on-policy`` measures these rows alone and prints them.
 
 ``AGENTAX_BENCH_QUICK=1`` shortens every run (the notes say so).
 """
@@ -57,7 +57,7 @@ DQN_LEARNING_STARTS = 1_000
 DQN_WARMUP = 2_048  # the first metrics row of agentax's runners: compilation and warm-up before it
 DQN_STEPS = 4_096 if QUICK else 8_192
 """agent steps of each DQN run; steps/s are measured from step DQN_WARMUP to the end"""
-PPO_UPDATES = 2 if QUICK else 4  # 1,024 agent steps each; the first (it compiles) is not timed
+UPDATES = 2 if QUICK else 4  # PPO's and PQN's, after the first (it compiles; not timed)
 SB3_TARGET = 1.3  # the issue: agentax's DQN at >= 1.3 x SB3's agent steps/s
 
 BENCH_REQUIREMENTS = ["stable-baselines3", "torch==2.13.0", "ale-py", "opencv-python-headless", "gymnasium"]
@@ -428,31 +428,36 @@ def agentax_dqn(runner: str, cache: str) -> dict:
     }
 
 
-# ---------------------------------------------------------------- PPO
+# ---------------------------------------------------------------- PPO and PQN
 
 
-PPO_RUNNERS = {
+RUNNERS = {
     "host": "host runner",
     "parallel": "parallel runner (1 actor, policy lag 1)",
     "compiled": "compiled Atari runner (EnvPool inside the program)",
 }
+ON_POLICY = {"ppo": "atari", "pqn": "breakout-hour"}
+"""the on-policy agents' rows: algorithm → preset (PPO's 8 envs × 128 steps, PQN's 64 × 32)"""
 
 
-def ppo_rate(runner: str) -> dict:
-    """PPO's atari preset, 8 envs x 128 steps per update, on ``runner`` (a key of ``PPO_RUNNERS``):
-    agent steps/s after the first update."""
-    from agentax.agents import ppo, presets
+def on_policy_rate(algo: str, runner: str) -> dict:
+    """``algo``'s preset of ``ON_POLICY`` on ``runner`` (a key of ``RUNNERS``) for ``UPDATES + 1``
+    updates: agent steps/s after the first update (it compiles)."""
+    from agentax.agents import algorithm, presets
     from agentax.agents.protocol import EnvSpec
     from agentax.api import agent_maker
     from agentax.envs import make_host_env
     from agentax.runners import compiled_atari, host
     from agentax.runners import parallel as parallel_runner
 
-    cfg = dataclasses.replace(presets.preset("ppo", "atari").config, total_steps=1_024 * (PPO_UPDATES + 1))
-    env = make_host_env(ENV_ID, 1, sticky_actions=0.0)
-    agent = agent_maker(ppo, EnvSpec.of(env), cfg)()
+    module = algorithm(algo)
+    cfg = presets.preset(algo, ON_POLICY[algo]).config
+    per_update = cfg.num_envs * cfg.num_steps
+    cfg = dataclasses.replace(cfg, total_steps=per_update * (UPDATES + 1))
+    env = make_host_env(ENV_ID, cfg.num_envs, sticky_actions=0.0)
+    agent = agent_maker(module, EnvSpec.of(env), cfg)()
     env.close()
-    options = dict(log_every_steps=1_024, eval_episodes=1, sticky_actions=0.0)
+    options = dict(log_every_steps=per_update, eval_episodes=1, sticky_actions=0.0)
     start = time.perf_counter()
     if runner == "parallel":
         config = parallel_runner.ParallelRunnerConfig(actors=1, policy_lag=1, **options)
@@ -469,28 +474,31 @@ def ppo_rate(runner: str) -> dict:
         "first_update_seconds": first["wall_seconds"],
         "total_seconds": total,
         "updates": len(result.rows),
+        "steps_per_update": per_update,
         "masked_fraction": float(np.mean([row.get("masked_fraction", 0.0) for row in result.rows])),
     }
 
 
-def ppo_rows() -> tuple[list[list], dict[str, dict]]:
-    """The PPO rows (host, parallel, compiled runner, one after the other in this process) and the
-    runs' figures by runner."""
+def on_policy_rows() -> tuple[list[list], dict[str, dict[str, dict]]]:
+    """The PPO and PQN rows (host, parallel, compiled runner, one after the other in this process)
+    and the runs' figures by algorithm and runner."""
     rows, runs = [], {}
-    for runner, label in PPO_RUNNERS.items():
-        runs[runner] = result = ppo_rate(runner)
-        ratio = result["steps_per_second"] / runs["host"]["steps_per_second"]
-        rows.append(
-            [
-                "PPO atari preset on Breakout",
-                label,
-                result["steps_per_second"],
-                "agent steps/s",
-                ratio,
-                round(result["first_update_seconds"], 1),
-                None,
-            ]
-        )
+    for algo, preset in ON_POLICY.items():
+        runs[algo] = {}
+        for runner, label in RUNNERS.items():
+            runs[algo][runner] = result = on_policy_rate(algo, runner)
+            ratio = result["steps_per_second"] / runs["ppo"]["host"]["steps_per_second"]
+            rows.append(
+                [
+                    f"{algo.upper()} {preset} preset on Breakout",
+                    label,
+                    result["steps_per_second"],
+                    "agent steps/s",
+                    ratio,
+                    round(result["first_update_seconds"], 1),
+                    None,
+                ]
+            )
     return rows, runs
 
 
@@ -596,20 +604,20 @@ def run() -> dict:
                 ]
             )
 
-    more_rows, ppo_runs = ppo_rows()
+    more_rows, on_policy_runs = on_policy_rows()
     rows += more_rows
 
-    notes = _notes(sb3, dqn_runs, ppo_runs, load_before, notes_extra)
+    notes = _notes(sb3, dqn_runs, on_policy_runs, load_before, notes_extra)
     return {
         "name": "atari",
-        "title": "Atari (Breakout): envs, DQN learning step, frame replay, DQN vs SB3, PPO",
+        "title": "Atari (Breakout): envs, DQN learning step, frame replay, DQN vs SB3, PPO and PQN",
         "headers": headers,
         "rows": rows,
         "notes": notes,
     }
 
 
-def _notes(sb3, dqn_runs, ppo_runs, load_before, extra) -> str:
+def _notes(sb3, dqn_runs, on_policy_runs, load_before, extra) -> str:
     host_backend = dqn_runs["host"]["backend"]
     parts = [
         "All Breakout, **no sticky actions** (`repeat_action_probability` 0) everywhere; one **agent "
@@ -665,7 +673,7 @@ def _notes(sb3, dqn_runs, ppo_runs, load_before, extra) -> str:
             f"{SB3_TARGET} × SB3: host {host_ratio:.2f} ×, parallel {par_ratio:.2f} × ({met})."
         )
     parts.append(dqn_part)
-    parts.append(_ppo_notes(ppo_runs))
+    parts.append(_on_policy_notes(on_policy_runs))
     parts.append(f"Machine load at the start of this section: {load_before}; at its end: {_load()}.")
     parts += extra
     if QUICK:
@@ -676,18 +684,29 @@ def _notes(sb3, dqn_runs, ppo_runs, load_before, extra) -> str:
     return "\n\n".join(parts)
 
 
-def _ppo_notes(ppo_runs: dict[str, dict]) -> str:
-    masked = ppo_runs.get("compiled", {}).get("masked_fraction", float("nan"))
+def _on_policy_notes(runs: dict[str, dict[str, dict]]) -> str:
+    masked = runs["ppo"].get("compiled", {}).get("masked_fraction", float("nan"))
     return (
-        "**PPO**: the `atari` preset (8 envs × 128 steps, 4 epochs × 4 minibatches, Nature CNN), "
-        f"{PPO_UPDATES + 1} updates of 1,024 agent steps through `host.train`, `parallel.train` (1 "
-        "actor, policy lag 1) and `compiled_atari.train` (one jitted call per update: the 128-step "
-        "rollout with EnvPool's XLA step inside a `lax.scan`, then the learning step) in this "
-        "process, one after the other, EnvPool, a metrics row per update; agent steps/s from the first "
-        "row (its update compiles; 'compile / warm-up s' is the seconds to it) to the last. The "
-        "compiled runner counts EnvPool's reset steps (the step after each lost life or game, masked "
-        f"out of learning) as agent steps: {masked:.1%} of its steps here."
+        "**PPO and PQN**: PPO's `atari` preset (8 envs × 128 steps, 4 epochs × 4 minibatches, Nature "
+        "CNN) and PQN's `breakout-hour` preset (64 envs × 32 steps, 2 epochs × 16 minibatches, Nature "
+        f"CNN with LayerNorm), {UPDATES + 1} updates each through `host.train`, `parallel.train` (1 "
+        "actor, policy lag 1) and `compiled_atari.train` (one jitted call per update: the rollout with "
+        "EnvPool's XLA step inside a `lax.scan`, then the learning step) in this process, one after "
+        "the other, EnvPool, a metrics row per update; agent steps/s from the first row (its update "
+        "compiles; 'compile / warm-up s' is the seconds to it) to the last; `÷ reference` is over the "
+        "host runner's PPO. The compiled runner counts EnvPool's reset steps (the step after each lost "
+        f"life or game, masked out of learning) as agent steps: {masked:.1%} of PPO's steps here. "
+        "What overlaps: in the parallel runner the actor thread steps the envs and acts with the "
+        "policy of one update before while the learner learns (policy lag 1), so collection runs beside "
+        "learning on the other core; the host and compiled runners collect, then learn. Convolutions: "
+        f"`AGENTAX_CONV` {kernels_backend()}."
     )
+
+
+def kernels_backend() -> str:
+    from agentax import kernels
+
+    return f"{kernels.mode()} → {kernels.backend()}"
 
 
 def _sb3_version() -> str:
@@ -701,10 +720,10 @@ def _sb3_version() -> str:
 
 
 if __name__ == "__main__":
-    if sys.argv[1:] != ["ppo"]:
-        sys.exit("usage: python benchmarks/bench_atari.py ppo  (the whole section: benchmarks/run.py atari)")
-    ppo_table, ppo_figures = ppo_rows()
-    for row in ppo_table:
-        print(f"{row[1]:<55} {row[2]:8.1f} agent steps/s  x{row[4]:.2f}  first update {row[5]} s")
-    print(_ppo_notes(ppo_figures))
+    if sys.argv[1:] != ["on-policy"]:
+        sys.exit("usage: python benchmarks/bench_atari.py on-policy  (all of it: benchmarks/run.py atari)")
+    table, figures = on_policy_rows()
+    for what, runner, rate, _, ratio, first, _ in table:
+        print(f"{what:<36} {runner:<52} {rate:8.1f} agent steps/s  x{ratio:.2f}  first update {first} s")
+    print(_on_policy_notes(figures))
     print(_load())

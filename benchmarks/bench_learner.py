@@ -11,8 +11,10 @@ Rows, all measured in this run:
   oneDNN, channels-last, ``torch.set_num_threads`` = the CPUs this process may use;
 - one PQN learning iteration of the ``breakout-hour`` preset (Q(λ) targets over a 32 × 64 rollout,
   then 2 epochs × 16 minibatches of 128 through the Nature CNN with LayerNorm, RAdam), per backend,
-  its SGD steps in the loop the runners use (``agentax._xla.learning_loop``: written out on the CPU,
-  where XLA's convolutions inside a ``lax.scan`` run many times slower).
+  its SGD steps written out one after the other in the program (what the runners do on XLA's
+  convolutions, which run many times slower inside a ``lax.scan``) and, with oneDNN's, in a
+  ``lax.scan`` (what the runners do there: ``agentax.kernels.learning_loop``), with the seconds of
+  the first call (compiling).
 
 Each figure is the fastest of several repeats of a timed loop (the machine is shared: the fastest is
 the least disturbed). GFLOP/s counts the multiply-adds of the convolutions and dense layers twice:
@@ -23,6 +25,7 @@ convolution's input gradient, which is never computed.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import subprocess
@@ -139,7 +142,8 @@ def fastest(fn, args, repeats: int = REPEATS, loop: int = LOOP, carry: bool = Tr
 
 
 def traced_per_backend(make, backends=BACKENDS) -> dict:
-    """``{backend: jitted fn}``, each traced and compiled with ``AGENTAX_CONV`` set to it."""
+    """``{backend: (jitted fn, args, seconds of its first call)}``, each traced and compiled with
+    ``AGENTAX_CONV`` set to it."""
     import jax
 
     from agentax import kernels
@@ -152,8 +156,9 @@ def traced_per_backend(make, backends=BACKENDS) -> dict:
         os.environ["AGENTAX_CONV"] = backend
         fn, args = make()
         fn = jax.jit(fn)
+        start = time.perf_counter()
         jax.block_until_ready(fn(*args))  # trace and compile now, under this backend
-        fns[backend] = (fn, args)
+        fns[backend] = (fn, args, time.perf_counter() - start)
     if previous is None:
         os.environ.pop("AGENTAX_CONV", None)
     else:
@@ -185,7 +190,9 @@ def dqn_case():
     return dqn.make_learn(cfg), (state, sample)
 
 
-def pqn_case():
+def pqn_case(written_out: bool):
+    """PQN's learning iteration, its SGD steps written out one after the other in the program or
+    in a ``jax.lax.scan``."""
     import jax
     import jax.numpy as jnp
 
@@ -216,7 +223,7 @@ def pqn_case():
     state = pqn.PQNState(params, pqn.optimizer(cfg).init(params), jnp.int32(0))
     q_values = pqn.q_values_of(net, spec)
 
-    loop = _xla.learning_loop(spec.obs_shape)  # the runners' loop: written out for frames on the CPU
+    loop = functools.partial(_xla.scan, python_loop=written_out)
 
     def learn(state, rollout, key):
         return pqn.learn(state, rollout, key, q_values, cfg, loop)
@@ -229,10 +236,16 @@ def run() -> dict:
 
     flops = dqn_update_flops()
     dqn_fns = traced_per_backend(dqn_case)
-    dqn_ms = {backend: fastest(fn, args) for backend, (fn, args) in dqn_fns.items()}
+    dqn_ms = {backend: fastest(fn, args) for backend, (fn, args, _) in dqn_fns.items()}
     torch, torch_why = torch_times()
-    pqn_fns = traced_per_backend(pqn_case, ("xla", "onednn-bf16"))  # ~7 s an iteration with XLA
-    pqn_ms = {backend: fastest(fn, args, repeats=2, loop=1) for backend, (fn, args) in pqn_fns.items()}
+    pqn = {}  # (loop, backend) → (ms, compile s); XLA's convolutions are too slow in a scan to time
+    for loop, written_out, backends in (
+        ("written out", True, ("xla", "onednn-bf16")),
+        ("lax.scan", False, ("onednn-bf16",)),
+    ):
+        fns = traced_per_backend(functools.partial(pqn_case, written_out), backends)
+        for backend, (fn, args, first) in fns.items():
+            pqn[loop, backend] = (fastest(fn, args, repeats=2, loop=1), first)
 
     xla_ms = dqn_ms["xla"]
     rows = []
@@ -242,14 +255,14 @@ def run() -> dict:
         "onednn-bf16": "agentax, oneDNN bf16",
     }
     for backend, ms in dqn_ms.items():
-        rows.append(["DQN update, batch 32", labels[backend], round(ms, 2), round(flops / ms / 1e6, 1)])
+        rows.append(["DQN update, batch 32", labels[backend], round(ms, 2), round(flops / ms / 1e6, 1), None])
     if torch is not None:
         for kind, label in (("f32", "torch f32"), ("bf16", "torch bf16 autocast")):
-            rows.append(
-                ["DQN update, batch 32", label, round(torch[kind], 2), round(flops / torch[kind] / 1e6, 1)]
-            )
-    for backend, ms in pqn_ms.items():
-        rows.append(["PQN breakout-hour iteration", labels[backend], round(ms, 1), ""])
+            gflops = round(flops / torch[kind] / 1e6, 1)
+            rows.append(["DQN update, batch 32", label, round(torch[kind], 2), gflops, None])
+    for (loop, backend), (ms, first) in pqn.items():
+        label = f"{labels[backend]}, {loop}"
+        rows.append(["PQN breakout-hour iteration", label, round(ms, 1), None, round(first, 1)])
     impls = {
         f"conv{i + 1}": kernels.implementation("fwd", (BATCH, side, side, c), (k, o, s), bf16=True)
         for i, (c, o, k, s, side) in enumerate(LAYERS)
@@ -259,9 +272,10 @@ def run() -> dict:
         for b, ms in dqn_ms.items()
     ]
     loaded = "loaded" if kernels.available() else f"unavailable: {kernels.unavailable_reason()}"
+    unrolled = {backend: ms for (loop, backend), (ms, _) in pqn.items() if loop == "written out"}
     pqn_ratio = (
-        f"; PQN iteration bf16 {pqn_ms['xla'] / pqn_ms['onednn-bf16']:.2f}×"
-        if "onednn-bf16" in pqn_ms
+        f"; PQN iteration bf16 {unrolled['xla'] / unrolled['onednn-bf16']:.2f}×"
+        if "onednn-bf16" in unrolled
         else ""
     )
     notes = (
@@ -272,7 +286,7 @@ def run() -> dict:
     return {
         "name": "learner",
         "title": "Atari learner update: XLA's and oneDNN's convolutions, and torch's",
-        "headers": ["update", "implementation", "ms per update", "GFLOP/s"],
+        "headers": ["update", "implementation", "ms per update", "GFLOP/s", "compile s"],
         "rows": rows,
         "notes": notes,
     }

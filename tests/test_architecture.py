@@ -54,9 +54,17 @@ RANKS: dict[str, int] = {
 layer only where the graph stays acyclic, checked apart). A module takes the rank of the longest
 prefix naming it (``agentax.agents.ppo`` is ``agentax.agents``'s 6)."""
 ALGORITHM_MODULES = ("agentax.agents.dqn", "agentax.agents.ppo", "agentax.agents.reinforce")
-MAY_IMPORT_XLA = ("agentax", "agentax.api", "agentax.sweeps", "agentax.runners", "agentax.cli")
-"""The platform's workarounds (the CPU hang's cure, the compilation cache) stay in the entry points
-and the runners: no algorithm, env or store shapes itself around a backend."""
+MAY_IMPORT_XLA = (
+    "agentax",
+    "agentax.api",
+    "agentax.sweeps",
+    "agentax.runners",
+    "agentax.cli",
+    "agentax.kernels",
+)
+"""The platform's workarounds (the CPU hang's cure, the compilation cache, the written-out loop for
+XLA's convolutions) stay in the entry points, the runners and the kernels: no algorithm, env or
+store shapes itself around a backend."""
 
 
 def rank(module: str) -> int:

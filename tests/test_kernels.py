@@ -191,3 +191,28 @@ def test_the_nature_cnn_keeps_its_parameters_and_output(monkeypatch):
     onednn_params = net.init(jax.random.key(0), frames)
     assert jax.tree.map(jnp.shape, onednn_params) == jax.tree.map(jnp.shape, params)
     np.testing.assert_allclose(net.apply(params, frames), expected, rtol=1e-4, atol=1e-4)
+
+
+@pytest.mark.parametrize(
+    "mode, scanned",
+    [("xla", False), pytest.param("onednn", True, marks=needs_kernel)],
+)
+def test_the_learning_loop_is_written_out_only_for_xlas_convolutions(monkeypatch, mode, scanned):
+    """On frames, XLA's convolutions get their steps written out (a convolution in a loop body runs
+    many times slower there), oneDNN's a ``lax.scan``; the same numbers either way."""
+    monkeypatch.setenv("AGENTAX_CONV", mode)
+    shape, size, out, stride = NATURE_LAYERS[2]
+    x, w, _ = arrays(shape, size, out)
+
+    def step(w, _):
+        grad = jax.grad(lambda w: jnp.mean(kernels.conv2d(x, w, (stride, stride)) ** 2))(w)
+        return w - 0.1 * grad, jnp.sum(w)
+
+    def train(w, loop):
+        return loop(step, w, None, length=3)
+
+    loop = kernels.learning_loop((4, 84, 84))
+    assert ("scan[" in str(jax.make_jaxpr(train, static_argnums=1)(w, loop))) == scanned
+    for actual, expected in zip(train(w, loop), train(w, jax.lax.scan), strict=True):
+        assert_close(actual, expected, bf16=False)
+    assert kernels.learning_loop((8,)) is jax.lax.scan  # no convolutions: always a scan

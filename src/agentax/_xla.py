@@ -41,7 +41,6 @@ import importlib.util
 import os
 import re
 import warnings
-from collections.abc import Callable
 from pathlib import Path
 
 _ACCELERATOR_PLUGINS = ("jax_cuda12_plugin", "jax_cuda13_plugin", "jax_rocm60_plugin", "libtpu")
@@ -224,7 +223,8 @@ def scan(f, init, xs=None, length: int | None = None, *, python_loop: bool = Fal
     XLA's CPU backend runs convolutions many times slower inside a loop body, and a fully unrolled
     ``lax.scan`` (``unroll=True``) is no cure: a Nature-CNN DQN learning step took 338 ms inside a
     one-step scan with ``unroll=True`` and 33 ms outside any (jaxlib 0.10.2, 2 cores). The learning
-    loops of CNN agents therefore use ``python_loop=True``."""
+    loops of CNN agents on XLA's convolutions therefore use ``python_loop=True``
+    (:func:`agentax.kernels.learning_loop`)."""
     import jax
     import jax.numpy as jnp
 
@@ -236,22 +236,3 @@ def scan(f, init, xs=None, length: int | None = None, *, python_loop: bool = Fal
         init, output = f(init, None if xs is None else jax.tree.map(lambda x, i=i: x[i], xs))
         outputs.append(output)
     return init, jax.tree.map(lambda *ys: jnp.stack(ys), *outputs)
-
-
-def learning_loop(obs_shape: tuple[int, ...]) -> Callable:
-    """The loop for an agent's learning steps on observations of ``obs_shape`` on this platform:
-    the steps written out (:func:`scan` with ``python_loop``) for stacked frames ``[C, H, W]`` on
-    XLA's CPU backend, where a convolution inside a loop body runs many times slower (4 Nature-CNN
-    gradient steps of batch 256 took 51 s in a ``lax.scan``); ``jax.lax.scan`` everywhere else.
-
-    The backend is asked when the loop is traced, not here: asking creates jax's client, and the
-    runner decides first how (:func:`let_xla_use_every_cpu`) once it knows what it runs."""
-    import jax
-
-    if len(obs_shape) != 3:
-        return jax.lax.scan
-
-    def loop(f, init, xs=None, length=None):
-        return scan(f, init, xs, length, python_loop=jax.default_backend() == "cpu")
-
-    return loop

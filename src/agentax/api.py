@@ -406,9 +406,9 @@ DEFAULT_ACTORS = 2
 def agent_maker(module: Any, spec: Any, cfg: Any) -> Any:
     """``make()``: the algorithm's agent for ``spec``, learning in the loop this platform runs best
     (a picklable callable: Ray's actor processes build the agent with it)."""
-    from agentax import _xla
+    from agentax import kernels
 
-    return functools.partial(module.make_agent, spec, cfg, loop=_xla.learning_loop(spec.obs_shape))
+    return functools.partial(module.make_agent, spec, cfg, loop=kernels.learning_loop(spec.obs_shape))
 
 
 def _announce(message: str, quiet: bool) -> None:

@@ -35,12 +35,15 @@ from __future__ import annotations
 import ctypes
 import functools
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
+
+from agentax import _xla
 
 LIBRARY = Path(__file__).with_name("_onednn_conv.so")
 """Where ``make`` puts the compiled kernel (``AGENTAX_ONEDNN_LIB`` names another)."""
@@ -222,3 +225,23 @@ def conv_general_dilated(
         feature_group_count=feature_group_count,
         precision=precision,
     )
+
+
+def learning_loop(obs_shape: tuple[int, ...]) -> Callable:
+    """The loop for an agent's learning steps on observations of ``obs_shape`` (``lax.scan``'s
+    signature): the steps written out (:func:`agentax._xla.scan` with ``python_loop``) for stacked
+    frames ``[C, H, W]`` whose convolutions are XLA's on its CPU backend, where a convolution inside
+    a loop body runs many times slower (4 Nature-CNN gradient steps of batch 256 took 51 s in a
+    ``lax.scan``); ``jax.lax.scan`` everywhere else, oneDNN's convolutions included (as fast in a
+    scan as written out, and the program compiles in seconds, not minutes).
+
+    Both are asked when the loop is traced, not here: asking for the platform creates jax's client,
+    and the runner decides first how (:func:`agentax._xla.let_xla_use_every_cpu`)."""
+    if len(obs_shape) != 3:
+        return lax.scan
+
+    def loop(f, init, xs=None, length=None):
+        written_out = jax.default_backend() == "cpu" and backend() == "xla"
+        return _xla.scan(f, init, xs, length, python_loop=written_out)
+
+    return loop

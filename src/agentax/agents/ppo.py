@@ -304,7 +304,7 @@ def learn(
 
 def make_agent(spec: EnvSpec, cfg: PPOConfig, *, loop: Loop = jax.lax.scan) -> Agent:
     """PPO's pure functions for every runner (see ``agentax.agents.protocol``);
-    ``loop`` runs the learning steps (the runner's :func:`agentax._xla.learning_loop`)."""
+    ``loop`` runs the learning steps (the runner's :func:`agentax.kernels.learning_loop`)."""
     cfg.validate()
     action_dim(spec)  # a clear error for actions PPO cannot take
 

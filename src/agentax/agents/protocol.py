@@ -55,7 +55,7 @@ AgentState = Any
 Experience = Any
 Loop = Callable[[Callable, Any, Any], tuple[Any, Any]]
 """How a learning phase runs its steps: ``loop(f, carry, xs) -> (carry, ys)``, ``jax.lax.scan``'s
-signature. The runner chooses it for its platform (:func:`agentax._xla.learning_loop`) and hands it
+signature. The runner chooses it for its platform (:func:`agentax.kernels.learning_loop`) and hands it
 to ``make_agent(spec, cfg, loop=...)``; an agent never asks which backend it is on."""
 
 

@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from agentax import _xla
+from agentax import _xla, kernels
 from agentax.agents.protocol import Agent, OnPolicy
 from agentax.envs.atari import FRAME_SKIP, is_atari_id
 from agentax.envs.core import TimeStep
@@ -120,7 +120,7 @@ def start(agent_state: Any, env: XlaAtari, key: jax.Array, env_steps: int) -> On
 def make_update(agent: Agent, env: XlaAtari):
     """``update(carry, learner_key) -> (carry, learner_key, metrics, games [T, E])`` (jittable): one
     iteration, the on-policy rollout on ``env`` then ``agent.learn`` (keys as the host runner's)."""
-    rollout = on_policy_rollout(agent, AtariEnvs(env), _xla.learning_loop(env.observation_space().shape))
+    rollout = on_policy_rollout(agent, AtariEnvs(env), kernels.learning_loop(env.observation_space().shape))
 
     def update(carry: OnPolicyCarry, learner_key: jax.Array):
         learner_key, learn_key = jax.random.split(learner_key)

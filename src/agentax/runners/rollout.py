@@ -179,7 +179,7 @@ def on_policy_rollout(
     """``rollout(carry) -> (carry, trajectory)`` (jittable): ``num_steps`` steps of ``agent.act`` on
     ``envs``, the trajectory a :class:`Transition` ``[num_steps, num_envs]`` whose ``info`` holds
     ``act``'s entries and the envs' own. ``loop`` (``lax.scan``'s signature) runs the steps: the
-    runner's :func:`agentax._xla.learning_loop` where ``act`` runs a CNN on XLA's CPU backend.
+    runner's :func:`agentax.kernels.learning_loop` where ``act`` runs a CNN on XLA's CPU backend.
 
     Per step ``key, act_key, step_key = split(carry.key, 3)``. Threefry splits are prefix-stable:
     ``key`` and ``act_key`` are those of a split in two, so on envs that ignore ``step_key`` (the
