@@ -435,6 +435,7 @@ RUNNERS = {
     "host": "host runner",
     "parallel": "parallel runner (1 actor, policy lag 1)",
     "compiled": "compiled Atari runner (EnvPool inside the program)",
+    "ray": "Ray runner (1 actor process, policy lag 1)",
 }
 ON_POLICY = {"ppo": "atari", "pqn": "breakout-hour"}
 """the on-policy agents' rows: algorithm → preset (PPO's 8 envs × 128 steps, PQN's 64 × 32)"""
@@ -449,19 +450,24 @@ def on_policy_rate(algo: str, runner: str) -> dict:
     from agentax.envs import make_host_env
     from agentax.runners import compiled_atari, host
     from agentax.runners import parallel as parallel_runner
+    from agentax.runners import ray as ray_runner
 
     module = algorithm(algo)
     cfg = presets.preset(algo, ON_POLICY[algo]).config
     per_update = cfg.num_envs * cfg.num_steps
     cfg = dataclasses.replace(cfg, total_steps=per_update * (UPDATES + 1))
     env = make_host_env(ENV_ID, cfg.num_envs, sticky_actions=0.0)
-    agent = agent_maker(module, EnvSpec.of(env), cfg)()
+    make_agent = agent_maker(module, EnvSpec.of(env), cfg)
+    agent = make_agent()
     env.close()
     options = dict(log_every_steps=per_update, eval_episodes=1, sticky_actions=0.0)
     start = time.perf_counter()
     if runner == "parallel":
         config = parallel_runner.ParallelRunnerConfig(actors=1, policy_lag=1, **options)
         result = parallel_runner.train(agent, ENV_ID, config)
+    elif runner == "ray":
+        config = ray_runner.RayRunnerConfig(actors=1, policy_lag=1, **options)
+        result = ray_runner.train(agent, ENV_ID, config, make_agent=make_agent)
     elif runner == "compiled":
         result = compiled_atari.train(agent, ENV_ID, host.HostRunnerConfig(**options))
     else:
@@ -690,15 +696,17 @@ def _on_policy_notes(runs: dict[str, dict[str, dict]]) -> str:
         "**PPO and PQN**: PPO's `atari` preset (8 envs × 128 steps, 4 epochs × 4 minibatches, Nature "
         "CNN) and PQN's `breakout-hour` preset (64 envs × 32 steps, 2 epochs × 16 minibatches, Nature "
         f"CNN with LayerNorm), {UPDATES + 1} updates each through `host.train`, `parallel.train` (1 "
-        "actor, policy lag 1) and `compiled_atari.train` (one jitted call per update: the rollout with "
-        "EnvPool's XLA step inside a `lax.scan`, then the learning step) in this process, one after "
-        "the other, EnvPool, a metrics row per update; agent steps/s from the first row (its update "
-        "compiles; 'compile / warm-up s' is the seconds to it) to the last; `÷ reference` is over the "
-        "host runner's PPO. The compiled runner counts EnvPool's reset steps (the step after each lost "
-        f"life or game, masked out of learning) as agent steps: {masked:.1%} of PPO's steps here. "
-        "What overlaps: in the parallel runner the actor thread steps the envs and acts with the "
-        "policy of one update before while the learner learns (policy lag 1), so collection runs beside "
-        "learning on the other core; the host and compiled runners collect, then learn. Convolutions: "
+        "actor, policy lag 1), `compiled_atari.train` (one jitted call per update: the rollout with "
+        "EnvPool's XLA step inside a `lax.scan`, then the learning step) and `ray.train` (a local Ray, "
+        "1 actor process, policy lag 1; its start-up counts in the first update) from this process, "
+        "one after the other, EnvPool, a metrics row per update; agent steps/s from the first row "
+        "(its update compiles; 'compile / warm-up s' is the seconds to it) to the last; `÷ reference` "
+        "is over the host runner's PPO. The compiled runner counts EnvPool's reset steps (the step "
+        "after each lost life or game, masked out of learning) as agent steps: "
+        f"{masked:.1%} of PPO's steps here. What overlaps: in the parallel and Ray runners the actor (a "
+        "thread; a process) steps the envs and acts with the policy of one update before while the "
+        "learner learns (policy lag 1), so collection runs beside learning on the other core; the "
+        "host and compiled runners collect, then learn. Convolutions: "
         f"`AGENTAX_CONV` {kernels_backend()}."
     )
 
