@@ -1,7 +1,6 @@
 """Shared test setup. Every test runs under pytest-timeout (pyproject.toml): an XLA hang fails fast."""
 
 import os
-import signal
 import sys
 from pathlib import Path
 
@@ -13,7 +12,7 @@ if REPO_ROOT not in sys.path:
     sys.path.append(REPO_ROOT)  # for benchmarks/_pin.py (``from benchmarks import _pin``)
 
 
-def ignore_sigint() -> None:
-    """A ``preexec_fn``: the child starts with SIGINT ignored, as a shell without job control starts
-    ``cmd &`` (``nohup agentax train ... &`` in a script)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+def with_sigint_ignored(command: list[str]) -> list[str]:
+    """``command`` started as a shell script starts ``cmd &`` (``nohup agentax train ... &``): with
+    SIGINT ignored, which the program inherits (a shell's ``trap '' INT``, then ``exec``: the same pid)."""
+    return ["sh", "-c", 'trap "" INT; exec "$@"', "sh", *command]

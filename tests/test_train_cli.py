@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import ignore_sigint
+from conftest import with_sigint_ignored
 
 from agentax.api import restore_policy
 from agentax.cli import main
@@ -198,12 +198,11 @@ def test_sigterm_checkpoints_says_how_to_continue_and_exits_143(tmp_path):
     command = [sys.executable, "-m", "agentax.cli", "train", "ppo", "--preset", "default"]
     command += ["--total-steps", str(total), "--stop-at-return", "none", "--out", str(out), "--no-progress"]
     process = subprocess.Popen(
-        command,
+        with_sigint_ignored(command),
         env=env,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
-        preexec_fn=ignore_sigint,
     )
     try:
         deadline = time.monotonic() + 150

@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import ignore_sigint
+from conftest import with_sigint_ignored
 
 import agentax
 from agentax.cli import main
@@ -82,11 +82,10 @@ def test_seeds_over_two_workers_survive_sigterm_and_resume_to_the_numbers_of_an_
     flags = ["--preset", "default", "--seeds", "3", "--total-steps", str(total), "--stop-at-return", "none"]
     command = [sys.executable, "-m", "agentax.cli", "train", "ppo", *flags, "--workers", "2"]
     process = subprocess.Popen(
-        [*command, "--out", str(out), "--no-progress"],
+        with_sigint_ignored([*command, "--out", str(out), "--no-progress"]),
         env=env,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
-        preexec_fn=ignore_sigint,
     )
     try:
         deadline = time.monotonic() + 200
