@@ -113,6 +113,20 @@ std::string key_of(Kind kind, const Shape& s, dt a, dt b, dt out) {
   return key;
 }
 
+// Keeps primitive `Prim` of `pd` in `conv` with its memory descriptors (src, weights, dst as the
+// primitive names them) and the user's HWIO weights.
+template <typename Prim, typename PrimitiveDesc>
+void keep(Conv& conv, const PrimitiveDesc& pd, const dnnl::memory::desc& src, const dnnl::memory::desc& wei,
+          const dnnl::memory::desc& dst, const dnnl::memory::desc& user_wei) {
+  conv.prim = Prim(pd);
+  conv.src_md = src;
+  conv.wei_md = wei;
+  conv.dst_md = dst;
+  conv.user_wei_md = user_wei;
+  conv.scratch_md = pd.scratchpad_desc();
+  conv.impl = pd.impl_info_str();
+}
+
 // Builds the primitive for `kind`; types: fwd (x, w, y), bwd data (dy, w, dx), bwd weights (x, dy, dw).
 std::unique_ptr<Conv> build(Kind kind, const Shape& s, dt a, dt b, dt out) {
   auto& eng = cpu_engine();
@@ -129,13 +143,7 @@ std::unique_ptr<Conv> build(Kind kind, const Shape& s, dt a, dt b, dt out) {
     auto dst = dnnl::memory::desc(dst_dims, out, tag::nhwc);
     auto pd = dnnl::convolution_forward::primitive_desc(eng, dnnl::prop_kind::forward_training, alg, src,
                                                         any_wei, dst, strides, pad, pad, attr);
-    conv->prim = dnnl::convolution_forward(pd);
-    conv->src_md = pd.src_desc();
-    conv->wei_md = pd.weights_desc();
-    conv->dst_md = pd.dst_desc();
-    conv->user_wei_md = hwio(s, b);
-    conv->scratch_md = pd.scratchpad_desc();
-    conv->impl = pd.impl_info_str();
+    keep<dnnl::convolution_forward>(*conv, pd, pd.src_desc(), pd.weights_desc(), pd.dst_desc(), hwio(s, b));
   } else {
     // oneDNN's backward primitives take a forward one as a hint.
     dt src_type = kind == Kind::kBwdData ? out : a;
@@ -143,33 +151,21 @@ std::unique_ptr<Conv> build(Kind kind, const Shape& s, dt a, dt b, dt out) {
     auto src = dnnl::memory::desc(src_dims, src_type, tag::nhwc);
     auto dst = dnnl::memory::desc(dst_dims, dst_type, tag::nhwc);
     dt wei_type = kind == Kind::kBwdData ? compute : out;  // bwd data: the weights reordered to it
-    auto hint_wei = dnnl::memory::desc(wei_dims, compute, tag::any);
+    auto wei = dnnl::memory::desc(wei_dims, wei_type, tag::any);
     auto hint_dst = dnnl::memory::desc(dst_dims, compute, tag::nhwc);
     auto hint_src = dnnl::memory::desc(src_dims, compute, tag::nhwc);
     auto hint = dnnl::convolution_forward::primitive_desc(eng, dnnl::prop_kind::forward_training, alg,
-                                                          hint_src, hint_wei, hint_dst, strides, pad, pad);
+                                                          hint_src, any_wei, hint_dst, strides, pad, pad);
     if (kind == Kind::kBwdData) {
-      auto wei = dnnl::memory::desc(wei_dims, wei_type, tag::any);
       auto pd = dnnl::convolution_backward_data::primitive_desc(eng, alg, src, wei, dst, strides, pad, pad,
                                                                 hint, attr);
-      conv->prim = dnnl::convolution_backward_data(pd);
-      conv->src_md = pd.diff_src_desc();
-      conv->wei_md = pd.weights_desc();
-      conv->dst_md = pd.diff_dst_desc();
-      conv->user_wei_md = hwio(s, b);
-      conv->scratch_md = pd.scratchpad_desc();
-    conv->impl = pd.impl_info_str();
+      keep<dnnl::convolution_backward_data>(*conv, pd, pd.diff_src_desc(), pd.weights_desc(),
+                                            pd.diff_dst_desc(), hwio(s, b));
     } else {
-      auto wei = dnnl::memory::desc(wei_dims, wei_type, tag::any);
       auto pd = dnnl::convolution_backward_weights::primitive_desc(eng, alg, src, wei, dst, strides, pad,
                                                                    pad, hint, attr);
-      conv->prim = dnnl::convolution_backward_weights(pd);
-      conv->src_md = pd.src_desc();
-      conv->wei_md = pd.diff_weights_desc();
-      conv->dst_md = pd.diff_dst_desc();
-      conv->user_wei_md = hwio(s, out);
-      conv->scratch_md = pd.scratchpad_desc();
-    conv->impl = pd.impl_info_str();
+      keep<dnnl::convolution_backward_weights>(*conv, pd, pd.src_desc(), pd.diff_weights_desc(),
+                                               pd.diff_dst_desc(), hwio(s, out));
     }
   }
   conv->wei_reorder = conv->wei_md != conv->user_wei_md;

@@ -1,6 +1,7 @@
 """Shared test setup. Every test runs under pytest-timeout (pyproject.toml): an XLA hang fails fast."""
 
 import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -16,3 +17,16 @@ def with_sigint_ignored(command: list[str]) -> list[str]:
     """``command`` started as a shell script starts ``cmd &`` (``nohup agentax train ... &``): with
     SIGINT ignored, which the program inherits (a shell's ``trap '' INT``, then ``exec``: the same pid)."""
     return ["sh", "-c", 'trap "" INT; exec "$@"', "sh", *command]
+
+
+def resume_to_the_end(out, env: dict[str, str], timeout: float = 150) -> subprocess.CompletedProcess:
+    """``agentax train --resume OUT`` in a fresh process, which must finish the run."""
+    done = subprocess.run(
+        [sys.executable, "-m", "agentax.cli", "train", "--resume", str(out), "--no-progress"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    return done

@@ -8,6 +8,7 @@ import textwrap
 
 import numpy as np
 import pytest
+from conftest import resume_to_the_end
 
 from agentax.agents import config_from_dict, dqn
 from agentax.agents.protocol import EnvSpec
@@ -138,14 +139,7 @@ def test_a_kill_at_each_stage_of_a_checkpoint_resumes_with_the_replay_of_its_che
     )
     assert killed.returncode == 9, killed.stderr[-2000:]
     assert not (out / "eval.json").exists()
-    resumed = subprocess.run(
-        [sys.executable, "-m", "agentax.cli", "train", "--resume", str(out), "--no-progress"],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=150,
-    )
-    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    resumed = resume_to_the_end(out, env)
     assert "refills" not in resumed.stderr, resumed.stderr  # it came back with a replay
     last = read_metrics(out)[-1]
     assert last["env_steps"] == total and last["replay_size"] == total

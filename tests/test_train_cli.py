@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import with_sigint_ignored
+from conftest import resume_to_the_end, with_sigint_ignored
 
 from agentax.api import restore_policy
 from agentax.cli import main
@@ -138,18 +138,6 @@ def test_host_loop_trains_pendulum_and_loads(tmp_path):
     returns, _ = host_episode_returns(env, policy, episodes, seed=config["runner"]["seed"] + 123_457)
     env.close()
     assert float(np.mean(returns)) == pytest.approx(evaluation["mean_return"], rel=1e-6)
-
-
-def resume_to_the_end(out, env: dict[str, str]) -> None:
-    """``agentax train --resume OUT`` in a fresh process, which must finish the run."""
-    done = subprocess.run(
-        [sys.executable, "-m", "agentax.cli", "train", "--resume", str(out), "--no-progress"],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=150,
-    )
-    assert done.returncode == 0, done.stderr[-2000:]
 
 
 @pytest.mark.slow

@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import with_sigint_ignored
+from conftest import resume_to_the_end, with_sigint_ignored
 
 import agentax
 from agentax.cli import main
@@ -102,14 +102,7 @@ def test_seeds_over_two_workers_survive_sigterm_and_resume_to_the_numbers_of_an_
     assert f"continue with: agentax train --resume {out}" in err.decode()
     assert not (out / "eval.json").exists(), "the run finished before SIGTERM reached it"
     assert not list(out.glob("worker-*/final-returns.json")), "a worker did not stop on the interrupt"
-    resumed = subprocess.run(
-        [sys.executable, "-m", "agentax.cli", "train", "--resume", str(out), "--no-progress"],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=200,
-    )
-    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    resume_to_the_end(out, env, timeout=200)
 
     alone = agentax.train(  # the same split, never interrupted
         "ppo",
