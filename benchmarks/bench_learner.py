@@ -6,7 +6,11 @@ Rows, all measured in this run:
 - one Nature-CNN DQN update of batch 32 (target network forward on ``next_obs``, online forward and
   backward on ``obs``, Adam; ``agentax.agents.dqn.make_learn`` with ``double=False``, no gradient
   clipping), jitted, with each ``AGENTAX_CONV`` backend: ``xla`` (XLA's default float32), ``onednn``
-  (float32) and ``onednn-bf16`` (bfloat16 on AMX inside the convolutions);
+  (float32) and ``onednn-bf16`` (bfloat16 on AMX inside the convolutions and the 3136 → 512 dense
+  layer), each on the two CPU clients agentax makes, in a process of its own: jax's client made for
+  every CPU (what the host and parallel runners use, so the DQN Atari runs: XLA's thread pool has
+  both cores, and runs independent parts of the update, such as the target network's forward pass,
+  beside the rest) and made on one CPU (the compiled runner's, the cure for the XLA CPU hang);
 - the same update in torch 2.13 (``.bench-venv``, a subprocess): float32 and bf16 autocast, both on
   oneDNN, channels-last, ``torch.set_num_threads`` = the CPUs this process may use;
 - one PQN learning iteration of the ``breakout-hour`` preset (Q(λ) targets over a 32 × 64 rollout,
@@ -231,12 +235,39 @@ def pqn_case(written_out: bool):
     return learn, (state, rollout, jax.random.key(1))
 
 
+CLIENTS = {"every-cpu": "XLA on every CPU (host, parallel)", "one-cpu": "XLA on one CPU (compiled)"}
+
+
+def dqn_update_ms(backend: str) -> float:
+    """The DQN update with ``backend``'s convolutions in this process, in ms."""
+    fn, args, _ = traced_per_backend(dqn_case, (backend,))[backend]
+    return fastest(fn, args, repeats=3 * REPEATS)
+
+
+def dqn_update_ms_on(client: str) -> dict:
+    """``{backend: ms}``: :func:`dqn_update_ms` for each backend in a process of its own whose jax CPU
+    client is ``client``'s, as a training process runs one backend (a process that had run the other
+    backends' programs first ran oneDNN bf16's 10-25 % slower here)."""
+    from agentax import kernels
+
+    times = {}
+    for backend in BACKENDS if kernels.available() else ("xla",):
+        done = subprocess.run(
+            [sys.executable, __file__, "--dqn", client, backend],
+            capture_output=True,
+            text=True,
+            check=True,
+            timeout=600,
+        )
+        times[backend] = float(done.stdout.strip().splitlines()[-1])
+    return times
+
+
 def run() -> dict:
     from agentax import kernels
 
     flops = dqn_update_flops()
-    dqn_fns = traced_per_backend(dqn_case)
-    dqn_ms = {backend: fastest(fn, args) for backend, (fn, args, _) in dqn_fns.items()}
+    dqn_ms = {client: dqn_update_ms_on(client) for client in CLIENTS}
     torch, torch_why = torch_times()
     pqn = {}  # (loop, backend) → (ms, compile s); XLA's convolutions are too slow in a scan to time
     for loop, written_out, backends in (
@@ -247,15 +278,16 @@ def run() -> dict:
         for backend, (fn, args, first) in fns.items():
             pqn[loop, backend] = (fastest(fn, args, repeats=2, loop=1), first)
 
-    xla_ms = dqn_ms["xla"]
     rows = []
     labels = {
         "xla": "agentax, XLA f32",
         "onednn": "agentax, oneDNN f32",
         "onednn-bf16": "agentax, oneDNN bf16",
     }
-    for backend, ms in dqn_ms.items():
-        rows.append(["DQN update, batch 32", labels[backend], round(ms, 2), round(flops / ms / 1e6, 1), None])
+    for client, times in dqn_ms.items():
+        for backend, ms in times.items():
+            label = f"{labels[backend]}, {CLIENTS[client]}"
+            rows.append(["DQN update, batch 32", label, round(ms, 2), round(flops / ms / 1e6, 1), None])
     if torch is not None:
         for kind, label in (("f32", "torch f32"), ("bf16", "torch bf16 autocast")):
             gflops = round(flops / torch[kind] / 1e6, 1)
@@ -267,9 +299,12 @@ def run() -> dict:
         f"conv{i + 1}": kernels.implementation("fwd", (BATCH, side, side, c), (k, o, s), bf16=True)
         for i, (c, o, k, s, side) in enumerate(LAYERS)
     }
+    impls["dense"] = kernels.implementation("matmul", (BATCH, 3136), (512,), bf16=True)
     ratios = [
-        f"oneDNN {b.removeprefix('onednn-') if '-' in b else 'f32'} {xla_ms / ms:.2f}×"
-        for b, ms in dqn_ms.items()
+        f"oneDNN {b.removeprefix('onednn-') if '-' in b else 'f32'} {times['xla'] / ms:.2f}× ({client})"
+        for client, times in dqn_ms.items()
+        for b, ms in times.items()
+        if b != "xla"
     ]
     loaded = "loaded" if kernels.available() else f"unavailable: {kernels.unavailable_reason()}"
     unrolled = {backend: ms for (loop, backend), (ms, _) in pqn.items() if loop == "written out"}
@@ -279,7 +314,7 @@ def run() -> dict:
         else ""
     )
     notes = (
-        f"{__doc__.strip()}\n\nRatios to XLA's DQN update in this run: {', '.join(ratios[1:])}{pqn_ratio}. "
+        f"{__doc__.strip()}\n\nRatios to XLA's DQN update in this run: {', '.join(ratios)}{pqn_ratio}. "
         f"oneDNN {loaded}; bf16 forward implementations: {impls}. "
         + (f"torch {torch['torch']}." if torch else f"torch not measured: {torch_why}")
     )
@@ -293,5 +328,12 @@ def run() -> dict:
 
 
 if __name__ == "__main__":
+    if sys.argv[1:2] == ["--dqn"]:
+        from agentax import _xla
+
+        if sys.argv[2] == "every-cpu":
+            _xla.let_xla_use_every_cpu()
+        print(dqn_update_ms(sys.argv[3]))
+        sys.exit()
     result = run()
     print(json.dumps(result, indent=1))

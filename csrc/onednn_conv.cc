@@ -1,6 +1,7 @@
-// oneDNN convolutions for XLA's CPU backend, as XLA FFI handlers (agentax.kernels calls them).
+// oneDNN convolutions and matrix products for XLA's CPU backend, as XLA FFI handlers (agentax.kernels
+// calls them).
 //
-// Three handlers, every array channels-last and every convolution VALID (no padding):
+// Three convolution handlers, every array channels-last and every convolution VALID (no padding):
 //   agentax_conv_fwd       x [..., N, H, W, C], w [..., KH, KW, C, O]   -> y  [..., N, OH, OW, O]
 //   agentax_conv_bwd_data  dy [..., N, OH, OW, O], w [..., KH, KW, C, O] -> dx [..., N, H, W, C]
 //   agentax_conv_bwd_w     x [..., N, H, W, C], dy [..., N, OH, OW, O]  -> dw [..., KH, KW, C, O]
@@ -8,6 +9,11 @@
 // dimensions "..." are vmap's (jax.ffi.ffi_call with vmap_method="expand_dims": every input has the
 // same number of them, each either the batch size or 1). Where the weights' leading dimensions are
 // all 1 the batch folds into N (one large convolution); otherwise one convolution per batch entry.
+//
+// One matrix-product handler (the dense layers' forward pass and both gradients), all float32:
+//   agentax_matmul  a [..., M, K] (stored [..., K, M] with transpose_a), b [..., K, N] (stored
+//                   [..., N, K] with transpose_b) -> c [..., M, N]; bf16 != 0 computes in bfloat16
+//                   (oneDNN's bf16 fpmath mode: AMX where the CPU has it), accumulating in float32.
 //
 // Building a oneDNN primitive (choosing its implementation, generating its code) costs far more than
 // running one of these small convolutions, so each is built once per shape and kept in a cache.
@@ -325,6 +331,85 @@ ffi::Error BwdWeights(ffi::AnyBuffer x, ffi::AnyBuffer dy, ffi::Result<ffi::AnyB
   return convolve(Kind::kBwdWeights, x, dy, dw, sh, sw);
 }
 
+// One cached matrix product [batch] x [M, K] @ [K, N] (transposes as strides) and its scratchpad.
+struct Matmul {
+  dnnl::matmul prim;
+  dnnl::memory::desc a_md, b_md, c_md, scratch_md;
+  std::string impl;
+};
+
+// A row-major [rows, cols] float32 matrix, or its transpose stored row-major ([cols, rows]).
+dnnl::memory::desc matrix(int64_t rows, int64_t cols, bool transposed) {
+  return dnnl::memory::desc({rows, cols}, dt::f32, transposed ? dims{1, rows} : dims{cols, 1});
+}
+
+Matmul& cached_matmul(int64_t m, int64_t k, int64_t n, bool ta, bool tb, bool bf16) {
+  static std::mutex mutex;
+  static std::unordered_map<std::string, std::unique_ptr<Matmul>> cache;
+  std::string key;
+  for (int64_t v : {m, k, n, int64_t(ta), int64_t(tb), int64_t(bf16)}) key += std::to_string(v) + ',';
+  std::lock_guard<std::mutex> lock(mutex);
+  auto& slot = cache[key];
+  if (slot) return *slot;
+  dnnl::primitive_attr attr;
+  attr.set_scratchpad_mode(dnnl::scratchpad_mode::user);
+  if (bf16) attr.set_fpmath_mode(dnnl::fpmath_mode::bf16);
+  auto mm = std::make_unique<Matmul>();
+  mm->a_md = matrix(m, k, ta), mm->b_md = matrix(k, n, tb), mm->c_md = matrix(m, n, false);
+  auto pd = dnnl::matmul::primitive_desc(cpu_engine(), mm->a_md, mm->b_md, mm->c_md, attr);
+  mm->prim = dnnl::matmul(pd);
+  mm->scratch_md = pd.scratchpad_desc();
+  mm->impl = pd.impl_info_str();
+  slot = std::move(mm);
+  return *slot;
+}
+
+void run_matmul(Matmul& mm, void* a, void* b, void* c) {
+  auto& eng = cpu_engine();
+  auto& strm = thread_stream();
+  dnnl::memory scratch(mm.scratch_md, eng, scratchpad(mm.scratch_md.get_size() + 64));
+  dnnl::memory am(mm.a_md, eng, a), bm(mm.b_md, eng, b), cm(mm.c_md, eng, c);
+  mm.prim.execute(strm, {{DNNL_ARG_SRC, am}, {DNNL_ARG_WEIGHTS, bm}, {DNNL_ARG_DST, cm}, {DNNL_ARG_SCRATCHPAD, scratch}});
+  strm.wait();
+}
+
+ffi::Error MatmulHandler(ffi::Buffer<ffi::F32> a, ffi::Buffer<ffi::F32> b, ffi::ResultBuffer<ffi::F32> c,
+                         int64_t transpose_a, int64_t transpose_b, int64_t bf16) {
+  auto ad = a.dimensions(), bd = b.dimensions(), cd = c->dimensions();
+  if (ad.size() < 2 || ad.size() != bd.size() || ad.size() != cd.size())
+    return ffi::Error::InvalidArgument("agentax matmul: arrays of rank 2 plus the same vmap dims expected");
+  size_t r = ad.size();
+  auto al = lead_of(ad, 2), bl = lead_of(bd, 2), cl = lead_of(cd, 2);
+  for (size_t d = 0; d + 2 < r; ++d) {
+    if ((al[d] != cl[d] && al[d] != 1) || (bl[d] != cl[d] && bl[d] != 1))
+      return ffi::Error::InvalidArgument("agentax matmul: vmap dims do not broadcast");
+  }
+  int64_t m = transpose_a ? ad[r - 1] : ad[r - 2], k = transpose_a ? ad[r - 2] : ad[r - 1];
+  int64_t n = transpose_b ? bd[r - 2] : bd[r - 1];
+  if ((transpose_b ? bd[r - 1] : bd[r - 2]) != k || cd[r - 2] != m || cd[r - 1] != n)
+    return ffi::Error::InvalidArgument("agentax matmul: shapes [M, K] @ [K, N] -> [M, N] expected");
+  int64_t batch = product(cl);
+  // b shared by every batch entry and a not transposed: the batch folds into M (one larger product).
+  bool fold = !transpose_a && product(bl) == 1 && product(al) == batch;
+  try {
+    int threads = g_threads.load();
+    if (threads > 0) omp_set_num_threads(threads);
+    Matmul& mm = cached_matmul(fold ? m * batch : m, k, n, transpose_a, transpose_b, bf16 != 0);
+    if (fold) {
+      run_matmul(mm, a.untyped_data(), b.untyped_data(), c->untyped_data());
+      return ffi::Error::Success();
+    }
+    for (int64_t i = 0; i < batch; ++i) {
+      float* ai = a.typed_data() + broadcast_index(i, al, cl) * m * k;
+      float* bi = b.typed_data() + broadcast_index(i, bl, cl) * k * n;
+      run_matmul(mm, ai, bi, c->typed_data() + i * m * n);
+    }
+  } catch (const dnnl::error& e) {
+    return ffi::Error::Internal(std::string("agentax matmul (oneDNN): ") + e.what());
+  }
+  return ffi::Error::Success();
+}
+
 }  // namespace
 
 #define AGENTAX_CONV_BINDING                                                                      \
@@ -334,6 +419,14 @@ ffi::Error BwdWeights(ffi::AnyBuffer x, ffi::AnyBuffer dy, ffi::Result<ffi::AnyB
 XLA_FFI_DEFINE_HANDLER_SYMBOL(agentax_conv_fwd, Fwd, AGENTAX_CONV_BINDING);
 XLA_FFI_DEFINE_HANDLER_SYMBOL(agentax_conv_bwd_data, BwdData, AGENTAX_CONV_BINDING);
 XLA_FFI_DEFINE_HANDLER_SYMBOL(agentax_conv_bwd_w, BwdWeights, AGENTAX_CONV_BINDING);
+XLA_FFI_DEFINE_HANDLER_SYMBOL(agentax_matmul, MatmulHandler,
+                              ffi::Ffi::Bind()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>()
+                                  .Attr<int64_t>("transpose_a")
+                                  .Attr<int64_t>("transpose_b")
+                                  .Attr<int64_t>("bf16"));
 
 extern "C" {
 // The OpenMP threads oneDNN runs each convolution on (0: OpenMP's default, the CPUs it saw at start).
@@ -348,6 +441,17 @@ int agentax_conv_impl(int kind, int64_t n, int64_t h, int64_t w, int64_t c, int6
     dt type = bf16 ? dt::bf16 : dt::f32;
     Conv& conv = cached(Kind(kind), s, type, type, dt::f32);
     std::strncpy(name, conv.impl.c_str(), size - 1);
+    name[size - 1] = 0;
+    return 1;
+  } catch (const dnnl::error&) {
+    return 0;
+  }
+}
+// The same for a matrix product [M, K] @ [K, N] (for the benchmarks' notes).
+int agentax_matmul_impl(int64_t m, int64_t k, int64_t n, int bf16, char* name, int size) {
+  try {
+    Matmul& mm = cached_matmul(m, k, n, false, false, bf16 != 0);
+    std::strncpy(name, mm.impl.c_str(), size - 1);
     name[size - 1] = 0;
     return 1;
   } catch (const dnnl::error&) {

@@ -1,8 +1,9 @@
-"""agentax.kernels: oneDNN's convolutions and their gradients against XLA's, and the fallback.
+"""agentax.kernels: oneDNN's convolutions and dense products, and their gradients, against XLA's, and
+the fallback.
 
-Each comparison is against ``lax.conv_general_dilated`` on the same random arrays: float32 to
-``rtol=1e-4`` (oneDNN sums in another order; the sums are over up to 576 products), bfloat16 to 2 %
-of the largest entry (8 bits of mantissa in the products, accumulated in float32).
+Each comparison is against ``lax.conv_general_dilated`` or ``jnp.matmul`` on the same random arrays:
+float32 to ``rtol=1e-4`` (oneDNN sums in another order; the sums are over up to 3,136 products),
+bfloat16 to 2 % of the largest entry (8 bits of mantissa in the products, accumulated in float32).
 """
 
 from __future__ import annotations
@@ -77,7 +78,7 @@ def test_the_ffi_call_is_in_the_program(monkeypatch):
     monkeypatch.setenv("AGENTAX_CONV", "onednn")
     loss = jax.value_and_grad(lambda x, w: kernels.conv2d(x, w, (1, 1)).sum(), (0, 1))
     text = jax.jit(loss).lower(x, w).as_text()
-    assert all(target in text for target in kernels.TARGETS)
+    assert all(target in text for target in kernels.TARGETS if "conv" in target)
     monkeypatch.setenv("AGENTAX_CONV", "xla")
     assert "agentax_conv" not in jax.jit(lambda x, w: kernels.conv2d(x, w, (1, 1))).lower(x, w).as_text()
 
@@ -122,6 +123,64 @@ def test_under_scan_with_donation(monkeypatch):
     expected = jax.jit(train, donate_argnums=0)(jnp.copy(w))
     monkeypatch.setenv("AGENTAX_CONV", "onednn")
     assert_close(jax.jit(train, donate_argnums=0)(jnp.copy(w)), expected, bf16=False)
+
+
+def dense_value_and_grads(x, w, seed=2):
+    """The dense product, and the gradients of ``sum(x @ w * r)`` for a fixed random ``r``."""
+
+    def loss(x, w):
+        y = kernels.dense(x, w)
+        return jnp.sum(y * jax.random.normal(jax.random.key(seed), y.shape)), y
+
+    (_, y), (dx, dw) = jax.jit(jax.value_and_grad(loss, argnums=(0, 1), has_aux=True))(x, w)
+    return y, dx, dw
+
+
+@needs_kernel
+@pytest.mark.parametrize("bf16", [False, True], ids=["f32", "bf16"])
+@pytest.mark.parametrize("batch_shape", [(32,), (4, 8)], ids=["batch", "steps-and-envs"])
+def test_the_dense_product_and_both_gradients_match_xla(monkeypatch, batch_shape, bf16):
+    """The Nature CNN's dense layer (3136 -> 512), on one batch axis or two (a rollout's)."""
+    x_key, w_key = jax.random.split(jax.random.key(3))
+    x = jax.random.normal(x_key, (*batch_shape, 3136))
+    w = jax.random.normal(w_key, (3136, 512)) / np.sqrt(3136)
+    monkeypatch.setenv("AGENTAX_CONV", "xla")
+    expected = dense_value_and_grads(x, w)
+    monkeypatch.setenv("AGENTAX_CONV", "onednn-bf16" if bf16 else "onednn")
+    text = jax.jit(kernels.dense).lower(x, w).as_text()
+    assert "agentax_matmul" in text  # oneDNN really runs, else the comparison could not fail
+    actual = dense_value_and_grads(x, w)
+    for a, e in zip(actual, expected, strict=True):
+        assert a.shape == e.shape and a.dtype == jnp.float32
+        assert_close(a, e, bf16)
+
+
+@needs_kernel
+@pytest.mark.parametrize("shared_weights", [True, False], ids=["shared-weights", "weights-per-seed"])
+def test_the_dense_product_vmapped_over_seeds(monkeypatch, shared_weights):
+    x_key, w_key = jax.random.split(jax.random.key(4))
+    x = jax.random.normal(x_key, (3, 16, 256))
+    w = jax.random.normal(w_key, (256, 64) if shared_weights else (3, 256, 64)) / 16.0
+
+    def run():
+        return jax.vmap(dense_value_and_grads, in_axes=(0, None if shared_weights else 0))(x, w)
+
+    monkeypatch.setenv("AGENTAX_CONV", "xla")
+    expected = run()
+    monkeypatch.setenv("AGENTAX_CONV", "onednn")
+    for a, e in zip(run(), expected, strict=True):
+        assert a.shape == e.shape
+        assert_close(a, e, bf16=False)
+
+
+def test_xla_mode_is_xlas_dense_product_exactly_and_other_products_pass_through(monkeypatch):
+    x, w = jax.random.normal(jax.random.key(5), (8, 64)), jax.random.normal(jax.random.key(6), (64, 16))
+    monkeypatch.setenv("AGENTAX_CONV", "xla")
+    np.testing.assert_array_equal(kernels.dense(x, w), x @ w)
+    monkeypatch.setenv("AGENTAX_CONV", "onednn")
+    numbers = (((1,), (0,)), ((), ()))
+    program = jax.jit(lambda x, w: kernels.dot_general(x, w, numbers, precision=jax.lax.Precision.HIGHEST))
+    assert "agentax_matmul" not in program.lower(x, w).as_text()  # not a plain dense product: XLA's
 
 
 def test_xla_mode_is_xlas_convolution_exactly(monkeypatch):

@@ -1,14 +1,16 @@
-"""oneDNN convolutions on the CPU: the Nature CNN's convolutions and their gradients as XLA FFI calls.
+"""oneDNN on the CPU: the Nature CNN's convolutions, its dense layer and their gradients as XLA FFI calls.
 
 XLA's CPU convolutions are what bound the Atari learners (a Nature-CNN DQN update of batch 32 took
 29 ms here, torch's oneDNN 18.5 ms in f32 and 11.5 ms in bf16 on AMX). :func:`conv2d` calls oneDNN
 (``csrc/onednn_conv.cc``, compiled by ``make`` into ``_onednn_conv.so`` beside this file) for the
-forward convolution, the input gradient and the weight gradient; on any other platform, and where
-the library is missing, it is ``lax.conv_general_dilated`` exactly.
+forward convolution, the input gradient and the weight gradient, and :func:`dense` for the 3136 → 512
+layer's product and both of its gradients (AMX's bfloat16 tiles where XLA's f32 product ran on
+AVX-512); on any other platform, and where the library is missing, they are
+``lax.conv_general_dilated`` and ``jnp.matmul`` exactly.
 
 ``AGENTAX_CONV`` chooses, read when a program is traced:
 
-- ``xla``: XLA's convolutions everywhere (the golden numbers were made with them);
+- ``xla``: XLA's convolutions and products everywhere (the golden numbers were made with them);
 - ``onednn``: oneDNN in float32 (fails loudly where the library could not be loaded);
 - ``onednn-bf16``: oneDNN computing in bfloat16 (AMX on Sapphire Rapids); inputs, weights and
   gradients stay float32 outside, rounded to bfloat16 inside, accumulated in float32;
@@ -47,7 +49,7 @@ from agentax import _xla
 
 LIBRARY = Path(__file__).with_name("_onednn_conv.so")
 """Where ``make`` puts the compiled kernel (``AGENTAX_ONEDNN_LIB`` names another)."""
-TARGETS = ("agentax_conv_fwd", "agentax_conv_bwd_data", "agentax_conv_bwd_w")
+TARGETS = ("agentax_conv_fwd", "agentax_conv_bwd_data", "agentax_conv_bwd_w", "agentax_matmul")
 MODES = ("auto", "xla", "onednn", "onednn-bf16")
 NHWC = ("NHWC", "HWIO", "NHWC")
 
@@ -116,18 +118,23 @@ def backend() -> str:
     return chosen
 
 
-def implementation(kind: str, shape: tuple[int, ...], kernel: tuple[int, int, int], bf16: bool) -> str:
+def implementation(kind: str, shape: tuple[int, ...], kernel: tuple[int, ...], bf16: bool) -> str:
     """oneDNN's name for the implementation it picks (``kind``: fwd, bwd_data, bwd_w) for input
-    ``shape`` ``(N, H, W, C)`` and ``kernel`` ``(size, out_channels, stride)``: for the benchmark notes."""
+    ``shape`` ``(N, H, W, C)`` and ``kernel`` ``(size, out_channels, stride)``, or (``kind`` matmul)
+    for ``[M, K] @ [K, N]`` with ``shape`` ``(M, K)`` and ``kernel`` ``(N,)``: for the benchmark notes."""
     library = _load()[0]
     if library is None:
         return "unavailable"
     name = ctypes.create_string_buffer(128)
-    size, out, stride = kernel
-    args = [ctypes.c_int64(v) for v in (*shape[:3], shape[3], size, size, out, stride)]
-    found = library.agentax_conv_impl(
-        ctypes.c_int(("fwd", "bwd_data", "bwd_w").index(kind)), *args, ctypes.c_int(bf16), name, 128
-    )
+    if kind == "matmul":
+        args = [ctypes.c_int64(v) for v in (*shape, *kernel)]
+        found = library.agentax_matmul_impl(*args, ctypes.c_int(bf16), name, 128)
+    else:
+        size, out, stride = kernel
+        args = [ctypes.c_int64(v) for v in (*shape[:3], shape[3], size, size, out, stride)]
+        found = library.agentax_conv_impl(
+            ctypes.c_int(("fwd", "bwd_data", "bwd_w").index(kind)), *args, ctypes.c_int(bf16), name, 128
+        )
     return name.value.decode() if found else "none"
 
 
@@ -188,6 +195,66 @@ def conv2d(x: jax.Array, w: jax.Array, stride: tuple[int, int]) -> jax.Array:
         cpu=lambda x, w: _onednn_conv2d(x, w, stride, bf16),
         default=lambda x, w: xla_conv2d(x, w, stride),
     )
+
+
+def _matmul(a: jax.Array, b: jax.Array, bf16: bool, transpose_a=False, transpose_b=False) -> jax.Array:
+    """oneDNN's ``op(a) @ op(b)`` of float32 matrices (``op``: transposed where asked), computed in
+    bfloat16 with ``bf16``."""
+    m = a.shape[1] if transpose_a else a.shape[0]
+    n = b.shape[0] if transpose_b else b.shape[1]
+    call = jax.ffi.ffi_call(
+        "agentax_matmul", jax.ShapeDtypeStruct((m, n), jnp.float32), vmap_method="expand_dims"
+    )
+    return call(
+        a, b, transpose_a=np.int64(transpose_a), transpose_b=np.int64(transpose_b), bf16=np.int64(bf16)
+    )
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(2,))
+def _onednn_dense(x: jax.Array, w: jax.Array, bf16: bool) -> jax.Array:
+    return _matmul(x, w, bf16)
+
+
+def _onednn_dense_forward(x, w, bf16):
+    return _matmul(x, w, bf16), (x, w)
+
+
+def _onednn_dense_backward(bf16, residuals, dy):
+    x, w = residuals
+    return _matmul(dy, w, bf16, transpose_b=True), _matmul(x, dy, bf16, transpose_a=True)
+
+
+_onednn_dense.defvjp(_onednn_dense_forward, _onednn_dense_backward)
+
+
+def dense(x: jax.Array, w: jax.Array) -> jax.Array:
+    """``x [..., K] @ w [K, N]`` → ``[..., N]`` (float32): oneDNN on the CPU as :func:`backend` says
+    (bfloat16 inside with ``onednn-bf16``, accumulated in float32), XLA's product on every other
+    platform; differentiable."""
+    chosen = backend()
+    if chosen == "xla" or x.dtype != jnp.float32 or w.dtype != jnp.float32 or w.ndim != 2:
+        return jnp.matmul(x, w)
+    bf16 = chosen == "onednn-bf16"
+    flat = x.reshape(-1, x.shape[-1])
+    y = lax.platform_dependent(
+        flat, w, cpu=lambda x, w: _onednn_dense(x, w, bf16), default=lambda x, w: jnp.matmul(x, w)
+    )
+    return y.reshape(*x.shape[:-1], w.shape[1])
+
+
+def dot_general(lhs, rhs, dimension_numbers, precision=None, preferred_element_type=None):
+    """``lax.dot_general``'s signature (flax ``nn.Dense(dot_general=...)``): a dense layer's product
+    (``lhs [..., K]`` contracted with a ``[K, N]`` kernel, default precision) goes to :func:`dense`,
+    every other one to ``lax.dot_general`` unchanged."""
+    plain = (
+        rhs.ndim == 2
+        and dimension_numbers == (((lhs.ndim - 1,), (0,)), ((), ()))
+        and precision is None
+        and preferred_element_type is None
+    )
+    if plain:
+        return dense(lhs, rhs)
+    return lax.dot_general(lhs, rhs, dimension_numbers, precision, preferred_element_type)
 
 
 def conv_general_dilated(

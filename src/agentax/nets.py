@@ -55,7 +55,9 @@ class NatureCNN(nn.Module):
     @nn.compact
     def __call__(self, frames: jax.Array) -> jax.Array:
         x = nature_convolutions(frames, self.layer_norm)
-        x = nn.Dense(512, kernel_init=nn.initializers.orthogonal(jnp.sqrt(2.0)))(x)
+        x = nn.Dense(
+            512, kernel_init=nn.initializers.orthogonal(jnp.sqrt(2.0)), dot_general=kernels.dot_general
+        )(x)
         return nn.relu(nn.LayerNorm()(x) if self.layer_norm else x)
 
 
