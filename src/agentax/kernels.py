@@ -16,7 +16,7 @@ AVX-512); on any other platform, and where the library is missing, they are
   gradients stay float32 outside, rounded to bfloat16 inside, accumulated in float32;
 - ``auto`` (the default): ``onednn-bf16`` where the library loads and the CPU has AMX's bfloat16
   tiles, ``onednn`` where it loads on another CPU, else ``xla``. bfloat16 by default because it
-  learns: PQN's ``breakout-hour`` preset with it scored 68.3 ± 15.8 on Breakout in 50 minutes here,
+  learns: PQN's ``breakout-hour`` preset with it scored 52.1 ± 9.8 on Breakout in 26 minutes here,
   and each convolution and gradient stays within 2 % of float32's (``tests/test_kernels.py``).
 
 ``AGENTAX_CONV_THREADS`` sets oneDNN's OpenMP threads (default 1; ``OMP_WAIT_POLICY`` defaults to
