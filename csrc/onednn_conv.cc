@@ -331,7 +331,7 @@ ffi::Error BwdWeights(ffi::AnyBuffer x, ffi::AnyBuffer dy, ffi::Result<ffi::AnyB
   return convolve(Kind::kBwdWeights, x, dy, dw, sh, sw);
 }
 
-// One cached matrix product [batch] x [M, K] @ [K, N] (transposes as strides) and its scratchpad.
+// One cached matrix product [M, K] @ [K, N] (transposes as strides) and its scratchpad.
 struct Matmul {
   dnnl::matmul prim;
   dnnl::memory::desc a_md, b_md, c_md, scratch_md;

@@ -52,15 +52,17 @@ def assert_checkpoints_finite(run_dir, agent):
 
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize(
-    ("algo", "runner", "metric", "step"),
+    ("algo", "runner", "metric", "steps"),
     [
         # lr 1e30: Adam's first steps (≈ lr per weight, whatever the gradient clipping) overflow the net
-        ("ppo", "host", "approx_kl", "2,048"),  # the first row, after 8 iterations of 8 × 32 steps
-        ("ppo", "compiled", "approx_kl", "2,560"),  # the first chunk of 10 iterations
-        ("dqn", "parallel", "loss", "2,048"),
+        ("ppo", "host", "approx_kl", (2048, 2048)),  # the first row, after 8 iterations of 8 × 32 steps
+        ("ppo", "compiled", "approx_kl", (2560, 2560)),  # the first chunk of 10 iterations
+        # the first row, at 2,048 steps or a few batches later: the actor thread may have run ahead
+        # of the learner by then (a fresh-clone CI run caught it at 2,176)
+        ("dqn", "parallel", "loss", (2048, 4096)),
     ],
 )
-def test_a_diverging_run_stops_with_one_line_and_exit_code_3(tmp_path, capsys, algo, runner, metric, step):
+def test_a_diverging_run_stops_with_one_line_and_exit_code_3(tmp_path, capsys, algo, runner, metric, steps):
     out = tmp_path / "run"
     argv = ["train", algo, "--env", "CartPole-v1", "--runner", runner, "--learning-rate", "1e30"]
     assert main([*argv, "--total-steps", "4096", "--seed", "0", "--out", str(out), "--no-progress"]) == 3
@@ -68,7 +70,8 @@ def test_a_diverging_run_stops_with_one_line_and_exit_code_3(tmp_path, capsys, a
     assert len(lines) == 1, lines
     match = DIVERGED.match(lines[0])
     assert match, lines[0]
-    assert match.groups() == (metric, step)
+    assert match.group(1) == metric
+    assert steps[0] <= int(match.group(2).replace(",", "")) <= steps[1]
     # the first row diverged: nothing non-finite was ever written
     assert checkpoints(out) == []
 
