@@ -185,16 +185,19 @@ std::unique_ptr<Conv> build(Kind kind, const Shape& s, dt a, dt b, dt out) {
   return conv;
 }
 
-Conv& cached(Kind kind, const Shape& s, dt a, dt b, dt out) {
+// The primitive `make()` builds for `key`, built once and kept (one cache per primitive type).
+template <typename T, typename Make>
+T& kept(const std::string& key, Make make) {
   static std::mutex mutex;
-  static std::unordered_map<std::string, std::unique_ptr<Conv>> cache;
-  std::string key = key_of(kind, s, a, b, out);
+  static std::unordered_map<std::string, std::unique_ptr<T>> cache;
   std::lock_guard<std::mutex> lock(mutex);
-  auto found = cache.find(key);
-  if (found != cache.end()) return *found->second;
   auto& slot = cache[key];
-  slot = build(kind, s, a, b, out);
+  if (!slot) slot = make();
   return *slot;
+}
+
+Conv& cached(Kind kind, const Shape& s, dt a, dt b, dt out) {
+  return kept<Conv>(key_of(kind, s, a, b, out), [&] { return build(kind, s, a, b, out); });
 }
 
 // Runs one 4-d convolution on raw pointers: fwd (x, w) -> y, bwd data (dy, w) -> dx,
@@ -343,14 +346,7 @@ dnnl::memory::desc matrix(int64_t rows, int64_t cols, bool transposed) {
   return dnnl::memory::desc({rows, cols}, dt::f32, transposed ? dims{1, rows} : dims{cols, 1});
 }
 
-Matmul& cached_matmul(int64_t m, int64_t k, int64_t n, bool ta, bool tb, bool bf16) {
-  static std::mutex mutex;
-  static std::unordered_map<std::string, std::unique_ptr<Matmul>> cache;
-  std::string key;
-  for (int64_t v : {m, k, n, int64_t(ta), int64_t(tb), int64_t(bf16)}) key += std::to_string(v) + ',';
-  std::lock_guard<std::mutex> lock(mutex);
-  auto& slot = cache[key];
-  if (slot) return *slot;
+std::unique_ptr<Matmul> build_matmul(int64_t m, int64_t k, int64_t n, bool ta, bool tb, bool bf16) {
   dnnl::primitive_attr attr;
   attr.set_scratchpad_mode(dnnl::scratchpad_mode::user);
   if (bf16) attr.set_fpmath_mode(dnnl::fpmath_mode::bf16);
@@ -360,8 +356,13 @@ Matmul& cached_matmul(int64_t m, int64_t k, int64_t n, bool ta, bool tb, bool bf
   mm->prim = dnnl::matmul(pd);
   mm->scratch_md = pd.scratchpad_desc();
   mm->impl = pd.impl_info_str();
-  slot = std::move(mm);
-  return *slot;
+  return mm;
+}
+
+Matmul& cached_matmul(int64_t m, int64_t k, int64_t n, bool ta, bool tb, bool bf16) {
+  std::string key;
+  for (int64_t v : {m, k, n, int64_t(ta), int64_t(tb), int64_t(bf16)}) key += std::to_string(v) + ',';
+  return kept<Matmul>(key, [&] { return build_matmul(m, k, n, ta, tb, bf16); });
 }
 
 void run_matmul(Matmul& mm, void* a, void* b, void* c) {
@@ -428,6 +429,13 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(agentax_matmul, MatmulHandler,
                                   .Attr<int64_t>("transpose_b")
                                   .Attr<int64_t>("bf16"));
 
+// Writes oneDNN's name for an implementation into the caller's buffer of `size` bytes; returns 1.
+int copy_name(const std::string& impl, char* name, int size) {
+  std::strncpy(name, impl.c_str(), size - 1);
+  name[size - 1] = 0;
+  return 1;
+}
+
 extern "C" {
 // The OpenMP threads oneDNN runs each convolution on (0: OpenMP's default, the CPUs it saw at start).
 void agentax_conv_set_threads(int threads) { g_threads.store(threads); }
@@ -439,10 +447,7 @@ int agentax_conv_impl(int kind, int64_t n, int64_t h, int64_t w, int64_t c, int6
   try {
     Shape s{n, h, w, c, kh, kw, o, (h - kh) / stride + 1, (w - kw) / stride + 1, stride, stride};
     dt type = bf16 ? dt::bf16 : dt::f32;
-    Conv& conv = cached(Kind(kind), s, type, type, dt::f32);
-    std::strncpy(name, conv.impl.c_str(), size - 1);
-    name[size - 1] = 0;
-    return 1;
+    return copy_name(cached(Kind(kind), s, type, type, dt::f32).impl, name, size);
   } catch (const dnnl::error&) {
     return 0;
   }
@@ -450,10 +455,7 @@ int agentax_conv_impl(int kind, int64_t n, int64_t h, int64_t w, int64_t c, int6
 // The same for a matrix product [M, K] @ [K, N] (for the benchmarks' notes).
 int agentax_matmul_impl(int64_t m, int64_t k, int64_t n, int bf16, char* name, int size) {
   try {
-    Matmul& mm = cached_matmul(m, k, n, false, false, bf16 != 0);
-    std::strncpy(name, mm.impl.c_str(), size - 1);
-    name[size - 1] = 0;
-    return 1;
+    return copy_name(cached_matmul(m, k, n, false, false, bf16 != 0).impl, name, size);
   } catch (const dnnl::error&) {
     return 0;
   }

@@ -185,16 +185,19 @@ def conv2d(x: jax.Array, w: jax.Array, stride: tuple[int, int]) -> jax.Array:
     """A VALID convolution ``x [N, H, W, C]`` (float32), ``w [KH, KW, C, O]`` → ``[N, OH, OW, O]``:
     oneDNN on the CPU as :func:`backend` says, XLA's on every other platform; differentiable."""
     stride = tuple(int(s) for s in stride)
-    chosen = backend()
-    if chosen == "xla" or x.dtype != jnp.float32 or w.dtype != jnp.float32:
-        return xla_conv2d(x, w, stride)
-    bf16 = chosen == "onednn-bf16"
-    return lax.platform_dependent(
-        x,
-        w,
-        cpu=lambda x, w: _onednn_conv2d(x, w, stride, bf16),
-        default=lambda x, w: xla_conv2d(x, w, stride),
+    return _on_the_cpu(
+        lambda x, w, bf16: _onednn_conv2d(x, w, stride, bf16), lambda x, w: xla_conv2d(x, w, stride), x, w
     )
+
+
+def _on_the_cpu(onednn: Callable, xla: Callable, a: jax.Array, b: jax.Array) -> jax.Array:
+    """``onednn(a, b, bf16)`` on the CPU where :func:`backend` chooses oneDNN and both arrays are
+    float32, ``xla(a, b)`` everywhere else (other platforms, ``xla``, other types)."""
+    chosen = backend()
+    if chosen == "xla" or a.dtype != jnp.float32 or b.dtype != jnp.float32:
+        return xla(a, b)
+    bf16 = chosen == "onednn-bf16"
+    return lax.platform_dependent(a, b, cpu=lambda a, b: onednn(a, b, bf16), default=xla)
 
 
 def _matmul(a: jax.Array, b: jax.Array, bf16: bool, transpose_a=False, transpose_b=False) -> jax.Array:
@@ -231,15 +234,13 @@ def dense(x: jax.Array, w: jax.Array) -> jax.Array:
     """``x [..., K] @ w [K, N]`` → ``[..., N]`` (float32): oneDNN on the CPU as :func:`backend` says
     (bfloat16 inside with ``onednn-bf16``, accumulated in float32), XLA's product on every other
     platform; differentiable."""
-    chosen = backend()
-    if chosen == "xla" or x.dtype != jnp.float32 or w.dtype != jnp.float32 or w.ndim != 2:
+    if w.ndim != 2:
         return jnp.matmul(x, w)
-    bf16 = chosen == "onednn-bf16"
-    flat = x.reshape(-1, x.shape[-1])
-    y = lax.platform_dependent(
-        flat, w, cpu=lambda x, w: _onednn_dense(x, w, bf16), default=lambda x, w: jnp.matmul(x, w)
-    )
-    return y.reshape(*x.shape[:-1], w.shape[1])
+
+    def onednn(x, w, bf16):
+        return _onednn_dense(x.reshape(-1, x.shape[-1]), w, bf16).reshape(*x.shape[:-1], w.shape[1])
+
+    return _on_the_cpu(onednn, jnp.matmul, x, w)
 
 
 def dot_general(lhs, rhs, dimension_numbers, precision=None, preferred_element_type=None):
