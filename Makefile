@@ -6,6 +6,9 @@ STAMP := $(VENV)/.installed
 # gymnax declares gymnasium<1.4 (agentax pins 1.4.0) and imports gymnasium only for what agentax does
 # not call: installed without its declared dependencies; what it imports is in the lock (extra gymnax).
 GYMNAX := gymnax==1.0.1
+# jax2onnx declares orbax-checkpoint<0.11.37 (flax wants 0.12) and hub packages it does not import for
+# conversion: installed without its declared dependencies too; what it imports is in the lock (extra export).
+JAX2ONNX := jax2onnx==0.17.1
 
 .PHONY: kernel demo test test-long bench lint docs lock clean
 
@@ -20,7 +23,7 @@ $(STAMP): pyproject.toml requirements.lock csrc/onednn_conv.cc
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -r requirements.lock
-	$(PY) -m pip install --quiet --no-deps $(GYMNAX)
+	$(PY) -m pip install --quiet --no-deps $(GYMNAX) $(JAX2ONNX)
 	$(PY) -m pip install --quiet --no-deps --no-build-isolation -e .
 	$(MAKE) --no-print-directory kernel || echo "agentax: oneDNN kernel not built; convolutions use XLA's"
 	touch $(STAMP)
@@ -57,7 +60,7 @@ lint: $(STAMP)
 lock:
 	rm -rf .lockenv && $(PYTHON) -m venv .lockenv
 	.lockenv/bin/pip install --quiet --upgrade pip
-	.lockenv/bin/pip install --quiet -e '.[dev,atari,ray,sweep,gymnax,onednn]' setuptools
+	.lockenv/bin/pip install --quiet -e '.[dev,atari,ray,sweep,gymnax,onednn,mujoco,export]' setuptools
 	.lockenv/bin/pip freeze --all --exclude-editable | grep -v "^pip==" > requirements.lock
 	rm -rf .lockenv
 
