@@ -95,7 +95,7 @@ class GymnaxEnv(Environment):
         obs = self._flatten(obs)
         time_step = TimeStep(
             obs=obs,
-            reward=jnp.asarray(reward, jnp.float32),
+            reward=jnp.asarray(reward, jnp.float32).reshape(()),  # Pendulum's is [1]
             terminated=jnp.asarray(terminated, bool),
             truncated=jnp.asarray(truncated, bool),
             final_obs=obs,
