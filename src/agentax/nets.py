@@ -10,6 +10,7 @@ the lecture's one-sigmoid-output network for two actions is the categorical with
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import flax.linen as nn
 import jax
@@ -365,3 +366,21 @@ def valid_conv_as_matmul(module: nn.Module, x: jax.Array, features: int, size: i
         [x[:, i : i + oh, j : j + ow, :] for i in range(size) for j in range(size)], axis=-1
     )  # (N, oh, ow, size·size·C), ordered as the kernel's (kh, kw, C)
     return patches @ kernel.reshape(size * size * c, features) + bias
+
+
+class TwinQ(nn.Module):
+    """Two independent Q-networks on ``(obs, action)`` (SAC and TD3's clipped double Q):
+    ``obs [..., obs_dim], action [..., action_dim] -> q [2, ...]``."""
+
+    hidden: Sequence[int] = (256, 256)
+    activation: str = "relu"
+
+    @nn.compact
+    def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
+        x = jnp.concatenate([obs.astype(jnp.float32), action], axis=-1)
+        return jnp.stack([MLP(self.hidden, self.activation, out=1)(x)[..., 0] for _ in range(2)])
+
+
+def polyak(target: Any, online: Any, tau: float | jax.Array) -> Any:
+    """``θ⁻ ← τ θ + (1 − τ) θ⁻`` leaf by leaf (τ = 1 copies)."""
+    return jax.tree.map(lambda t, p: tau * p + (1.0 - tau) * t, target, online)

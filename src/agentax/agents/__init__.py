@@ -2,7 +2,8 @@
 
 ``reinforce`` (the lecture's policy gradient, with an optional learned baseline), ``ppo``
 (clipped policy optimisation with GAE), ``dqn`` (deep Q-learning and its variants), ``pqn`` (deep
-Q-learning from vectorized rollouts, Q(λ) targets, no replay or target network). Each follows
+Q-learning from vectorized rollouts, Q(λ) targets, no replay or target network), and for continuous
+actions ``sac`` (soft actor-critic) and ``td3`` (twin delayed DDPG). Each follows
 the contract of :mod:`agentax.agents.protocol`: ``make_agent(spec, cfg)``, which every runner
 drives. :data:`ALGORITHMS` is the one registry.
 """
@@ -47,6 +48,8 @@ ALGORITHMS: dict[str, AlgorithmEntry] = {
     "ppo": AlgorithmEntry("agentax.agents.ppo", "PPOConfig"),
     "dqn": AlgorithmEntry("agentax.agents.dqn", "DQNConfig"),
     "pqn": AlgorithmEntry("agentax.agents.pqn", "PQNConfig"),
+    "sac": AlgorithmEntry("agentax.agents.sac", "SACConfig"),
+    "td3": AlgorithmEntry("agentax.agents.td3", "TD3Config"),
 }
 """Every learning algorithm: its name on the command line and in config.json → where it lives."""
 

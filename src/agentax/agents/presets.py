@@ -17,6 +17,8 @@ from agentax.agents.dqn import DQNConfig
 from agentax.agents.ppo import PPOConfig
 from agentax.agents.pqn import PQNConfig
 from agentax.agents.reinforce import ReinforceConfig
+from agentax.agents.sac import SACConfig
+from agentax.agents.td3 import TD3Config
 from agentax.errors import UsageError
 
 
@@ -351,11 +353,50 @@ PQN_PRESETS: dict[str, Preset] = {
 
 # ---------------------------------------------------------------- the lookup
 
+# ---------------------------------------------------------------- SAC and TD3 (continuous actions)
+
+SAC_MUJOCO_PRESET = Preset(
+    SACConfig(learning_starts=10_000, total_steps=1_000_000),
+    "the RL Zoo's MuJoCo settings (SB3's defaults, 10k random steps), 1M steps",
+)
+
+SAC_PRESETS: dict[str, Preset] = {
+    "default": SAC_MUJOCO_PRESET,
+    "mujoco": SAC_MUJOCO_PRESET,
+    "pendulum": Preset(
+        SACConfig(learning_rate=1e-3, total_steps=20_000),
+        "the RL Zoo's Pendulum-v1 settings (SB3's defaults, lr 1e-3), 20k steps",
+        updates_per_chunk=1_000,
+        eval_episodes=10,
+    ),
+}
+
+TD3_MUJOCO_PRESET = Preset(TD3Config(), "the RL Zoo's MuJoCo settings (SB3's defaults, noise 0.1), 1M steps")
+
+TD3_PRESETS: dict[str, Preset] = {
+    "default": TD3_MUJOCO_PRESET,
+    "mujoco": TD3_MUJOCO_PRESET,
+    "pendulum": Preset(
+        TD3Config(
+            hidden=(400, 300),
+            discount_factor=0.98,
+            buffer_size=200_000,
+            learning_starts=10_000,
+            total_steps=20_000,
+        ),
+        "the RL Zoo's Pendulum-v1 settings (net 400-300, γ 0.98, 10k random steps), 20k steps",
+        updates_per_chunk=1_000,
+        eval_episodes=10,
+    ),
+}
+
 PRESETS: dict[str, dict[str, Preset]] = {
     "reinforce": REINFORCE_PRESETS,
     "ppo": PPO_PRESETS,
     "dqn": DQN_PRESETS,
     "pqn": PQN_PRESETS,
+    "sac": SAC_PRESETS,
+    "td3": TD3_PRESETS,
 }
 """algorithm → preset name → preset; every algorithm has a ``"default"``"""
 
@@ -374,6 +415,8 @@ DEFAULT_PRESETS: dict[str, dict[str, str]] = {
     },
     "dqn": {"atari": "lecture-atari"},
     "pqn": {"atari": "atari", **MINATAR},
+    "sac": {"Pendulum-v1": "pendulum", "gymnax/Pendulum-v1": "pendulum"},
+    "td3": {"Pendulum-v1": "pendulum", "gymnax/Pendulum-v1": "pendulum"},
 }
 """algorithm → env → the preset ``--preset auto`` picks for it ("atari": every Atari game; any other
 env, or an algorithm missing here: "default")"""

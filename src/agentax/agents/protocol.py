@@ -196,6 +196,25 @@ def check_fields(
         raise UsageError(f"unknown {activation} {getattr(cfg, activation)!r}; choose from {choices}")
 
 
+def continuous_action_dim(spec: EnvSpec, algorithm: str) -> int:
+    """The length of a flat Box action; a ``UsageError`` naming what fits for any other space."""
+    space = spec.action_space
+    if not isinstance(space, Box) and type(space).__name__ != "Box":
+        raise UsageError(
+            f"{algorithm} needs continuous (Box) actions, but this env's actions are {space}; "
+            "use dqn, pqn or ppo on discrete actions, or a Box env (Pendulum-v1, HalfCheetah-v5)"
+        )
+    if len(space.shape) != 1:
+        raise UsageError(f"{algorithm} needs flat Box actions, got shape {tuple(space.shape)}")
+    return int(space.shape[0])
+
+
+def scale_action(action: jax.Array, space: Box) -> jax.Array:
+    """An action in ``[-1, 1]^d`` mapped affinely onto the space's bounds ``[low, high]``."""
+    low, high = jnp.asarray(space.low, jnp.float32), jnp.asarray(space.high, jnp.float32)
+    return low + (jnp.clip(action, -1.0, 1.0) + 1.0) * 0.5 * (high - low)
+
+
 def image_shape_for(conv_torso: bool, spec: EnvSpec) -> tuple[int, ...] | None:
     """The ``[H, W, C]`` a conv torso reshapes flat observations to (``spec.image_shape``) when the
     config asks for one, else None; a ``UsageError`` when it asks on an env without an image."""

@@ -234,7 +234,7 @@ def replay_for(agent: Agent, obs_shape: tuple[int, ...], seed: int) -> Any:
     obs = np.zeros(obs_shape, np.float32)
     state = jax.eval_shape(agent.init, jax.random.key(0))
     action, _ = jax.eval_shape(agent.act, state, obs[None], jax.random.key(0), 0)
-    one = jax.device_get(example_transition(obs, np.zeros((), action.dtype)))
+    one = jax.device_get(example_transition(obs, np.zeros(action.shape[1:], action.dtype)))
     return ReplayBuffer(
         experience.capacity,
         one,

@@ -313,6 +313,18 @@ def replay_for(experience: OffPolicy) -> Replay:
     )
 
 
+def stored_action(action: jax.Array) -> jax.Array:
+    """An action as replay keeps it: discrete ones int32, continuous ones float32."""
+    return action.astype(jnp.float32 if jnp.issubdtype(action.dtype, jnp.floating) else jnp.int32)
+
+
+def example_action(agent: Agent, obs: jax.Array) -> jax.Array:
+    """A zero action shaped and typed as ``agent.act`` gives one env's (``[]`` int32, or ``[d]`` float32)."""
+    state = jax.eval_shape(agent.init, jax.random.key(0))
+    action = jax.eval_shape(agent.act, state, obs, jax.random.key(0), jnp.int32(0))[0]
+    return stored_action(jnp.zeros(action.shape[1:], action.dtype))
+
+
 def off_policy_program(agent: Agent, envs: VectorEnv, freeze: Freeze | None = None) -> Program:
     experience: OffPolicy = agent.experience
     replay = replay_for(experience)
@@ -322,7 +334,7 @@ def off_policy_program(agent: Agent, envs: VectorEnv, freeze: Freeze | None = No
     def init(key: jax.Array) -> OffPolicyCarry:
         key, agent_key, reset_key, monitor_key = jax.random.split(key, 4)
         obs, env_state = envs.reset(reset_key)
-        one = example_transition(obs[0].astype(jnp.float32), jnp.int32(0))
+        one = example_transition(obs[0].astype(jnp.float32), example_action(agent, obs))
         batch = jax.tree.map(lambda x: jnp.broadcast_to(x, (envs.num_envs, *x.shape)), one)
         return OffPolicyCarry(
             agent=agent.init(agent_key),
@@ -372,7 +384,7 @@ def off_policy_program(agent: Agent, envs: VectorEnv, freeze: Freeze | None = No
         active = (
             carry.episodes.completed < experience.max_episodes if experience.max_episodes else jnp.bool_(True)
         )
-        one_step = transition_of(carry.obs, action.astype(jnp.int32), time_step)
+        one_step = transition_of(carry.obs, stored_action(action), time_step)
         accumulator, emitted, full = nstep.push(
             carry.accumulator,
             one_step.replace(reward=one_step.reward.astype(jnp.float32)),
@@ -384,7 +396,7 @@ def off_policy_program(agent: Agent, envs: VectorEnv, freeze: Freeze | None = No
             env_state=env_state,
             obs=time_step.obs,
             episodes=carry.episodes.record(
-                time_step.reward, time_step.done, jnp.broadcast_to(active, action.shape)
+                time_step.reward, time_step.done, jnp.broadcast_to(active, time_step.done.shape)
             ),
             key=key,
         )

@@ -1,0 +1,162 @@
+"""TD3, twin delayed deep deterministic policy gradient (Fujimoto et al., 2018), for continuous actions.
+
+A deterministic actor ``μ(s) = tanh(MLP(s))`` in ``[-1, 1]^d`` (the env receives it rescaled to its
+bounds) and two Q-networks, learned from replayed transitions with DDPG's three fixes::
+
+    ã  = clip(μ⁻(s′) + clip(ε, −c, c), −1, 1),   ε ~ N(0, σ̃²)     target policy smoothing
+    y  = r + γ^k (1 − terminated) · min_i Q⁻_i(s′, ã)               clipped double Q
+    L_Q = Σ_i mean(w · (Q_i(s, a) − y)²)
+    L_μ = −mean(Q_1(s, μ(s)))                                        every ``policy_delay`` steps
+
+The actor and both target networks (``θ⁻ ← τ θ + (1 − τ) θ⁻``) move only every ``policy_delay``
+learning steps. The agent explores with Gaussian noise ``N(0, exploration_noise²)`` on ``μ(s)``, and
+acts uniformly at random before ``learning_starts``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from agentax.agents.actor_critic import ReplayConfig, warm_up
+from agentax.agents.dqn import bootstrap_discount
+from agentax.agents.protocol import PRIORITY, Agent, EnvSpec, Loop, continuous_action_dim, scale_action
+from agentax.nets import MLP, TwinQ, polyak
+from agentax.policies import Policy
+from agentax.replay import ReplaySample
+
+
+@dataclass(frozen=True)
+class TD3Config(ReplayConfig):
+    """Hyperparameters of TD3 (defaults: SB3's, which the RL Zoo uses for MuJoCo)."""
+
+    learning_rate: float = 1e-3
+    """Adam's step size for the actor and the critics."""
+    learning_starts: int = 10_000
+    """Env steps of uniformly random actions before the first learning step."""
+    policy_delay: int = 2
+    """Learning steps per update of the actor and the target networks."""
+    exploration_noise: float = 0.1
+    """σ of the Gaussian noise on collected actions (in [-1, 1] units)."""
+    target_policy_noise: float = 0.2
+    """σ̃ of the target policy smoothing."""
+    target_noise_clip: float = 0.5
+    """c: the smoothing noise is clipped to [−c, c]."""
+
+    def validate(self) -> TD3Config:
+        """Raise ``UsageError`` naming the first bad value; return ``self``."""
+        self.check_replay(
+            positive=("policy_delay",),
+            non_negative=("exploration_noise", "target_policy_noise", "target_noise_clip"),
+        )
+        return self
+
+
+@struct.dataclass
+class TD3State:
+    """The learner: ``params`` and ``target_params`` {"actor", "critic"}, the optimizers' states,
+    learning steps taken."""
+
+    params: Any
+    target_params: Any
+    opt_state: Any
+    step: jax.Array  # int32 []
+
+
+def make_agent(spec: EnvSpec, cfg: TD3Config, *, loop: Loop = jax.lax.scan) -> Agent:
+    """TD3's pure functions for every runner (see ``agentax.agents.protocol``).
+
+    ``act``'s ``progress`` counts env steps (uniform actions before ``learning_starts``); ``learn`` is
+    one learning step, so ``loop`` goes unused. Actions live in ``[-1, 1]^d``: the replay stores them
+    so, ``env_action`` and the greedy policy rescale them to the env's bounds.
+    """
+    cfg.validate()
+    action_dim = continuous_action_dim(spec, "td3")
+    actor = MLP(tuple(cfg.hidden), cfg.activation, out=action_dim)
+    critic = TwinQ(tuple(cfg.hidden), cfg.activation)
+    tx = optax.adam(cfg.learning_rate)
+
+    def mu(actor_params: Any, obs: jax.Array) -> jax.Array:
+        return jnp.tanh(actor.apply(actor_params, obs.astype(jnp.float32)))
+
+    def init(key: jax.Array) -> TD3State:
+        actor_key, critic_key = jax.random.split(key)
+        obs = jnp.zeros((1, *spec.obs_shape), jnp.float32)
+        params = {
+            "actor": actor.init(actor_key, obs),
+            "critic": critic.init(critic_key, obs, jnp.zeros((1, action_dim))),
+        }
+        opt_state = {name: tx.init(value) for name, value in params.items()}
+        return TD3State(params, params, opt_state, jnp.int32(0))
+
+    def act(state: TD3State, obs: jax.Array, key: jax.Array, progress: jax.Array):
+        """Actions ``[E, d]`` in ``[-1, 1]``: ``μ(s)`` plus Gaussian noise (uniform ones at first)."""
+        noise_key, uniform_key = jax.random.split(key)
+        greedy = mu(state.params["actor"], obs)
+        noise = cfg.exploration_noise * jax.random.normal(noise_key, greedy.shape)
+        noisy = jnp.clip(greedy + noise, -1.0, 1.0)
+        return warm_up(noisy, uniform_key, progress, cfg.learning_starts), {}
+
+    def greedy_policy(state: TD3State) -> Policy:
+        """The deterministic policy for evaluation: ``μ(s)`` rescaled to the env's bounds."""
+        return lambda obs, key: scale_action(mu(state.params["actor"], obs), spec.action_space)
+
+    def critic_loss(critic_params, state: TD3State, sample: ReplaySample, key: jax.Array):
+        t = sample.transition
+        greedy_next = mu(state.target_params["actor"], t.next_obs)
+        smoothing = jnp.clip(
+            cfg.target_policy_noise * jax.random.normal(key, greedy_next.shape),
+            -cfg.target_noise_clip,
+            cfg.target_noise_clip,
+        )
+        next_action = jnp.clip(greedy_next + smoothing, -1.0, 1.0)
+        next_q = critic.apply(state.target_params["critic"], t.next_obs, next_action).min(axis=0)
+        target = jax.lax.stop_gradient(t.reward + bootstrap_discount(t, cfg.discount_factor) * next_q)
+        q = critic.apply(critic_params, t.obs, t.action)  # (2, batch)
+        td = q - target
+        return (sample.weights * td**2).mean(axis=-1).sum(), (q.mean(), jnp.abs(td).mean(axis=0))
+
+    def actor_loss(actor_params, critic_params, obs: jax.Array):
+        return -critic.apply(critic_params, obs, mu(actor_params, obs))[0].mean()
+
+    def learn(state: TD3State, sample: ReplaySample, key: jax.Array) -> tuple[TD3State, dict]:
+        params, opt_state = dict(state.params), dict(state.opt_state)
+        (q_loss, (q_mean, priority)), grads = jax.value_and_grad(critic_loss, has_aux=True)(
+            params["critic"], state, sample, key
+        )
+        updates, opt_state["critic"] = tx.update(grads, opt_state["critic"], params["critic"])
+        params["critic"] = optax.apply_updates(params["critic"], updates)
+
+        step = state.step + 1
+        obs = sample.transition.obs
+        pi_loss, grads = jax.value_and_grad(actor_loss)(params["actor"], params["critic"], obs)
+        updates, actor_opt_state = tx.update(grads, opt_state["actor"], params["actor"])
+        delayed = step % cfg.policy_delay == 0  # the actor and the targets move on these steps only
+        params["actor"], opt_state["actor"] = jax.tree.map(
+            lambda new, old: jnp.where(delayed, new, old),
+            (optax.apply_updates(params["actor"], updates), actor_opt_state),
+            (params["actor"], opt_state["actor"]),
+        )
+        target_params = polyak(state.target_params, params, jnp.where(delayed, cfg.tau, 0.0))
+        metrics = {"critic_loss": q_loss, "actor_loss": pi_loss, "q_mean": q_mean, PRIORITY: priority}
+        return TD3State(params, target_params, opt_state, step), metrics
+
+    return Agent(
+        name="td3",
+        init=init,
+        act=act,
+        greedy_policy=greedy_policy,
+        learn=learn,
+        experience=cfg.experience(),
+        total_steps=cfg.total_steps,
+        env_action=lambda action: scale_action(action, spec.action_space),
+        learning_steps=lambda state: state.step,
+    )
+
+
+__all__ = ["TD3Config", "TD3State", "make_agent"]
