@@ -8,12 +8,17 @@ bfloat16 to 2 % of the largest entry (8 bits of mantissa in the products, accumu
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from agentax import kernels
+from agentax.errors import UsageError
 from agentax.nets import NatureCNN
 
 pytestmark = pytest.mark.timeout(120)
@@ -202,7 +207,7 @@ def test_a_missing_library_falls_back_to_xla_exactly(monkeypatch, tmp_path):
     monkeypatch.setenv("AGENTAX_CONV", "xla")
     np.testing.assert_array_equal(fallback, net.apply(params, frames))
     monkeypatch.setenv("AGENTAX_CONV", "onednn")
-    with pytest.raises(RuntimeError, match="none.so is missing"):
+    with pytest.raises(UsageError, match="none.so is missing"):
         kernels.backend()
 
 
@@ -223,7 +228,7 @@ def test_a_bad_thread_count_is_one_clear_error(monkeypatch):
     kernels._load.cache_clear()
     monkeypatch.setenv("AGENTAX_CONV_THREADS", "two")
     try:
-        with pytest.raises(ValueError, match="AGENTAX_CONV_THREADS='two': give a whole number"):
+        with pytest.raises(UsageError, match="AGENTAX_CONV_THREADS='two': give a whole number"):
             kernels._load()
     finally:
         kernels._load.cache_clear()
@@ -233,8 +238,26 @@ def test_a_bad_thread_count_is_one_clear_error(monkeypatch):
 
 def test_an_unknown_mode_is_an_error(monkeypatch):
     monkeypatch.setenv("AGENTAX_CONV", "cudnn")
-    with pytest.raises(ValueError, match="auto, xla, onednn, onednn-bf16"):
+    with pytest.raises(UsageError, match="auto, xla, onednn, onednn-bf16"):
         kernels.mode()
+
+
+def test_an_unknown_mode_ends_a_cli_run_in_one_line_naming_the_choices(tmp_path):
+    """Issue 30: read while the network is traced, a bad ``AGENTAX_CONV`` ended ``agentax train`` in
+    a JAX traceback."""
+    pytest.importorskip("ale_py")
+    done = subprocess.run(
+        [sys.executable, "-m", "agentax.cli", "train", "pqn", "--env", "ALE/Breakout-v5", "--no-progress"]
+        + ["--total-steps", "2000", "--out", str(tmp_path / "run")],
+        env={**os.environ, "AGENTAX_CONV": "fastest"},
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 2, done.stderr[-2000:]
+    assert "Traceback" not in done.stderr, done.stderr[-2000:]
+    assert done.stderr.strip().splitlines()[-1] == (
+        "agentax train: error: AGENTAX_CONV='fastest' is not one of auto, xla, onednn, onednn-bf16"
+    )
 
 
 @needs_kernel

@@ -46,6 +46,7 @@ import numpy as np
 from jax import lax
 
 from agentax import _xla
+from agentax.errors import UsageError
 
 LIBRARY = Path(__file__).with_name("_onednn_conv.so")
 """Where ``make`` puts the compiled kernel (``AGENTAX_ONEDNN_LIB`` names another)."""
@@ -55,10 +56,11 @@ NHWC = ("NHWC", "HWIO", "NHWC")
 
 
 def mode() -> str:
-    """``AGENTAX_CONV`` as given (default ``auto``); an unknown value is an error saying the choices."""
+    """``AGENTAX_CONV`` as given (default ``auto``); an unknown value is a ``UsageError`` naming the
+    choices (the CLI's one line, not a traceback from inside the program being traced)."""
     value = os.environ.get("AGENTAX_CONV", "auto").strip().lower() or "auto"
     if value not in MODES:
-        raise ValueError(f"AGENTAX_CONV={value!r} is not one of {', '.join(MODES)}")
+        raise UsageError(f"AGENTAX_CONV={value!r} is not one of {', '.join(MODES)}")
     return value
 
 
@@ -79,7 +81,7 @@ def _load() -> tuple[ctypes.CDLL | None, str]:
         jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(getattr(library, name)), platform="cpu")
     threads = os.environ.get("AGENTAX_CONV_THREADS", "1")
     if not threads.isdigit() or int(threads) < 1:
-        raise ValueError(f"AGENTAX_CONV_THREADS={threads!r}: give a whole number of threads, at least 1")
+        raise UsageError(f"AGENTAX_CONV_THREADS={threads!r}: give a whole number of threads, at least 1")
     library.agentax_conv_set_threads(ctypes.c_int(int(threads)))
     return library, ""
 
@@ -112,7 +114,7 @@ def backend() -> str:
     if chosen == "auto":
         return ("onednn-bf16" if has_amx_bf16() else "onednn") if available() else "xla"
     if chosen != "xla" and not available():
-        raise RuntimeError(
+        raise UsageError(
             f"AGENTAX_CONV={chosen} but the oneDNN kernel is unavailable: {unavailable_reason()}"
         )
     return chosen
