@@ -338,7 +338,7 @@ def off_policy_program(agent: Agent, envs: VectorEnv, freeze: Freeze | None = No
         batch = jax.tree.map(lambda x: jnp.broadcast_to(x, (envs.num_envs, *x.shape)), one)
         return OffPolicyCarry(
             agent=agent.init(agent_key),
-            replay=replay.init(experience.capacity, one),
+            replay=replay.init(min(experience.capacity, agent.total_steps), one),  # never more is kept
             accumulator=nstep.init(experience.n_step, batch),
             env_state=env_state,
             obs=obs.astype(jnp.float32),
@@ -424,9 +424,17 @@ def off_policy_program(agent: Agent, envs: VectorEnv, freeze: Freeze | None = No
         return carry.replace(agent=agent_state, replay=replay_state, key=key), jax.tree.map(jnp.mean, metrics)
 
     def learn_where(carry: OffPolicyCarry, due: jax.Array) -> tuple[OffPolicyCarry, dict[str, jax.Array]]:
-        """Learn, keeping the result only where ``due`` (a branch taken when any seed is due)."""
-        learned = learn_phase(carry)
-        return jax.tree.map(lambda new, old: jnp.where(due, new, old), learned, skip_learning(carry))
+        """Learn, keeping the result only where ``due`` (a branch taken when any seed is due). Only
+        what learning changes is selected (the agent, the key, prioritized replay's priorities): a
+        uniform replay buffer (millions of transitions) passes through uncopied."""
+        learned, metrics = learn_phase(carry)
+        no_metrics = skip_learning(carry)[1]
+        keep = functools.partial(jax.tree.map, lambda new, old: jnp.where(due, new, old))
+        replay = keep(learned.replay, carry.replay) if experience.prioritized else carry.replay
+        learned = carry.replace(
+            agent=keep(learned.agent, carry.agent), replay=replay, key=keep(learned.key, carry.key)
+        )
+        return learned, keep(metrics, no_metrics)
 
     def skip_learning(carry: OffPolicyCarry) -> tuple[OffPolicyCarry, dict[str, jax.Array]]:
         shapes = jax.eval_shape(learn_phase, carry)[1]
