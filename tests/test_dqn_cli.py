@@ -2,6 +2,7 @@
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -144,3 +145,25 @@ def test_a_kill_at_each_stage_of_a_checkpoint_resumes_with_the_replay_of_its_che
     last = read_metrics(out)[-1]
     assert last["env_steps"] == total and last["replay_size"] == total
     assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]  # the half-written one is gone
+
+
+@pytest.mark.timeout(240)
+@pytest.mark.parametrize("runner", ["compiled", "host"])
+def test_resume_of_a_run_killed_before_its_first_checkpoint_starts_it_from_its_config(tmp_path, runner):
+    """Issue 30: a run killed before its first checkpoint (a DQN Breakout run still filling its
+    replay) holds its config.json only, and ``--resume`` refused it ("has no checkpoint ... train it
+    first"). Nothing is lost by starting it from its config: it does, and gives the numbers of a run
+    never killed."""
+    whole, killed = tmp_path / "whole", tmp_path / "killed"
+    argv = ["train", "dqn", "--env", "CartPole-v1", "--runner", runner, "--total-steps", "3072"]
+    assert main([*argv, "--stop-at-return", "none", "--no-progress", "--out", str(whole)]) == 0
+    (killed / "checkpoints").mkdir(parents=True)
+    shutil.copy(whole / "config.json", killed / "config.json")  # what the killed run had written
+    resumed = resume_to_the_end(killed, {**os.environ, "AGENTAX_JAX_CACHE": str(tmp_path / "cache")})
+    assert f"{killed} has no checkpoint yet: training it from its config.json" in resumed.stderr
+    columns = ("env_steps", "updates", "mean_return", "eval_return")
+    rows = [[row[c] for c in columns] for row in read_metrics(killed)]
+    np.testing.assert_array_equal(rows, [[row[c] for c in columns] for row in read_metrics(whole)])
+    evaluation = json.loads((killed / "eval.json").read_text())
+    assert evaluation["mean_return"] == json.loads((whole / "eval.json").read_text())["mean_return"]
+    assert any((killed / "checkpoints").iterdir())

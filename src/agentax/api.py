@@ -572,21 +572,26 @@ def _train_compiled(
 
 
 def resume(run_dir: str | Path, progress: bool = True, *, quiet: bool = False) -> Run:
-    """Continue the run in ``run_dir`` from its newest good checkpoint; the trained :class:`Run`."""
+    """Continue the run in ``run_dir`` from its newest good checkpoint; the trained :class:`Run`. A
+    run stopped before its first checkpoint loses nothing by starting again: it trains from its
+    config.json (its rows, if any, dropped)."""
     from agentax import _xla
     from agentax.runs import Run as RunFolder
-    from agentax.runs import latest_checkpoint, read_config
+    from agentax.runs import checkpoints, read_config
 
     run_dir = Path(run_dir)
     config = _upgraded(read_config(run_dir))
-    if config.get("runner", {}).get("workers", 1) == 1:  # (workers without one start again)
-        latest_checkpoint(run_dir)  # a clear error before anything starts if there is none
+    # (a run of workers decides worker by worker: those without a checkpoint start again)
+    resume = config.get("runner", {}).get("workers", 1) > 1 or bool(checkpoints(run_dir))
     algo = config["algo"]
     module = algorithm(algo)
     cfg = config_from_dict(algorithm_config(algo), config["config"])
     _xla.enable_compilation_cache()
     kind = config.get("runner_kind", "compiled")
     _announce(f"resuming {algo} on {config['env']} ({kind} runner) from {run_dir}", quiet)
+    if not resume:
+        _announce(f"{run_dir} has no checkpoint yet: training it from its config.json", quiet)
+        RunFolder.open(run_dir).truncate_metrics(0)
     if kind not in RUNNERS:
         raise UsageError(
             f"{run_dir}/config.json names an unknown runner {kind!r}; known: {', '.join(RUNNERS)}"
@@ -599,14 +604,16 @@ def resume(run_dir: str | Path, progress: bool = True, *, quiet: bool = False) -
         env_spec, _ = host_env_spec(config["env"], runner.env_backend, runner.sticky_actions)
         remake = agent_maker(module, env_spec, cfg)
         return _train_host(
-            remake(), remake, kind, runner, RunFolder.open(run_dir), resume=True, progress=progress
+            remake(), remake, kind, runner, RunFolder.open(run_dir), resume=resume, progress=progress
         )
     from agentax.envs import make_jax
 
     if runner.workers > 1:
         return _train_workers(RunFolder.open(run_dir), runner, resume=True, progress=progress)
     env = make_jax(config["env"])
-    return _train_compiled(module, env, cfg, runner, RunFolder.open(run_dir), resume=True, progress=progress)
+    return _train_compiled(
+        module, env, cfg, runner, RunFolder.open(run_dir), resume=resume, progress=progress
+    )
 
 
 def _train_workers(run: Any, runner: Any, *, resume: bool, progress: bool) -> Run:
