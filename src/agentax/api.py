@@ -70,8 +70,8 @@ class RunArgs:
     progress: bool = True
     """show a progress bar"""
     runner: str = "auto"
-    """compiled (JAX envs, seeds vmapped; Atari: PPO with EnvPool's step inside the program), host
-    (any env, one step after the other), parallel (actor
+    """compiled (JAX envs, seeds vmapped; Atari and MuJoCo v5: PPO with EnvPool's step inside the
+    program), host (any env, one step after the other), parallel (actor
     threads beside a learner), ray (the parallel runner's actors as Ray actor processes, on any node
     of a cluster); auto: compiled for agentax's JAX envs, else host"""
     actors: int | None = None
@@ -87,7 +87,8 @@ class RunArgs:
     cpus_per_actor: float = 1.0
     """ray runner: CPUs Ray reserves for each actor process"""
     env_backend: str = "auto"
-    """Atari: envpool or ale (ale-py with Gymnasium's wrappers); auto: envpool where it is installed"""
+    """Atari: envpool or ale (ale-py with Gymnasium's wrappers); auto: envpool where it is installed.
+    MuJoCo: auto is Gymnasium's (mujoco) on the host runners, EnvPool's with --runner compiled"""
     checkpoint_replay: bool = True
     """off-policy (host, parallel): save the replay buffer with the checkpoints (--no-checkpoint-replay)"""
     sticky_actions: float = 0.25
@@ -378,6 +379,12 @@ def _is_atari(env_id: str) -> bool:
     return is_atari_id(env_id)
 
 
+def _is_envpool_mujoco(env_id: str) -> bool:
+    from agentax.envs.envpool_xla import is_envpool_mujoco_id
+
+    return is_envpool_mujoco_id(env_id)
+
+
 def runner_kind(run_args: RunArgs) -> str:
     """The runner a training uses: ``--runner``, or compiled for a JAX env and host for others."""
     if run_args.runner == "auto":
@@ -388,6 +395,8 @@ def runner_kind(run_args: RunArgs) -> str:
         raise UsageError(f"unknown runner {run_args.runner!r}; choose from {', '.join(CHOICES)}")
     if run_args.runner == "compiled" and _is_atari(run_args.env):
         return "compiled-atari"  # PPO's rollout and EnvPool's step in one program, one seed per process
+    if run_args.runner == "compiled" and _is_envpool_mujoco(run_args.env):
+        return "compiled-mujoco"  # the same with EnvPool's MuJoCo task (--runner auto: Gymnasium's, host)
     if run_args.runner == "compiled" and not _is_jax_env(run_args.env):
         raise UsageError(
             f"the compiled runner needs one of agentax's JAX envs ({', '.join(_jax_env_ids())}); "
@@ -518,7 +527,7 @@ def _start_host(
             where += f", policy lag {runner.policy_lag}"
     else:
         runner, where = HostRunnerConfig(**common), "host"
-        if RUNNERS[kind].envs == "atari":
+        if RUNNERS[kind].envs in ("atari", "mujoco"):
             compiled_atari.check(agent, run_args.env, runner, run_args.seeds)
             where = "compiled, EnvPool inside the program"
     run = RunFolder.create(

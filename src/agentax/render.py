@@ -3,8 +3,9 @@
 A JAX env's episode is played by one jitted ``lax.scan`` that keeps every state; the frames are
 drawn afterwards on the host with the env's ``render_frame`` (CartPole's cart and pole, the
 vacuum's room with the dust it has left). A Gymnasium env draws itself with
-``render_mode="rgb_array"``. A thin bar along the bottom of each frame shows the time elapsed
-out of the episode's limit.
+``render_mode="rgb_array"``; a MuJoCo task off screen through ``MUJOCO_GL`` (``egl`` or ``osmesa``;
+EGL where unset and there is no display), where no OpenGL works one line says what to install. A
+thin bar along the bottom of each frame shows the time elapsed out of the episode's limit.
 
 An Atari game (:func:`record_atari_game`) is filmed from the emulator's full-resolution RGB screen
 (210x160, upscaled by an integer factor, nearest neighbour), one frame per agent step, written to
@@ -13,7 +14,10 @@ the file as it is played (an MP4 of a whole 108,000-frame game never sits in mem
 
 from __future__ import annotations
 
+import contextlib
+import math
 import os
+import sys
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,7 +29,7 @@ import numpy as np
 
 from agentax.envs import AtariEnv, Environment, GymnasiumEnv
 from agentax.envs.core import EnvParams, rollout
-from agentax.envs.gym import frames_per_second
+from agentax.envs.gym import frames_per_second, is_mujoco_id, require_mujoco
 from agentax.errors import UsageError
 from agentax.evaluate import HostPolicy, host_actor
 from agentax.policies import Policy
@@ -88,29 +92,70 @@ def record_episode(
     return Episode(np.stack(frames), float(rewards[:length].sum()), length, frames_per_second(params))
 
 
+MUJOCO_FRAME = {"width": 320, "height": 240}
+"""the size of a MuJoCo frame: software OpenGL (Mesa's llvmpipe) draws ~10 a second on a busy core"""
+
+
+def _mujoco_gl(env_id: str) -> str:
+    """The OpenGL backend MuJoCo renders ``env_id`` with: ``MUJOCO_GL`` where set, else EGL (off
+    screen) on a Linux machine without a display (MuJoCo's own default, GLFW, needs a window)."""
+    require_mujoco(env_id)
+    if "MUJOCO_GL" not in os.environ and sys.platform.startswith("linux"):
+        if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+            os.environ["MUJOCO_GL"] = "egl"
+    return os.environ.get("MUJOCO_GL", "glfw")
+
+
+def _first_frame(gym_env: gymnasium.Env, env_id: str, gl: str | None) -> np.ndarray:
+    """``gym_env.render()`` of the reset state; for MuJoCo (``gl`` its backend) a failing OpenGL
+    becomes one line that says what to install."""
+    if gl is None:
+        return gym_env.render()
+    try:
+        return gym_env.render()
+    except Exception as error:  # GLFW, EGL, OSMesa and PyOpenGL each fail with errors of their own
+        with contextlib.suppress(Exception):  # a renderer that never started cannot close cleanly
+            gym_env.close()
+        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise UsageError(
+            f"cannot render {env_id} off screen with MUJOCO_GL={gl} ({reason}); MuJoCo videos need EGL "
+            "(libegl1) or OSMesa (libosmesa6): set MUJOCO_GL=egl or MUJOCO_GL=osmesa"
+        ) from None
+
+
+MAX_FPS = 50.0
+"""the most frames per second a video of a Gymnasium env is written at: a GIF's delays are whole
+hundredths of a second and browsers play delays under 2/100 s at 1/10 s"""
+
+
 def _record_gymnasium(
     env: GymnasiumEnv | str, policy: Policy | HostPolicy, seed: int, max_steps: int, max_frames: int
 ) -> Episode:
+    """One episode of a Gymnasium env, drawing only the frames kept: every ``stride``-th step (and
+    the last), the stride the smallest that keeps at most ``max_frames`` over the env's time limit
+    and at most :data:`MAX_FPS` in real time (a MuJoCo frame costs ~0.1 s in software OpenGL)."""
     env_id, kwargs = (env, {}) if isinstance(env, str) else (env.id, env.make_kwargs)
+    gl = _mujoco_gl(env_id) if is_mujoco_id(env_id) else None
     try:
-        gym_env = gymnasium.make(env_id, render_mode="rgb_array", **kwargs)
+        gym_env = gymnasium.make(env_id, render_mode="rgb_array", **(MUJOCO_FRAME if gl else {}), **kwargs)
     except gymnasium.error.Error as error:
         raise UsageError(f"cannot draw {env_id!r}: {error}") from error
     horizon = gym_env.spec.max_episode_steps if gym_env.spec and gym_env.spec.max_episode_steps else max_steps
+    fps = float(gym_env.metadata.get("render_fps") or 30)
+    stride = max(math.ceil((min(horizon, max_steps) + 1) / max_frames), math.ceil(fps / MAX_FPS))
     act = host_actor(policy, seed)
     obs, _ = gym_env.reset(seed=seed)
-    frames, total_return, length = [_with_time_bar(gym_env.render(), 0, horizon)], 0.0, 0
+    frames, total_return, length = [_with_time_bar(_first_frame(gym_env, env_id, gl), 0, horizon)], 0.0, 0
     while length < max_steps:
         obs, reward, terminated, truncated, _ = gym_env.step(act(np.asarray(obs)[None])[0])
         total_return, length = total_return + float(reward), length + 1
-        frames.append(_with_time_bar(gym_env.render(), length, horizon))
-        if terminated or truncated:
+        done = terminated or truncated or length == max_steps
+        if length % stride == 0 or done:
+            frames.append(_with_time_bar(gym_env.render(), length, horizon))
+        if done:
             break
-    fps = float(gym_env.metadata.get("render_fps") or 30)
     gym_env.close()
-    return Episode(
-        np.stack([frames[i] for i in _frame_indices(length, max_frames)]), total_return, length, fps
-    )
+    return Episode(np.stack(frames), total_return, length, fps / stride)
 
 
 def check_video_path(path: str | os.PathLike) -> Path:

@@ -1,4 +1,4 @@
-"""Atari games stepped inside a jitted program: EnvPool's XLA interface, agentax's preprocessing.
+"""Atari games and MuJoCo tasks stepped inside a jitted program: EnvPool's XLA interface.
 
 :class:`XlaAtari` makes an EnvPool pool with the very arguments of the host adapter's EnvPool
 backend (:func:`agentax.envs.atari.envpool_kwargs`: 84x84 gray, frame skip 4, up to 30 no-ops,
@@ -26,10 +26,21 @@ whatever ``reward_clip`` says) of the valid steps of each game over all its live
 each game that ends (the emulator's game over, ``info["terminated"]``, or the frame limit) with its
 score and its length in valid agent steps: the numbers the host adapter's ``drain_scores()``
 gives for the same seed and actions (``tests/test_atari_compiled.py`` checks it).
+
+**MuJoCo.** :class:`XlaMujoco` is EnvPool's pool of a Gymnasium MuJoCo v5 task (``HalfCheetah-v5``,
+``Hopper-v5``, ...; EnvPool's own build of the engine, no ``mujoco`` package needed) behind the same
+``reset`` / ``step`` and the same :class:`PoolStep`: no lives (``life_lost`` is never set),
+``game_over`` is the task's termination (Hopper falling), ``truncated`` its 1000-step limit, and the
+same next-step reset, so :func:`track` reads it unchanged (an "episode" for a "game"). EnvPool takes
+and returns float64 (its actions must be float64, its observations and rewards are): the pool's
+call is made and traced under ``jax.enable_x64`` and its values cast to float32 at once, so the rest
+of the program keeps JAX's 32-bit default. How its tasks compare with Gymnasium's is written down in
+``docs/howto/mujoco.md`` (the same reset gives the same rewards to ~1e-7 until chaos separates them).
 """
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import jax
@@ -54,11 +65,15 @@ from agentax.errors import UsageError
 class PoolStep:
     """One step of every env of the pool, in env-id order (arrays ``[num_envs]`` unless said)."""
 
-    obs: jax.Array  # uint8 [num_envs, 4, 84, 84]: the observation reached (a reset step: the next first one)
+    obs: (
+        jax.Array
+    )  # the observation reached (a reset step: the next first one): Atari uint8 [num_envs, 4, 84, 84]
     reward: jax.Array  # float32: the raw reward, unclipped
-    life_lost: jax.Array  # bool: a life was lost, the game goes on (after EnvPool's reset step)
-    game_over: jax.Array  # bool: the emulator's game over
-    truncated: jax.Array  # bool: the game reached the frame limit (and no game over)
+    life_lost: (
+        jax.Array
+    )  # bool: a life was lost, the game goes on (after EnvPool's reset step); MuJoCo: never
+    game_over: jax.Array  # bool: the emulator's game over; MuJoCo: the task's termination
+    truncated: jax.Array  # bool: the game reached the frame (MuJoCo: step) limit, and no game over
 
     @property
     def terminated(self) -> jax.Array:
@@ -78,6 +93,9 @@ class XlaAtari:
     ``XlaAtari`` for a new seed. A program that calls :meth:`step` is bound to this pool: keep the
     object alive while the program runs, and :meth:`close` it afterwards.
     """
+
+    clip_rewards = True
+    """a learner sees rewards clipped to their sign (the standard Atari learning view)"""
 
     def __init__(
         self,
@@ -135,6 +153,99 @@ class XlaAtari:
             f"XlaAtari({self.id!r}, num_envs={self.num_envs}, seed={self.seed}, "
             f"sticky_actions={self.sticky_actions})"
         )
+
+
+ENVPOOL_MUJOCO = (
+    "Ant-v5",
+    "HalfCheetah-v5",
+    "Hopper-v5",
+    "Humanoid-v5",
+    "HumanoidStandup-v5",
+    "InvertedDoublePendulum-v5",
+    "InvertedPendulum-v5",
+    "Pusher-v5",
+    "Reacher-v5",
+    "Swimmer-v5",
+    "Walker2d-v5",
+)
+"""Gymnasium's MuJoCo v5 ids that EnvPool 1.2.5 makes with v5's settings (its registration.py)."""
+
+
+def is_envpool_mujoco_id(env_id: str) -> bool:
+    return env_id in ENVPOOL_MUJOCO
+
+
+class XlaMujoco:
+    """``num_envs`` copies of a MuJoCo v5 task in one EnvPool pool whose :meth:`step` runs inside ``jit``.
+
+    ``task_kwargs`` go to ``envpool.make`` (the task's own settings, e.g. ``reset_noise_scale``). As
+    :class:`XlaAtari`: seeded when made (env ``i`` with ``seed + i``), one pool per program, keep it
+    alive while the program runs and :meth:`close` it afterwards.
+    """
+
+    clip_rewards = False
+    """a learner sees the task's rewards as they are"""
+
+    def __init__(self, env_id: str, num_envs: int, *, seed: int = 0, **task_kwargs: Any):
+        if num_envs < 1:
+            raise UsageError(f"num_envs must be at least 1, got {num_envs}")
+        if not is_envpool_mujoco_id(env_id):
+            raise UsageError(f"EnvPool's MuJoCo tasks are {', '.join(ENVPOOL_MUJOCO)}, not {env_id!r}")
+        try:
+            import envpool
+        except ImportError:
+            raise UsageError(
+                f"{env_id} inside the program needs EnvPool (Linux only; the atari extra installs it: "
+                "pip install 'agentax[atari]'), or train it with --runner host"
+            ) from None
+        self.pool = envpool.make(
+            env_id,
+            env_type="gymnasium",
+            num_envs=num_envs,
+            batch_size=num_envs,
+            num_threads=min(num_envs, os.cpu_count() or 1),
+            seed=seed,
+            **task_kwargs,
+        )
+        self.id, self.num_envs, self.seed = env_id, num_envs, seed
+        self.obs_shape = tuple(self.pool.observation_space.shape)
+        space = self.pool.action_space
+        self.action_low = np.asarray(space.low, np.float32)
+        self.action_high = np.asarray(space.high, np.float32)
+        self._xla_step = None
+
+    def observation_space(self, params: Any = None) -> Box:
+        return Box(-np.inf, np.inf, self.obs_shape, np.float32)
+
+    def action_space(self, params: Any = None) -> Box:
+        return Box(self.action_low, self.action_high, self.action_low.shape, np.float32)
+
+    def reset(self) -> tuple[jax.Array, jax.Array]:
+        """New episodes (a host call, outside ``jit``): ``(handle, obs float32 [num_envs, obs_dim])``."""
+        obs, info = self.pool.reset()
+        with jax.enable_x64(True):  # the pool's call is typed float64 only where x64 is on
+            handle, _, _, self._xla_step = self.pool.xla()
+        return jnp.asarray(handle), jnp.asarray(obs[np.argsort(info["env_id"])], jnp.float32)
+
+    def step(self, handle: jax.Array, action: jax.Array) -> tuple[jax.Array, PoolStep]:
+        """Step every env with ``action: float [num_envs, action_dim]`` (jittable): ``(handle, PoolStep)``."""
+        if self._xla_step is None:
+            raise RuntimeError("XlaMujoco.step before reset()")
+        with jax.enable_x64(True):  # everything 64-bit is cast back before it leaves
+            handle, (obs, reward, terminated, truncated, info) = self._xla_step(
+                handle, action.astype(jnp.float64)
+            )
+            order = jnp.argsort(info["env_id"]).astype(jnp.int32)  # env-id order, as XlaAtari's
+            obs, reward = obs[order].astype(jnp.float32), reward[order].astype(jnp.float32)
+            terminated, truncated = terminated[order].astype(bool), truncated[order].astype(bool)
+        truncated = truncated & ~terminated
+        return handle, PoolStep(obs, reward, jnp.zeros_like(terminated), terminated, truncated)
+
+    def close(self) -> None:
+        self.pool.close()
+
+    def __repr__(self) -> str:
+        return f"XlaMujoco({self.id!r}, num_envs={self.num_envs}, seed={self.seed})"
 
 
 @struct.dataclass

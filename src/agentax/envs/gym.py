@@ -7,6 +7,10 @@ already returns the next episode's first observation, and the observation really
 from ``info["final_obs"]`` -- exactly agentax's ``obs`` / ``final_obs`` split. (Gymnasium's default
 ``NEXT_STEP`` mode would spend an extra, action-ignoring step on each reset instead.)
 
+**MuJoCo** (``HalfCheetah-v5``, ``Hopper-v5`` and Gymnasium's other ``gymnasium.envs.mujoco`` ids)
+needs the ``mujoco`` package (``pip install 'agentax[mujoco]'``); without it :func:`require_mujoco`
+says so in one line. Their float64 observations reach agentax as float32 (JAX's default width).
+
 ``JaxToGymnasium`` is the other way: a ``gymnasium.Env`` around an agentax JAX env, with one
 compiled reset and one compiled step per env id and NumPy values out. ``register_envs`` registers
 every JAX env as ``agentax/ID``, which ``import agentax`` does, so
@@ -15,8 +19,12 @@ every JAX env as ``agentax/ID``, which ``import agentax`` does, so
 
 from __future__ import annotations
 
+import dataclasses
+import os
+import sys
 from collections.abc import Callable, Mapping
 from functools import cache
+from types import ModuleType
 from typing import Any
 
 import gymnasium
@@ -41,6 +49,45 @@ GYMNASIUM_SELECTION = (
     "CliffWalking-v1",
     "Taxi-v4",
 )
+
+
+MUJOCO_EXTRA = "pip install 'agentax[mujoco]'"
+
+
+def is_mujoco_id(env_id: str) -> bool:
+    """Whether ``env_id`` is one of Gymnasium's MuJoCo tasks (``HalfCheetah-v5``, ``Hopper-v5``, ...)."""
+    spec = gymnasium.registry.get(env_id)
+    entry = spec.entry_point if spec is not None else None
+    return isinstance(entry, str) and entry.startswith("gymnasium.envs.mujoco")
+
+
+# MuJoCo 4 deprecates a compiler attribute that Gymnasium 1.4's model files still use; its warning
+# would print once per env made (and each parallel actor makes several).
+_HARMLESS_MUJOCO_WARNING = "compiler attribute 'settotalmass' is deprecated"
+
+
+def _mujoco_warning(message: str) -> None:
+    if _HARMLESS_MUJOCO_WARNING not in message:
+        print(f"WARNING: {message}", file=sys.stderr)
+
+
+def require_mujoco(env_id: str) -> ModuleType:
+    """The ``mujoco`` module for a MuJoCo task, else a one-line ``UsageError`` naming the extra.
+
+    Installs a warning handler that drops only the ``settotalmass`` deprecation (others print as
+    MuJoCo prints them)."""
+    try:
+        import mujoco
+    except ImportError:
+        raise UsageError(f"{env_id} needs MuJoCo, which is not installed: {MUJOCO_EXTRA}") from None
+    except Exception as error:  # mujoco loads MUJOCO_GL's OpenGL when imported; a missing one fails
+        gl = os.environ.get("MUJOCO_GL")
+        raise UsageError(
+            f"cannot import mujoco with MUJOCO_GL={gl} ({type(error).__name__}: {error}); "
+            "unset MUJOCO_GL or choose one that is installed (egl: libegl1, osmesa: libosmesa6)"
+        ) from None
+    mujoco.set_mju_user_warning(_mujoco_warning)
+    return mujoco
 
 
 def from_gymnasium_space(space: gymnasium.Space) -> Discrete | Box:
@@ -79,6 +126,8 @@ class GymnasiumEnv:
     ):
         if isinstance(env, str):
             self.id = env
+            if is_mujoco_id(env):
+                require_mujoco(env)
             try:
                 env = gymnasium.make_vec(
                     env,
@@ -109,6 +158,10 @@ class GymnasiumEnv:
         except UsageError as error:
             env.close()
             raise UsageError(f"{self.id} cannot run in agentax: {error}") from None
+        self._obs_dtype = None  # float64 observations (MuJoCo's) are handed on as float32
+        if isinstance(self._observation_space, Box) and np.dtype(self._observation_space.dtype) == np.float64:
+            self._obs_dtype = np.float32
+            self._observation_space = dataclasses.replace(self._observation_space, dtype=np.float32)
 
     def observation_space(self, params: EnvParams | None = None) -> Discrete | Box:
         return self._observation_space
@@ -119,11 +172,13 @@ class GymnasiumEnv:
     def reset(self, seed: int | None = None) -> np.ndarray:
         """First observations ``[num_envs, *obs_shape]``; sub-env ``i`` is seeded ``seed + i``."""
         obs, _ = self.vector_env.reset(seed=seed)
-        return obs
+        return obs if self._obs_dtype is None else obs.astype(self._obs_dtype)
 
     def step(self, actions: Any) -> TimeStep:
         """One step of every sub-env; ``actions: [num_envs, *action_shape]``. Ended episodes auto-reset."""
         obs, reward, terminated, truncated, info = self.vector_env.step(np.asarray(actions))
+        if self._obs_dtype is not None:
+            obs = obs.astype(self._obs_dtype)
         final_obs = np.array(obs)
         for i in np.flatnonzero(info.get("_final_obs", ())):
             final_obs[i] = info["final_obs"][i]

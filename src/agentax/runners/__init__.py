@@ -1,7 +1,8 @@
 """Runners: where and when an algorithm's pure functions run.
 
-``compiled`` trains JAX envs inside one jitted, vmapped-over-seeds program (and PPO on Atari with
-EnvPool's step inside the program, ``compiled-atari``); ``host`` steps any env on the host with a
+``compiled`` trains JAX envs inside one jitted, vmapped-over-seeds program (and PPO on Atari and
+on EnvPool's MuJoCo tasks with EnvPool's step inside the program, ``compiled-atari`` and
+``compiled-mujoco``); ``host`` steps any env on the host with a
 Driver, one step after the other; ``parallel`` runs the host runner's actors in threads beside a
 learner, ``ray`` in Ray actor processes on any node of a cluster. :data:`RUNNERS` is the one
 table the API reads (``agentax.train`` chooses a kind, :func:`agentax.api.restore_policy` reads
@@ -24,7 +25,8 @@ class RunnerSpec:
     config: str
     """the dotted name of its config class (saved in config.json under "runner")"""
     envs: str
-    """the envs it takes: "jax" (agentax's JAX envs), "any" (any Gymnasium id or Atari), "atari\""""
+    """the envs it takes: "jax" (agentax's JAX envs), "any" (any Gymnasium id or Atari), "atari",
+    "mujoco" (EnvPool's MuJoCo v5 tasks)"""
     many_seeds: bool
     """whether ``--seeds N`` trains N agents in one program (else one seed per process)"""
     host_loop: bool = True
@@ -56,8 +58,11 @@ RUNNERS: dict[str, RunnerSpec] = {
     "compiled-atari": RunnerSpec(
         "agentax.runners.compiled_atari", "agentax.runners.host.HostRunnerConfig", "atari", False
     ),
+    "compiled-mujoco": RunnerSpec(
+        "agentax.runners.compiled_atari", "agentax.runners.host.HostRunnerConfig", "mujoco", False
+    ),
 }
 """Every kind of runner by its name in config.json's ``runner_kind`` (``--runner compiled`` on an
-Atari id is ``compiled-atari``)."""
+Atari id is ``compiled-atari``, on EnvPool's MuJoCo ids ``compiled-mujoco``)."""
 CHOICES = ("compiled", "host", "parallel", "ray")
 """The kinds ``--runner`` names."""

@@ -1,7 +1,12 @@
-"""The compiled Atari runner: an on-policy agent's rollout *and* EnvPool's Atari step in one program.
+"""The compiled EnvPool runner: an on-policy agent's rollout *and* EnvPool's step in one program.
 
-For ``agentax train ppo --env ALE/Breakout-v5 --runner compiled``. Each iteration is one jitted call,
-:func:`make_update`: the compiled runner's on-policy rollout
+For ``agentax train ppo --env ALE/Breakout-v5 --runner compiled`` (runner kind ``compiled-atari``)
+and ``agentax train ppo --env HalfCheetah-v5 --runner compiled`` (``compiled-mujoco``: EnvPool's
+MuJoCo v5 tasks, :class:`~agentax.envs.envpool_xla.XlaMujoco`, raw rewards, episodes for games).
+Which backend steps a MuJoCo id: ``--runner compiled`` is EnvPool inside the program; ``auto``
+(the host, parallel and Ray runners) is Gymnasium's env on the ``mujoco`` package.
+
+Each iteration is one jitted call, :func:`make_update`: the compiled runner's on-policy rollout
 (:func:`agentax.runners.rollout.on_policy_rollout`, a ``lax.scan`` of ``num_steps`` steps of the
 agent's collect policy) on :class:`AtariEnvs`, EnvPool's step of the pool
 (:mod:`agentax.envs.envpool_xla`, the host adapter's preprocessing and settings), then
@@ -42,7 +47,14 @@ from agentax import _xla, kernels
 from agentax.agents.protocol import Agent, OnPolicy
 from agentax.envs.atari import FRAME_SKIP, is_atari_id
 from agentax.envs.core import TimeStep
-from agentax.envs.envpool_xla import EpisodeTracker, XlaAtari, track
+from agentax.envs.envpool_xla import (
+    ENVPOOL_MUJOCO,
+    EpisodeTracker,
+    XlaAtari,
+    XlaMujoco,
+    is_envpool_mujoco_id,
+    track,
+)
 from agentax.errors import UsageError
 from agentax.returns import EpisodeStats
 from agentax.runners import host
@@ -51,7 +63,11 @@ from agentax.runners.session import Session, TrainResult
 from agentax.runs import Run
 
 RUNNER_KIND = "compiled-atari"
-"""config.json's ``runner_kind`` of these runs; their ``runner`` is a ``HostRunnerConfig``."""
+"""config.json's ``runner_kind`` of these runs on Atari; their ``runner`` is a ``HostRunnerConfig``."""
+MUJOCO_RUNNER_KIND = "compiled-mujoco"
+"""config.json's ``runner_kind`` of these runs on EnvPool's MuJoCo tasks."""
+
+XlaPool = XlaAtari | XlaMujoco
 
 
 @struct.dataclass
@@ -72,19 +88,21 @@ class Pool:
 
 
 class AtariEnvs:
-    """``env``'s pool as a :class:`~agentax.runners.rollout.BatchedEnv` of the on-policy rollout."""
+    """``env``'s pool (Atari or MuJoCo) as a :class:`~agentax.runners.rollout.BatchedEnv` of the
+    on-policy rollout."""
 
-    def __init__(self, env: XlaAtari):
+    def __init__(self, env: XlaPool):
         self.env, self.num_envs = env, env.num_envs
 
     def step(self, key: jax.Array, pool: Pool, action: jax.Array) -> tuple[TimeStep, Pool, dict[str, Any]]:
         """EnvPool's step of every env (``key`` unused) read by :func:`track`: the learning view
-        ``[num_envs]`` (rewards clipped to their sign; ``final_obs`` the step's ``obs``: on an ending
-        step EnvPool returns the last observation itself) and ``info``: ``"valid"`` (False on reset
-        steps) and ``"games"``, the :class:`Games` the step finished."""
+        ``[num_envs]`` (Atari's rewards clipped to their sign; ``final_obs`` the step's ``obs``: on an
+        ending step EnvPool returns the last observation itself) and ``info``: ``"valid"`` (False on
+        reset steps) and ``"games"``, the :class:`Games` (MuJoCo: episodes) the step finished."""
         handle, step = self.env.step(pool.handle, action)
         tracker, tracked = track(pool.tracker, step)
-        time_step = TimeStep(step.obs, jnp.sign(step.reward), step.terminated, step.truncated, step.obs)
+        reward = jnp.sign(step.reward) if self.env.clip_rewards else step.reward
+        time_step = TimeStep(step.obs, reward, step.terminated, step.truncated, step.obs)
         games = Games(tracked.game_finished, tracked.game_score, tracked.game_length)
         return time_step, Pool(handle, tracker), {"valid": tracked.valid, "games": games}
 
@@ -93,23 +111,34 @@ def check(agent: Agent, env_id: str, runner: host.HostRunnerConfig, num_seeds: i
     """A ``UsageError`` for what this runner cannot train, before anything is made or written."""
     if num_seeds != 1:
         raise UsageError(
-            "the compiled Atari runner trains one seed per process (--seeds 1): EnvPool's pool, stepped "
+            "the compiled EnvPool runner trains one seed per process (--seeds 1): EnvPool's pool, stepped "
             "inside the program, cannot be vmapped over seeds; start one run per seed"
         )
-    if not is_atari_id(env_id):
-        raise UsageError(f"the compiled Atari runner trains Atari games (ALE/<Game>-v5), not {env_id!r}")
+    if not (is_atari_id(env_id) or is_envpool_mujoco_id(env_id)):
+        raise UsageError(
+            "the compiled EnvPool runner trains Atari games (ALE/<Game>-v5) and EnvPool's MuJoCo tasks "
+            f"({', '.join(ENVPOOL_MUJOCO)}), not {env_id!r}"
+        )
     if runner.env_backend not in ("auto", "envpool"):
         raise UsageError(
-            f"the compiled Atari runner steps EnvPool inside the program; --env-backend "
+            f"the compiled EnvPool runner steps EnvPool inside the program; --env-backend "
             f"{runner.env_backend} cannot run there (use envpool, or --runner host)"
         )
     if not isinstance(agent.experience, OnPolicy):
         raise UsageError(
-            f"the compiled Atari runner trains on-policy agents (ppo); {agent.name} needs --runner host"
+            f"the compiled EnvPool runner trains on-policy agents (ppo); {agent.name} needs --runner host"
         )
 
 
-def start(agent_state: Any, env: XlaAtari, key: jax.Array, env_steps: int) -> OnPolicyCarry:
+def make_pool(env_id: str, num_envs: int, seed: int, runner: host.HostRunnerConfig) -> XlaPool:
+    """The pool of ``env_id`` stepped inside the program: Atari with the runner's sticky actions,
+    or a MuJoCo task with its v5 settings."""
+    if is_atari_id(env_id):
+        return XlaAtari(env_id, num_envs, seed=seed, sticky_actions=runner.sticky_actions)
+    return XlaMujoco(env_id, num_envs, seed=seed)
+
+
+def start(agent_state: Any, env: XlaPool, key: jax.Array, env_steps: int) -> OnPolicyCarry:
     """New games in ``env``'s pool (a host call): the rollout's carry, the actor's key chain from
     ``key``, ``env_steps`` the pool's steps so far (the collect policy's progress)."""
     handle, obs = env.reset()
@@ -117,7 +146,7 @@ def start(agent_state: Any, env: XlaAtari, key: jax.Array, env_steps: int) -> On
     return OnPolicyCarry(agent_state, Pool(handle, EpisodeTracker.create(env.num_envs)), obs, key, episodes)
 
 
-def make_update(agent: Agent, env: XlaAtari):
+def make_update(agent: Agent, env: XlaPool):
     """``update(carry, learner_key) -> (carry, learner_key, metrics, games [T, E])`` (jittable): one
     iteration, the on-policy rollout on ``env`` then ``agent.learn`` (keys as the host runner's)."""
     rollout = on_policy_rollout(agent, AtariEnvs(env), kernels.learning_loop(env.observation_space().shape))
@@ -150,8 +179,9 @@ def train(
     progress: bool = False,
     num_seeds: int = 1,
 ) -> TrainResult:
-    """Train an on-policy ``agent`` (PPO) on an Atari game, env and learning in one program per
-    iteration; log, checkpoint and evaluate into ``run`` as :func:`agentax.runners.host.train` does."""
+    """Train an on-policy ``agent`` (PPO) on an Atari game or EnvPool's MuJoCo task, env and learning
+    in one program per iteration; log, checkpoint and evaluate into ``run`` as
+    :func:`agentax.runners.host.train` does (the evaluation on the host adapter: Gymnasium's MuJoCo)."""
     check(agent, env_id, runner, num_seeds)
     _xla.let_xla_use_every_cpu()
     evaluator = host.Evaluator(agent, host.env_factory(env_id, runner), runner.eval_episodes)
@@ -159,12 +189,7 @@ def train(
     learner_key, updates, env_steps = session.learner_key, session.updates, session.env_steps
     games_done = int(session.meta.get("games", 0))
     experience: OnPolicy = agent.experience
-    env = XlaAtari(
-        env_id,
-        experience.num_envs,
-        seed=host.actor_seed(runner.seed, 0, updates),
-        sticky_actions=runner.sticky_actions,
-    )
+    env = make_pool(env_id, experience.num_envs, host.actor_seed(runner.seed, 0, updates), runner)
     carry = start(session.state, env, host.fold_actor_key(session.actors_key, 0, updates), env_steps)
     update = jax.jit(make_update(agent, env), donate_argnums=0)
     total_updates = host.num_updates(agent)
@@ -182,7 +207,8 @@ def train(
                 if not session.row_due(env_steps, last):
                     continue
                 args = (carry.agent, learner_key, env_steps, updates, scores, metrics)
-                extra, counts = {"frames": FRAME_SKIP * env_steps}, {"games": games_done}
+                extra = {"frames": FRAME_SKIP * env_steps} if isinstance(env, XlaAtari) else {}
+                counts = {"games": games_done}
                 scores = []
                 if session.log_row(*args, final=last, extra=extra, counts=counts):
                     break
