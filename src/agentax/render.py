@@ -106,6 +106,17 @@ def _mujoco_gl(env_id: str) -> str:
     return os.environ.get("MUJOCO_GL", "glfw")
 
 
+def _stays_put(gym_env: gymnasium.Env, env_id: str) -> bool:
+    """Whether a MuJoCo env's default camera stays put (HalfCheetah's and Ant's: they run out of
+    the picture) while its model has a camera named "track" that follows the body."""
+    env = gym_env.unwrapped
+    config = env.mujoco_renderer.default_cam_config or {}
+    mujoco = require_mujoco(env_id)
+    return (
+        "trackbodyid" not in config and mujoco.mj_name2id(env.model, mujoco.mjtObj.mjOBJ_CAMERA, "track") >= 0
+    )
+
+
 def _first_frame(gym_env: gymnasium.Env, env_id: str, gl: str | None) -> np.ndarray:
     """``gym_env.render()`` of the reset state; for MuJoCo (``gl`` its backend) a failing OpenGL
     becomes one line that says what to install."""
@@ -138,6 +149,11 @@ def _record_gymnasium(
     gl = _mujoco_gl(env_id) if is_mujoco_id(env_id) else None
     try:
         gym_env = gymnasium.make(env_id, render_mode="rgb_array", **(MUJOCO_FRAME if gl else {}), **kwargs)
+        if gl and _stays_put(gym_env, env_id):
+            gym_env.close()  # the model's "track" camera follows the body instead
+            gym_env = gymnasium.make(
+                env_id, render_mode="rgb_array", camera_name="track", **MUJOCO_FRAME, **kwargs
+            )
     except gymnasium.error.Error as error:
         raise UsageError(f"cannot draw {env_id!r}: {error}") from error
     horizon = gym_env.spec.max_episode_steps if gym_env.spec and gym_env.spec.max_episode_steps else max_steps
