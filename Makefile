@@ -10,11 +10,12 @@ GYMNAX := gymnax==1.0.1
 # conversion: installed without its declared dependencies too; what it imports is in the lock (extra export).
 JAX2ONNX := jax2onnx==0.17.1
 
-.PHONY: kernel demo test test-long bench lint docs lock clean
+.PHONY: kernel kernel-where-buildable demo test test-long bench lint docs lock clean
 
 # The oneDNN convolution kernel (agentax.kernels): compiled against the onednn wheels of the lock
-# (x86-64 Linux), which put libdnnl and its headers under $(VENV)/lib and $(VENV)/include. Without
-# them, or without a compiler, the install goes on and agentax uses XLA's convolutions.
+# (x86-64 Linux), which put libdnnl and its headers under $(VENV)/lib and $(VENV)/include. Where they
+# and a compiler are here it must build: a failed build fails the install (and CI). Without them the
+# install goes on and says why, agentax uses XLA's convolutions, and make test's summary says so.
 CXX ?= g++
 KERNEL := src/agentax/_onednn_conv.so
 DNNL_LIB := $(abspath $(VENV))/lib
@@ -25,8 +26,17 @@ $(STAMP): pyproject.toml requirements.lock csrc/onednn_conv.cc
 	$(PY) -m pip install --quiet -r requirements.lock
 	$(PY) -m pip install --quiet --no-deps $(GYMNAX) $(JAX2ONNX)
 	$(PY) -m pip install --quiet --no-deps --no-build-isolation -e .
-	$(MAKE) --no-print-directory kernel || echo "agentax: oneDNN kernel not built; convolutions use XLA's"
+	$(MAKE) --no-print-directory kernel-where-buildable
 	touch $(STAMP)
+
+kernel-where-buildable:
+	@if ! test -f $(DNNL_LIB)/libdnnl.so.3 || ! test -f $(VENV)/include/oneapi/dnnl/dnnl.hpp; then \
+		echo "agentax: oneDNN kernel not built: no onednn wheels in $(VENV) (the lock has them for x86-64 Linux); convolutions use XLA's"; \
+	elif ! command -v $(CXX) >/dev/null 2>&1; then \
+		echo "agentax: oneDNN kernel not built: no C++ compiler ($(CXX)); convolutions use XLA's"; \
+	else \
+		$(MAKE) --no-print-directory kernel; \
+	fi
 
 kernel:
 	test -f $(DNNL_LIB)/libdnnl.so.3 && test -f $(VENV)/include/oneapi/dnnl/dnnl.hpp

@@ -13,6 +13,22 @@ if REPO_ROOT not in sys.path:
     sys.path.append(REPO_ROOT)  # for benchmarks/_pin.py (``from benchmarks import _pin``)
 
 
+def kernel_not_built() -> str | None:
+    """The summary line when the oneDNN kernel is not built (its tests skip), else None."""
+    from agentax import kernels
+
+    if kernels.available():
+        return None
+    return f"agentax: the oneDNN kernel is not built, its tests skipped: {kernels.unavailable_reason()}"
+
+
+def pytest_terminal_summary(terminalreporter):
+    """A run without the kernel says so at its end (make test, CI), not only in skip reasons."""
+    line = kernel_not_built()
+    if line:
+        terminalreporter.write_line(line, yellow=True, bold=True)
+
+
 def with_sigint_ignored(command: list[str]) -> list[str]:
     """``command`` started as a shell script starts ``cmd &`` (``nohup agentax train ... &``): with
     SIGINT ignored, which the program inherits (a shell's ``trap '' INT``, then ``exec``: the same pid)."""

@@ -9,8 +9,10 @@ bfloat16 to 2 % of the largest entry (8 bits of mantissa in the products, accumu
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -209,6 +211,62 @@ def test_a_missing_library_falls_back_to_xla_exactly(monkeypatch, tmp_path):
     monkeypatch.setenv("AGENTAX_CONV", "onednn")
     with pytest.raises(UsageError, match="none.so is missing"):
         kernels.backend()
+
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
+@pytest.mark.parametrize(
+    ("wheels", "compiler", "built", "said"),
+    [
+        (False, "g++", False, "no onednn wheels in"),
+        (True, "/nowhere/c++", False, "no C++ compiler (/nowhere/c++)"),
+        (True, "failing-c++", True, "failing-c++: error"),
+    ],
+)
+def test_the_install_skips_the_kernel_only_where_it_cannot_be_built(tmp_path, wheels, compiler, built, said):
+    """Issue 30: ``make kernel || echo`` hid a failed build (8 tests skipped quietly). Without the
+    lock's onednn wheels or a compiler the install says why and goes on; with both, a failed build
+    fails it (and CI)."""
+    venv = tmp_path / "venv"
+    (venv / "include" / "oneapi" / "dnnl").mkdir(parents=True)
+    (venv / "lib").mkdir()
+    if wheels:
+        (venv / "lib" / "libdnnl.so.3").touch()
+        (venv / "include" / "oneapi" / "dnnl" / "dnnl.hpp").touch()
+    if compiler == "failing-c++":  # one that is found and fails
+        compiler = str(tmp_path / compiler)
+        Path(compiler).write_text('#!/bin/sh\necho "$0: error" >&2\nexit 1\n')
+        Path(compiler).chmod(0o755)
+    kernel = tmp_path / "kernel.so"
+    make = ["make", "-s", "--no-print-directory", "kernel-where-buildable", f"VENV={venv}"]
+    done = subprocess.run(
+        [*make, f"CXX={compiler}", f"KERNEL={kernel}"], cwd=REPO, capture_output=True, text=True
+    )
+    if built:  # tried, and its failure is the install's
+        assert done.returncode != 0 and said in done.stderr, done.stdout + done.stderr
+    else:
+        assert done.returncode == 0, done.stdout + done.stderr
+        assert f"agentax: oneDNN kernel not built: {said}" in done.stdout, done.stdout
+    assert not kernel.exists()
+
+
+def test_a_test_run_without_the_kernel_says_so_in_its_summary(tmp_path):
+    """The last lines of ``make test`` (CI's summary), not only the skip reasons."""
+    missing = tmp_path / "none.so"
+    done = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-n", "0", "-p", "no:cacheprovider"]
+        + ["tests/test_kernels.py::test_an_unknown_mode_is_an_error"],
+        cwd=REPO,
+        env={**os.environ, "AGENTAX_ONEDNN_LIB": str(missing)},
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stdout[-2000:]
+    summary = done.stdout.strip().splitlines()[-3:]
+    expected = f"agentax: the oneDNN kernel is not built, its tests skipped: {missing} is missing"
+    assert any(expected in line for line in summary), summary
 
 
 @pytest.mark.parametrize(
