@@ -222,6 +222,19 @@ class Run:
         written, _ = save_episode(make(self.env, 1), self.policy, path, seed)
         return written
 
+    def export(
+        self, path: str | Path | None = None, format: str = "onnx", *, stochastic: bool = False
+    ) -> Path:
+        """Write the policy as one ONNX or StableHLO file, its model card beside it: what ``agentax
+        export DIR`` does (see :mod:`agentax.export`); the file's path."""
+        from agentax import _xla
+        from agentax.export import export_run
+
+        _xla.enable_compilation_cache()  # jax2onnx compiles ~70 small programs the first time it runs
+        greedy = lambda: self.policy  # noqa: E731  (restored only once the format is checked)
+        restore = functools.partial(_restore_learned, self.path, self.config, True) if stochastic else greedy
+        return export_run(self.path, self.config, restore, format, path, stochastic)
+
     def __repr__(self) -> str:
         return f"Run({str(self.path)!r}, algo={self.algo!r}, env={self.env!r}, runner={self.runner_kind!r})"
 
@@ -288,11 +301,16 @@ def _best_seed(run_dir: Path) -> int:
     return int(np.argmax([s["mean_return"] for s in per_seed])) if per_seed else 0
 
 
-def _restore_learned(run_dir: Path, config: dict[str, Any]) -> Policy:
-    """The greedy policy of a learning algorithm's run (its best seed), from its newest good checkpoint."""
+def _restore_learned(run_dir: Path, config: dict[str, Any], stochastic: bool = False) -> Policy:
+    """The greedy policy of a learning algorithm's run (its best seed), from its newest good checkpoint;
+    ``stochastic``: its sampling head instead (:class:`agentax.export.SamplingAlgorithm`)."""
 
     config = _upgraded(config)
     module = algorithm(config["algo"])
+    if stochastic:
+        from agentax.export import SamplingAlgorithm
+
+        module = SamplingAlgorithm(module)
     cfg = config_from_dict(algorithm_config(config["algo"]), config["config"])
     spec = RUNNERS[config.get("runner_kind", "compiled")]
     if not spec.host_loop:

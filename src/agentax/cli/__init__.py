@@ -34,6 +34,7 @@ COMMANDS: dict[str, str] = {
     "envs": "list the environments with their observation and action spaces",
     "evaluate": "evaluate a policy (basic, random, or a trained run) over N episodes",
     "play": "play one episode and write it as a GIF or MP4",
+    "export": "write a trained run's policy as an ONNX or StableHLO file, with a model card beside it",
     "demo": "the main job: train an agent on CartPole and show the result",
     "train": "train an agent (reinforce, ppo, dqn) into a run folder; --resume DIR continues one",
     "plot": "overlay the learning curves of run folders into one PNG",

@@ -11,15 +11,19 @@ import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import tyro
 from rich.console import Console
 from rich.table import Table
 
+from agentax.cli.policies import _make as make_env
 from agentax.cli.policies import env_description, resolve_policy
 from agentax.envs import AtariEnv
 from agentax.errors import UsageError
-from agentax.evaluate import EvalStats, evaluate, host_episode_returns
+from agentax.evaluate import EvalStats, check_policy_fits, evaluate, host_episode_returns
+from agentax.export import is_exported
+from agentax.policies import Policy
 
 
 @dataclass(frozen=True)
@@ -29,7 +33,8 @@ class EvaluateArgs:
     env: str | None = None
     """environment id (agentax envs lists them); optional when --policy is a trained run's folder"""
     policy: str = "basic"
-    """basic (the lecture's CartPole policy), random, or a trained run's folder"""
+    """basic (the lecture's CartPole policy), random, a trained run's folder, or a file written by
+    agentax export (.onnx through onnxruntime, .stablehlo through jax.export; --env defaults to its card's)"""
     episodes: int = 100
     """number of episodes (Atari: whole games, their true scores)"""
     seed: int = 0
@@ -66,11 +71,32 @@ def stats_table(
     return table
 
 
+def exported_policy(
+    path: str,
+    env_id: str | None,
+    num_envs: int = 1,
+    *,
+    env_backend: str | None = None,
+    sticky_actions: float | None = None,
+) -> tuple[str, Any, Policy]:
+    """``(env_id, env, policy)`` for a file of ``agentax export``, as :func:`resolve_policy` gives them
+    for a run's folder: the env from ``env_id``, else the model card's (with its Atari settings)."""
+    from agentax.export import as_policy, load
+
+    exported = load(path)
+    env_id = env_id or exported.card["env"]
+    env = make_env(env_id, num_envs, env_backend, sticky_actions, exported.card.get("env_settings", {}))
+    policy = as_policy(exported)
+    check_policy_fits(env, policy, env_id)
+    return env_id, env, policy
+
+
 def main(argv: list[str]) -> int:
     args = tyro.cli(EvaluateArgs, args=argv, prog="agentax evaluate")
     if args.episodes <= 0:
         raise UsageError(f"--episodes must be at least 1, not {args.episodes}")
-    env_id, env, policy = resolve_policy(
+    resolve = exported_policy if is_exported(args.policy) else resolve_policy
+    env_id, env, policy = resolve(
         args.policy,
         args.env,
         num_envs=min(args.episodes, 16),

@@ -1,0 +1,413 @@
+"""A trained policy outside agentax: one pure function of the env's observations, written as an ONNX
+file (jax2onnx, run by onnxruntime) or a serialized StableHLO module (``jax.export``), with a model
+card beside it (``FILE.json``).
+
+The exported function takes a batch of observations exactly as agentax's env gives them to the agent
+and returns what the env takes:
+
+- greedy (the default): ``action = f(obs)``, ``obs [N, *obs_shape]`` in the env's observation dtype
+  (float32 for CartPole and Pendulum, uint8 ``[N, 4, 84, 84]`` stacked frames for Atari) →
+  ``action [N]`` int32 (discrete) or ``[N, action_dim]`` float32 (continuous, already clipped or
+  rescaled to the action space's bounds, as the agent's evaluation sends it);
+- ``stochastic`` (StableHLO only): ``action = f(obs, key)`` with ``key uint32[2]``, the data of a
+  threefry key (``jax.random.key_data(jax.random.key(seed))``), split into one key per row: the
+  agent's collect policy (``act``, at the end of its exploration schedule) then ``env_action``.
+
+What lies between the env's observation and the network (casts, the Nature CNN's division by 255,
+normalization statistics an agent keeps in its state) is inside the file, because the function is
+the agent's own ``greedy_policy(state)`` (or ``act``) closed over the trained state: nothing here
+knows an algorithm, so every agent of the protocol exports (PPO's categorical and Gaussian heads,
+DQN's and PQN's greedy Q, REINFORCE, and later ones). What the env itself does before it hands
+out an observation (Atari's frame skip, grey scale, resize and frame stack) stays the env's.
+
+How: the one-observation policy is traced to a jaxpr of ``lax`` primitives first, then vmapped over
+the batch. (jax2onnx swaps flax's linen layers for primitives of its own while it traces, and those
+have no batching rule; traced beforehand, it never sees a flax layer.) The trace uses XLA's
+convolutions and products (``AGENTAX_CONV=xla``): oneDNN's FFI calls exist in neither format.
+ONNX gets no stochastic head: its random operators take their seed as a fixed attribute of the
+graph, not as an input, so a key could not drive them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import importlib
+import logging
+import os
+from collections.abc import Callable, Iterator
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from agentax.agents.protocol import Agent, AgentState
+from agentax.envs import Box, Discrete, make
+from agentax.errors import UsageError
+from agentax.policies import Policy
+from agentax.runs import read_json, write_atomic, write_json
+
+FORMATS: dict[str, str] = {"onnx": ".onnx", "stablehlo": ".stablehlo"}
+"""Each format and the suffix of its files."""
+OBS, KEY, ACTION = "obs", "key", "action"
+"""The names of the exported function's inputs and output."""
+BATCH = "N"
+"""The name of the batch dimension (any size at run time)."""
+EXTRA = "pip install 'agentax[export]'"
+STABLEHLO_PLATFORMS = ("cpu", "cuda")
+"""Where the StableHLO module runs (one lowering per platform, chosen when it is called)."""
+
+
+# The policy as one batched function.
+
+
+def check_format(format: str, stochastic: bool = False) -> str:
+    """``format`` if it is one of :data:`FORMATS` and can hold the asked head, else a ``UsageError``;
+    for ONNX, also a ``UsageError`` naming the extra where jax2onnx or onnxruntime is missing."""
+    if format not in FORMATS:
+        raise UsageError(f"unknown export format {format!r}; choose from {', '.join(FORMATS)}")
+    if format == "onnx" and stochastic:
+        raise UsageError(
+            "--stochastic needs a key input, which ONNX's random operators cannot take (their seed is "
+            "fixed in the graph): export it with --format stablehlo, or the greedy policy to ONNX"
+        )
+    if format == "onnx":
+        for module in ("jax2onnx", "onnxruntime"):
+            try:
+                importlib.import_module(module)
+            except ImportError as error:
+                raise UsageError(f"ONNX export needs {module} ({error}); install it: {EXTRA}") from None
+    return format
+
+
+def sampling_policy(agent: Agent) -> Callable[[AgentState], Policy]:
+    """``state -> policy(obs, key)``: ``agent.act`` on one observation at the end of the agent's
+    exploration schedule (DQN's final ε), then ``agent.env_action`` (PPO's clip to the bounds)."""
+    progress = jnp.int32(agent.total_steps)
+
+    def policy_of(state: AgentState) -> Policy:
+        def policy(obs: jax.Array, key: jax.Array) -> jax.Array:
+            action, _ = agent.act(state, obs[None], key, progress)
+            return agent.env_action(action[0])
+
+        return policy
+
+    return policy_of
+
+
+@dataclasses.dataclass(frozen=True)
+class SamplingAlgorithm:
+    """An algorithm module whose agents answer ``greedy_policy`` with their sampling head, so that
+    a run folder restores its stochastic policy through the same path as its greedy one."""
+
+    module: Any
+
+    def make_agent(self, spec: Any, cfg: Any, **options: Any) -> Agent:
+        agent = self.module.make_agent(spec, cfg, **options)
+        return dataclasses.replace(agent, greedy_policy=sampling_policy(agent))
+
+
+@contextlib.contextmanager
+def xla_kernels() -> Iterator[None]:
+    """While inside, :mod:`agentax.kernels` traces XLA's convolutions and products (no FFI calls)."""
+    before = os.environ.get("AGENTAX_CONV")
+    os.environ["AGENTAX_CONV"] = "xla"
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop("AGENTAX_CONV", None)
+        else:
+            os.environ["AGENTAX_CONV"] = before
+
+
+def batched(
+    policy: Policy, obs: jax.ShapeDtypeStruct, stochastic: bool = False
+) -> tuple[Callable[..., jax.Array], jax.ShapeDtypeStruct]:
+    """``(f, action)``: ``f(obs [N, *obs_shape])`` (``f(obs, key uint32[2])`` when ``stochastic``)
+    → ``[N, *action_shape]``, and one action's shape and dtype.
+
+    ``policy(obs, key)`` acts on one observation; it is traced once at ``obs`` to ``lax`` primitives
+    (see the module docstring). The greedy function passes a constant key (greedy policies ignore
+    theirs); the stochastic one splits ``key`` into ``N``, one per row.
+    """
+    key_data = jax.ShapeDtypeStruct((2,), jnp.uint32)
+    with xla_kernels():
+        closed, action = jax.make_jaxpr(
+            lambda o, k: policy(o, jax.random.wrap_key_data(k)), return_shape=True
+        )(obs, key_data)
+
+    def one(obs: jax.Array, key_data: jax.Array) -> jax.Array:
+        return jax.core.eval_jaxpr(closed.jaxpr, closed.consts, obs, key_data)[0]
+
+    if stochastic:
+
+        def f(obs: jax.Array, key: jax.Array) -> jax.Array:
+            keys = jax.random.split(jax.random.wrap_key_data(key), obs.shape[0])
+            return jax.vmap(one)(obs, jax.random.key_data(keys))
+
+    else:
+
+        def f(obs: jax.Array) -> jax.Array:
+            return jax.vmap(one, in_axes=(0, None))(obs, jnp.zeros(2, jnp.uint32))
+
+    return f, action
+
+
+def to_onnx(f: Callable, obs: jax.ShapeDtypeStruct, name: str = "agentax_policy") -> bytes:
+    """The ONNX model (opset jax2onnx's default) of the greedy ``f``, input ``obs`` ``[N, ...]``."""
+    from jax2onnx import to_onnx as convert
+
+    spec = jax.ShapeDtypeStruct((BATCH, *obs.shape), obs.dtype)
+    serde = logging.getLogger("onnx_ir.serde")  # warns of shape constants it leaves untyped: harmless
+    level = serde.level
+    serde.setLevel(logging.ERROR)
+    try:
+        model = convert(f, [spec], model_name=name, input_names=[OBS], output_names=[ACTION])
+    finally:
+        serde.setLevel(level)
+    return model.SerializeToString()
+
+
+def to_stablehlo(f: Callable, obs: jax.ShapeDtypeStruct, stochastic: bool = False) -> bytes:
+    """``jax.export``'s serialized module of ``f`` for :data:`STABLEHLO_PLATFORMS`, batch symbolic."""
+    (n,) = jax.export.symbolic_shape(BATCH)
+    args = [jax.ShapeDtypeStruct((n, *obs.shape), obs.dtype)]
+    if stochastic:
+        args.append(jax.ShapeDtypeStruct((2,), jnp.uint32))
+    exported = jax.export.export(jax.jit(f), platforms=STABLEHLO_PLATFORMS)(*args)
+    return bytes(exported.serialize())
+
+
+# The model card.
+
+
+def space_card(space: Discrete | Box) -> dict[str, Any]:
+    """A space as JSON: ``{"type": "Discrete", "n"}`` or ``{"type": "Box", "shape", "dtype", "low",
+    "high"}`` (a bound equal everywhere as one number)."""
+    if isinstance(space, Discrete):
+        return {
+            "type": "Discrete",
+            "n": int(space.n),
+            "shape": list(space.shape),
+            "dtype": _dtype(space.dtype),
+        }
+
+    def finite(x: Any) -> Any:  # infinities as "inf" / "-inf": JSON has no number for them
+        return [finite(y) for y in x] if isinstance(x, list) else x if np.isfinite(x) else str(x)
+
+    def bound(value: Any) -> Any:
+        value = np.asarray(value, np.float64)
+        return finite(
+            float(value.flat[0]) if value.size and np.all(value == value.flat[0]) else value.tolist()
+        )
+
+    return {
+        "type": "Box",
+        "shape": list(space.shape),
+        "dtype": _dtype(space.dtype),
+        "low": bound(space.low),
+        "high": bound(space.high),
+    }
+
+
+def _dtype(dtype: Any) -> str:
+    return np.dtype(dtype).name
+
+
+def _tensor(name: str, shape: tuple[int, ...], dtype: Any, batch: bool = True) -> dict[str, Any]:
+    return {"name": name, "shape": [BATCH, *shape] if batch else list(shape), "dtype": _dtype(dtype)}
+
+
+def model_card(
+    format: str,
+    file: Path,
+    env_id: str,
+    spaces: tuple[Discrete | Box, Discrete | Box],
+    obs: jax.ShapeDtypeStruct,
+    action: jax.ShapeDtypeStruct,
+    stochastic: bool,
+    run: dict[str, Any],
+) -> dict[str, Any]:
+    """What ``FILE.json`` holds: the format, env and spaces, the inputs and output, the run it came
+    from (``run``: its algo, folder, final evaluation and evaluation settings) and the versions."""
+    inputs = [_tensor(OBS, obs.shape, obs.dtype)]
+    if stochastic:
+        inputs.append(_tensor(KEY, (2,), jnp.uint32, batch=False))
+    versions = {"agentax": _version("agentax"), "jax": jax.__version__}
+    if format == "onnx":
+        versions.update(jax2onnx=_version("jax2onnx"), onnx=_version("onnx"))
+    return {
+        "format": format,
+        "file": file.name,
+        "policy": "stochastic" if stochastic else "greedy",
+        "env": env_id,
+        "observation_space": space_card(spaces[0]),
+        "action_space": space_card(spaces[1]),
+        "inputs": inputs,
+        "outputs": [_tensor(ACTION, action.shape, action.dtype)],
+        **({"platforms": list(STABLEHLO_PLATFORMS)} if format == "stablehlo" else {}),
+        **run,
+        "versions": versions,
+    }
+
+
+def _version(distribution: str) -> str:
+    try:
+        return version(distribution)
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def run_summary(run_dir: Path, config: dict[str, Any]) -> dict[str, Any]:
+    """The card's lines on the run: algo, folder, its final evaluation (eval.json's pooled statistics,
+    or None before it has one) and the env settings a score depends on (Atari's backend and sticky
+    actions, which ``agentax evaluate --policy FILE`` reuses)."""
+    evaluation = None
+    if (run_dir / "eval.json").is_file():
+        pooled = read_json(run_dir / "eval.json")
+        names = ("mean_return", "std_return", "min_return", "max_return", "episodes", "mean_length")
+        evaluation = {name: pooled[name] for name in names if name in pooled}
+    runner = config.get("runner") or {}
+    settings = {k: runner[k] for k in ("env_backend", "sticky_actions") if k in runner}
+    return {
+        "algo": config["algo"],
+        "run": run_dir.resolve().name,
+        "final_evaluation": evaluation,
+        "env_settings": settings,
+    }
+
+
+def card_path(path: str | Path) -> Path:
+    """The model card beside an exported file: ``FILE.json``."""
+    return Path(f"{path}.json")
+
+
+def env_spaces(env_id: str) -> tuple[Discrete | Box, Discrete | Box]:
+    """``(observation_space, action_space)`` of one ``env_id`` env, as agentax makes it."""
+    env = make(env_id, 1)
+    try:
+        return env.observation_space(), env.action_space()
+    finally:
+        if hasattr(env, "close"):
+            env.close()
+
+
+def export_run(
+    run_dir: str | Path,
+    config: dict[str, Any],
+    restore: Callable[[], Policy],
+    format: str = "onnx",
+    out: str | Path | None = None,
+    stochastic: bool = False,
+) -> Path:
+    """Write the policy ``restore()`` gives (called once the format is checked) for the run in
+    ``run_dir`` (its ``config.json`` as ``config``) to ``out`` (default ``RUN_DIR/policy.onnx`` or
+    ``.stablehlo``, ``policy-stochastic...`` for the sampling head), its model card beside it; the path.
+    """
+    check_format(format, stochastic)
+    run_dir = Path(run_dir)
+    name = "policy-stochastic" if stochastic else "policy"
+    path = Path(out) if out is not None else run_dir / f"{name}{FORMATS[format]}"
+    if path.is_dir() or not path.parent.is_dir():
+        raise UsageError(f"--out {path}: give a file in an existing folder")
+    spaces = env_spaces(config["env"])
+    obs = jax.ShapeDtypeStruct(tuple(spaces[0].shape), jnp.dtype(spaces[0].dtype))
+    f, action = batched(restore(), obs, stochastic)
+    data = to_onnx(f, obs) if format == "onnx" else to_stablehlo(f, obs, stochastic)
+    write_atomic(path, data)
+    card = model_card(
+        format, path, config["env"], spaces, obs, action, stochastic, run_summary(run_dir, config)
+    )
+    write_json(card_path(path), card)
+    return path
+
+
+# Running an exported file.
+
+
+@dataclasses.dataclass(frozen=True)
+class Exported:
+    """An exported file loaded back: its model card and ``run(obs [N, ...], key?) -> action [N, ...]``,
+    NumPy in and out, through onnxruntime (ONNX) or ``jax.export.deserialize`` (StableHLO)."""
+
+    card: dict[str, Any]
+    run: Callable[..., np.ndarray]
+
+    @property
+    def stochastic(self) -> bool:
+        return self.card["policy"] == "stochastic"
+
+    @property
+    def obs(self) -> jax.ShapeDtypeStruct:
+        spec = self.card["inputs"][0]
+        return jax.ShapeDtypeStruct(tuple(spec["shape"][1:]), np.dtype(spec["dtype"]))
+
+    @property
+    def action(self) -> jax.ShapeDtypeStruct:
+        spec = self.card["outputs"][0]
+        return jax.ShapeDtypeStruct(tuple(spec["shape"][1:]), np.dtype(spec["dtype"]))
+
+
+def is_exported(path: str | Path) -> bool:
+    """Whether ``path`` names a file with an export format's suffix."""
+    return Path(path).suffix in FORMATS.values() and Path(path).is_file()
+
+
+def load(path: str | Path) -> Exported:
+    """The exported file at ``path`` with its model card (``FILE.json``, which must be beside it)."""
+    path = Path(path)
+    if not card_path(path).is_file():
+        raise UsageError(f"{path} has no model card beside it ({card_path(path).name}); export it again")
+    card = read_json(card_path(path))
+    if check_format(card.get("format", "")) == "stablehlo":
+        call = jax.jit(jax.export.deserialize(bytearray(path.read_bytes())).call)
+        return Exported(card, lambda *args: np.asarray(call(*args)))
+    import onnxruntime
+
+    session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    return Exported(card, lambda obs: session.run([ACTION], {OBS: np.asarray(obs)})[0])
+
+
+def as_policy(exported: Exported) -> Policy:
+    """The exported function as an agentax policy ``(obs, key) -> action`` on one observation, for
+    :func:`agentax.evaluate.evaluate` (inside ``jit``, vmapped over episodes).
+
+    The file runs as its own program, called back from the host (``jax.pure_callback``), as a user
+    would run it: a StableHLO module compiled into the evaluation's loop instead acted differently
+    on near-ties (compiled together with the loop, ~30 of 100 CartPole episodes of a PPO
+    policy ended at other lengths). Under ``vmap`` the batch goes to the file in one call; a stochastic
+    file, whose keys are batched too, gets one call per key.
+    """
+    obs_spec, action = exported.obs, exported.action
+
+    @jax.custom_batching.custom_vmap
+    def batch(obs: jax.Array, *key: jax.Array) -> jax.Array:  # obs [N, *obs_shape]
+        out = jax.ShapeDtypeStruct((obs.shape[0], *action.shape), action.dtype)
+        return jax.pure_callback(lambda *a: np.asarray(exported.run(*a), action.dtype), out, obs, *key)
+
+    @batch.def_vmap
+    def batch_rule(axis_size: int, in_batched: list[bool], obs: jax.Array, *key: jax.Array):
+        if not in_batched[0]:
+            obs = jnp.broadcast_to(obs, (axis_size, *obs.shape))
+        if any(in_batched[1:]):
+            key = tuple(
+                k if b else jnp.broadcast_to(k, (axis_size, *k.shape))
+                for k, b in zip(key, in_batched[1:], strict=True)
+            )
+            return jax.lax.map(lambda args: batch(*args), (obs, *key)), True
+        flat = batch(obs.reshape(-1, *obs.shape[2:]), *key)
+        return flat.reshape(axis_size, -1, *flat.shape[1:]), True
+
+    def policy(obs: jax.Array, key: jax.Array) -> jax.Array:
+        if tuple(obs.shape) != obs_spec.shape:
+            raise ValueError(
+                f"the exported policy reads observations of shape {obs_spec.shape}, not {obs.shape}"
+            )
+        keys = (jax.random.key_data(key),) if exported.stochastic else ()
+        return batch(obs.astype(obs_spec.dtype)[None], *keys)[0]
+
+    return policy
