@@ -230,6 +230,7 @@ def no_checkpoint_run(runs, tmp_path):
         (["export", "{tmp}/nowhere", "--format", "stablehlo"], "no run folder at"),
         (["export", "{run}", "--out", "{tmp}/no/such/folder.onnx"], "give a file in an existing folder"),
         (["evaluate", "--policy", "{tmp}/orphan.onnx"], "has no model card beside it"),
+        (["evaluate", "--policy", "{tmp}/missing.stablehlo"], "no exported policy at"),
         (["evaluate", "--policy", "{run}/policy.onnx", "--env", "Pendulum-v1"], "cannot read Pendulum-v1's"),
     ],
 )

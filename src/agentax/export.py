@@ -56,7 +56,9 @@ OBS, KEY, ACTION = "obs", "key", "action"
 """The names of the exported function's inputs and output."""
 BATCH = "N"
 """The name of the batch dimension (any size at run time)."""
-EXTRA = "pip install 'agentax[export]'"
+EXTRA = "pip install 'agentax[export]' && pip install --no-deps jax2onnx==0.17.1"
+"""What installs the ONNX exporter (jax2onnx without its declared orbax and hub dependencies, as
+``make`` does: its orbax pin is older than flax's and its conversion imports neither)."""
 STABLEHLO_PLATFORMS = ("cpu", "cuda")
 """Where the StableHLO module runs (one lowering per platform, chosen when it is called)."""
 
@@ -353,13 +355,15 @@ class Exported:
 
 
 def is_exported(path: str | Path) -> bool:
-    """Whether ``path`` names a file with an export format's suffix."""
-    return Path(path).suffix in FORMATS.values() and Path(path).is_file()
+    """Whether ``path`` names an exported file (an export format's suffix, not a folder)."""
+    return Path(path).suffix in FORMATS.values() and not Path(path).is_dir()
 
 
 def load(path: str | Path) -> Exported:
     """The exported file at ``path`` with its model card (``FILE.json``, which must be beside it)."""
     path = Path(path)
+    if not path.is_file():
+        raise UsageError(f"no exported policy at {path}; write one with agentax export RUN_DIR")
     if not card_path(path).is_file():
         raise UsageError(f"{path} has no model card beside it ({card_path(path).name}); export it again")
     card = read_json(card_path(path))
