@@ -12,6 +12,7 @@ import pytest
 
 import agentax
 import agentax.runners.compiled
+from agentax.agents import ALGORITHMS
 from agentax.cli import main
 from agentax.errors import UsageError
 from agentax.runners.session import TrainResult
@@ -119,7 +120,7 @@ def test_train_is_a_plain_function_beside_the_runners_package():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     assert done.stdout.splitlines() == [
-        "called: unknown algorithm 'alchemy'; choose from reinforce, ppo, dqn, pqn",
+        f"called: unknown algorithm 'alchemy'; choose from {', '.join(ALGORITHMS)}",
         "HostRunnerConfig ParallelRunnerConfig",
     ]
 
