@@ -191,3 +191,30 @@ def test_trains_gymnasiums_pendulum_on_the_host_runners(algo, runner, tmp_path):
         and evaluation["updates"] > 0
         and np.isfinite(evaluation["mean_return"])
     )
+
+
+@pytest.mark.timeout(120)
+def test_a_non_finite_action_stops_the_host_run_with_exit_code_3(monkeypatch, tmp_path, capsys):
+    """A policy that turns NaN (its actor's output here) stops the run as a NaN loss does: one line
+    saying where it came from, exit code 3, before the env ever receives it."""
+    import dataclasses
+
+    real = sac.make_agent
+
+    def nan_acting(spec, cfg, **kwargs):
+        agent = real(spec, cfg, **kwargs)
+
+        def act(state, obs, key, progress):
+            action, info = agent.act(state, obs, key, progress)
+            return jnp.where(progress >= 250, jnp.nan, action), info
+
+        return dataclasses.replace(agent, act=act)
+
+    monkeypatch.setattr(sac, "make_agent", nan_acting)
+    argv = ["train", "sac", "--env", "Pendulum-v1", "--runner", "host", "--total-steps", "400"]
+    argv += ["--learning-starts", "200", "--hidden", "16", "16", "--out", str(tmp_path / "run")]
+    assert main([*argv, "--no-progress"]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].endswith(
+        "non-finite action from finite observations: lower the learning rate or clip the gradients"
+    ), err

@@ -28,6 +28,7 @@ import jax
 import numpy as np
 
 from agentax.envs.core import TimeStep
+from agentax.errors import TrainingDiverged
 from agentax.replay import Transition
 from agentax.replay.host import NStepAccumulator
 
@@ -72,6 +73,8 @@ class Driver:
         while steps < max_steps and episodes < max_episodes:
             action, policy_state, *info = self.policy(time_step.obs, policy_state)
             action = np.asarray(action)
+            if action.dtype.kind == "f" and not np.isfinite(action).all():
+                raise TrainingDiverged(non_finite_action(time_step.obs))
             env_action = action if self.action_to_env is None else np.asarray(self.action_to_env(action))
             next_time_step = self.env.step(env_action)
             transition = Transition(
@@ -212,3 +215,10 @@ class FinishedReturns(EpisodeAverage):
         finished = list(self.finished)
         self.finished.clear()
         return finished
+
+
+def non_finite_action(obs: np.ndarray) -> str:
+    """The line for a policy that gave a NaN or infinite continuous action, saying where it came from."""
+    if not np.isfinite(np.asarray(obs, np.float64)).all():
+        return "non-finite action from a non-finite observation: the env gave NaN or infinity"
+    return "non-finite action from finite observations: lower the learning rate or clip the gradients"
