@@ -1,0 +1,173 @@
+"""SAC on Pendulum-v1: learned across seeds, and the whole process beside Stable-Baselines3's.
+
+Rows, all measured in this run:
+
+- SAC's ``pendulum`` preset (the RL Zoo's Pendulum-v1 settings: SB3's defaults with lr 1e-3, 20k env
+  steps) on the compiled runner, 8 seeds vmapped into one program over agentax's JAX Pendulum: how
+  many seeds' final evaluation (10 greedy episodes each) reaches -200, and the wall-clock;
+- the whole ``agentax train sac --env Pendulum-v1`` process for one seed (start-up, compile, 20k steps,
+  final evaluation, run folder), against SB3's SAC with the same settings and steps (whole process);
+
+SB3 runs in ``.bench-venv`` (stable-baselines3, torch, gymnasium[mujoco]) with every core; agentax
+pins itself to one core (``AGENTAX_PIN_CPU``, DESIGN.md's known hazard). Without ``.bench-venv`` the
+SB3 rows and ratios are left out.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+BENCH_VENV = ROOT / ".bench-venv"
+PENDULUM_STEPS = 20_000
+SOLVED = -200.0
+SEEDS = 8
+
+SB3_SCRIPT = """
+import json, sys, time
+start = time.perf_counter()
+import gymnasium as gym, numpy as np, torch
+from stable_baselines3 import SAC, TD3
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.noise import NormalActionNoise
+algo, env_id, steps, learning_starts = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+if int(sys.argv[5]):
+    torch.set_num_threads(int(sys.argv[5]))
+env = gym.make(env_id)
+if algo == "sac":  # RL Zoo: Pendulum-v1 lr 1e-3; MuJoCo SB3's defaults, learning_starts 10k
+    kwargs = dict(learning_rate=1e-3) if env_id == "Pendulum-v1" else {}
+    model = SAC("MlpPolicy", env, learning_starts=learning_starts, seed=0, verbose=0, **kwargs)
+else:  # RL Zoo MuJoCo: SB3's defaults, Gaussian exploration noise 0.1
+    noise = NormalActionNoise(np.zeros(env.action_space.shape), 0.1 * np.ones(env.action_space.shape))
+    model = TD3("MlpPolicy", env, learning_starts=learning_starts, action_noise=noise, seed=0, verbose=0)
+train_start = time.perf_counter()
+model.learn(total_timesteps=steps)
+train_seconds = time.perf_counter() - train_start
+mean = float("nan")
+if env_id == "Pendulum-v1":
+    mean, _ = evaluate_policy(model, gym.make(env_id), n_eval_episodes=10)
+print(json.dumps({"train_seconds": train_seconds, "total_seconds": time.perf_counter() - start,
+                  "mean_return": float(mean)}))
+"""
+
+
+def pendulum_id() -> str:
+    from agentax.envs import JAX_ENVS
+
+    return "Pendulum-v1" if "Pendulum-v1" in JAX_ENVS else "gymnax/Pendulum-v1"
+
+
+def compiled_seeds_row() -> list:
+    import agentax
+
+    with tempfile.TemporaryDirectory() as out:
+        start = time.perf_counter()
+        run = agentax.train(
+            "sac", env=pendulum_id(), seeds=SEEDS, preset="pendulum", runner="compiled",
+            out=Path(out) / "run", progress=False, stop_at_return=None,
+        )  # fmt: skip
+        seconds = time.perf_counter() - start
+    per_seed = np.asarray(run.result.eval["per_seed_mean"])
+    return [
+        f"agentax compiled, {SEEDS} seeds vmapped ({pendulum_id()})",
+        SEEDS,
+        f"{int(np.sum(per_seed >= SOLVED))}/{SEEDS}",
+        f"{per_seed.min():.1f} … {per_seed.max():.1f}",
+        round(seconds, 1),
+        round(PENDULUM_STEPS * SEEDS / seconds, 1),
+    ]
+
+
+def process_row() -> list:
+    """The whole ``agentax train sac --env Pendulum-v1`` process, one seed (its default preset there)."""
+    with tempfile.TemporaryDirectory() as out:
+        command = [sys.executable, "-m", "agentax.cli", "train", "sac", "--env", "Pendulum-v1"]
+        command += ["--out", out + "/run", "--no-progress"]
+        start = time.perf_counter()
+        subprocess.run(command, check=True, capture_output=True, timeout=1800)
+        seconds = time.perf_counter() - start
+        evaluation = json.loads((Path(out) / "run" / "eval.json").read_text())
+        config = json.loads((Path(out) / "run" / "config.json").read_text())
+    mean = evaluation["mean_return"]
+    return [
+        f"`agentax train sac --env Pendulum-v1` process ({config.get('runner_kind', '?')} runner)",
+        1,
+        f"{int(mean >= SOLVED)}/1",
+        f"{mean:.1f}",
+        round(seconds, 1),
+        round(PENDULUM_STEPS / seconds, 1),
+    ]
+
+
+def sb3_threads() -> int | None:
+    """torch's faster thread count for SB3's SAC update on this machine (1, or torch's default of
+    every core: on a busy machine one thread can be several times faster), from 300 learning steps
+    on Pendulum each; None where ``.bench-venv`` has no stable-baselines3 with mujoco."""
+    python = BENCH_VENV / "bin" / "python"
+    probe = [str(python), "-c", "import stable_baselines3, torch, mujoco"]
+    if not python.exists() or subprocess.run(probe, capture_output=True).returncode != 0:
+        return None
+    seconds = {n: sb3("sac", "Pendulum-v1", 400, 100, n)["train_seconds"] for n in (1, 0)}
+    return min(seconds, key=seconds.get)
+
+
+def sb3(algo: str, env_id: str, steps: int, learning_starts: int, threads: int) -> dict | None:
+    """SB3's run (``SB3_SCRIPT``) in ``.bench-venv``; ``threads`` 0: torch's default."""
+    python = BENCH_VENV / "bin" / "python"
+    command = [str(python), "-c", SB3_SCRIPT, algo, env_id, str(steps), str(learning_starts), str(threads)]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=3600)
+    if done.returncode != 0:
+        print(done.stderr[-2000:], file=sys.stderr)
+        return None
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def run() -> dict:
+    headers = ["run", "seeds", "final eval ≥ -200", "final eval (10 episodes)", "wall-clock s", "env steps/s"]
+    rows = [compiled_seeds_row(), process_row()]
+    threads = sb3_threads()
+    reference = sb3("sac", "Pendulum-v1", PENDULUM_STEPS, 100, threads) if threads is not None else None
+    if reference is not None:
+        mean = reference["mean_return"]
+        rows.append(
+            [
+                "SB3 SAC, RL Zoo settings, whole process",
+                1,
+                f"{int(mean >= SOLVED)}/1",
+                f"{mean:.1f}",
+                round(reference["total_seconds"], 1),
+                round(PENDULUM_STEPS / reference["total_seconds"], 1),
+            ]
+        )
+    for row in rows:
+        row.append(round(row[4] / reference["total_seconds"], 3) if reference is not None else None)
+    headers.append("wall-clock ÷ SB3's")
+
+    notes = (
+        f"SAC's `pendulum` preset: the RL Zoo's Pendulum-v1 SAC (SB3's defaults: 256-256 networks, batch "
+        f"256, one update per env step after 100 random steps, τ 0.005, automatic entropy, lr 1e-3), "
+        f"{PENDULUM_STEPS:,} env steps; the final evaluation is 10 greedy episodes per seed. The compiled "
+        f"row trains {SEEDS} seeds in one program (its wall-clock includes compilation); the process row "
+        "runs `python -m agentax.cli train sac --env Pendulum-v1` in a subprocess with an empty "
+        "compilation cache. SB3 (stable-baselines3 + torch in `.bench-venv`, every core) runs the same "
+        "settings and steps as one whole process, with torch's faster thread count measured first; the "
+        "last column divides each wall-clock by SB3's."
+    )
+    if threads is not None:
+        notes += f" torch threads: {threads or 'every core (default)'}."
+    if reference is None:
+        notes += " `.bench-venv` holds no stable-baselines3 with mujoco here, so there is no SB3 row."
+    return {
+        "name": "sac",
+        "title": "SAC on Pendulum-v1: 8 seeds, and the whole process against SB3",
+        "headers": headers,
+        "rows": rows,
+        "notes": notes,
+    }
