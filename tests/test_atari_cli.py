@@ -148,7 +148,7 @@ def test_a_parallel_atari_dqn_run_writes_its_run_folder(tmp_path, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("backend", [pytest.param("ale", marks=pytest.mark.long), "envpool"])
+@pytest.mark.parametrize("backend", [pytest.param(b, marks=pytest.mark.long) for b in ("ale", "envpool")])
 def test_training_on_each_backend_writes_the_run_and_resume_finishes_it(
     tmp_path, monkeypatch, backend, capsys
 ):

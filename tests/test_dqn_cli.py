@@ -148,7 +148,7 @@ def test_a_kill_at_each_stage_of_a_checkpoint_resumes_with_the_replay_of_its_che
 
 
 @pytest.mark.timeout(240)
-@pytest.mark.parametrize("runner", ["compiled", "host"])
+@pytest.mark.parametrize("runner", [pytest.param("compiled", marks=pytest.mark.long), "host"])
 def test_resume_of_a_run_killed_before_its_first_checkpoint_starts_it_from_its_config(tmp_path, runner):
     """Issue 30: a run killed before its first checkpoint (a DQN Breakout run still filling its
     replay) holds its config.json only, and ``--resume`` refused it ("has no checkpoint ... train it

@@ -102,6 +102,7 @@ def test_lecture_schedule_counts_episodes(tmp_path):
     assert 55 * 8 < result.env_steps < 55 * 60
 
 
+@pytest.mark.long  # (make test-long: too long for make test's 10 minutes cold)
 @pytest.mark.timeout(240)
 def test_lecture_schedule_in_a_batch_learns_exactly_as_alone():
     """Seeds end episodes at different steps: in a vmapped batch the learning branch runs when any

@@ -135,6 +135,7 @@ def assert_same(batch, i, expected, where=""):
     prioritized=st.booleans(),
     zero_pad_starts=st.booleans(),
 )
+@pytest.mark.long  # (make test-long: too long for make test's 10 minutes cold)
 def test_matches_a_buffer_of_whole_stacks(
     seed, num_envs, capacity, n_step, stack, mean_length, frame_slack, prioritized, zero_pad_starts
 ):

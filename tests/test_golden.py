@@ -172,7 +172,12 @@ def assert_same_rows(golden: Path, trained: Path) -> None:
             np.testing.assert_allclose(actual, expected, rtol=1e-5, atol=1e-6, err_msg=f"column {column}")
 
 
-@pytest.mark.parametrize("name", list(CASES))
+LONG_CASES = {"ppo_atari_compiled"}  # ~110 s cold (the Nature CNN's compilation): make test-long
+
+
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=pytest.mark.long) if n in LONG_CASES else n for n in CASES]
+)
 def test_metrics_rows_match_the_golden_file(name, tmp_path):
     if CASES[name].get("env", "").startswith("ALE/"):
         pytest.importorskip("envpool")

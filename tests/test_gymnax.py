@@ -49,6 +49,7 @@ def test_the_adapter_steps_as_gymnax_steps(name):
     assert np.asarray(mine[2]).any(), "the steps should reach at least one episode's end"
 
 
+@pytest.mark.long  # (make test-long: too long for make test's 10 minutes cold)
 @pytest.mark.timeout(300)
 def test_ppo_learns_gymnax_cartpole_on_the_compiled_runner(tmp_path):
     """Two seeds vmapped, made by id through agentax.make: far above random play (~22)."""
@@ -66,6 +67,7 @@ def test_ppo_learns_gymnax_cartpole_on_the_compiled_runner(tmp_path):
     assert min(s["mean_return"] for s in run.final_eval["per_seed"]) > 150, run.final_eval
 
 
+@pytest.mark.long  # (make test-long: too long for make test's 10 minutes cold)
 @pytest.mark.timeout(300)
 def test_a_sweep_runs_on_a_minatar_game(tmp_path):
     swept = sweep(
@@ -108,6 +110,7 @@ def test_the_conv_torso_needs_an_image():
         agentax.train("pqn", env="gymnax/CartPole-v1", total_steps=4_096, conv_torso=True, progress=False)
 
 
+@pytest.mark.long  # (make test-long: too long for make test's 10 minutes cold)
 @pytest.mark.timeout(300)
 def test_pqn_with_the_minatar_torso_learns_breakout_minatar(tmp_path):
     """PQN with MinAtar's conv torso, one seed, 32k agent steps (~10 s of training): greedy returns

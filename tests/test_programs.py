@@ -80,6 +80,7 @@ def test_no_description_or_no_cache_means_plain_jit(cache, monkeypatch):
     assert len(traces) == 1 and len(other_traces) == 1 and not cache.exists()
 
 
+@pytest.mark.long  # (make test-long: too long for make test's 10 minutes cold)
 def test_runner_gives_the_same_training_from_stored_programs(cache):
     """Traced, exported then loaded: three trainings of two PPO seeds, metric for metric identical."""
     env = make_jax("CartPole-v1")

@@ -224,6 +224,7 @@ RAINBOW_CARTPOLE = dqn.DQNConfig(
 )
 
 
+@pytest.mark.long  # (make test-long: too long for make test's 10 minutes cold)
 @pytest.mark.timeout(180)
 def test_rainbow_learns_cartpole_through_the_host_runner():
     """C51 + noisy nets (no ε) + dueling + Double + PER + 3-step returns: in 5,000 env steps (1,128
@@ -263,6 +264,7 @@ def test_rainbow_on_the_compiled_runner():
     assert int(policy(obs, jax.random.key(1))) == int(policy(obs, jax.random.key(2)))  # mean weights
 
 
+@pytest.mark.long  # (make test-long: too long for make test's 10 minutes cold)
 def test_der_preset_on_frames():
     cfg = presets.preset("dqn", "der", augment="shift", batch_size=2).config
     assert (cfg.n_step, cfg.learning_starts, cfg.target_update_period, cfg.total_steps) == (

@@ -65,6 +65,7 @@ def test_a_finished_sweep_is_read_back_and_another_request_is_refused(swept):
         sweep("ppo", grid={"learning_rate": "1e-3"}, out=swept.path, **SMALL)
 
 
+@pytest.mark.long  # (make test-long: too long for make test's 10 minutes cold)
 @pytest.mark.timeout(300)
 @pytest.mark.xdist_group("ray")  # its worker processes stay off the time of the Ray tests' processes
 def test_two_workers_give_each_setting_the_numbers_of_one_process(swept, tmp_path):

@@ -140,6 +140,7 @@ def test_host_loop_trains_pendulum_and_loads(tmp_path):
     assert float(np.mean(returns)) == pytest.approx(evaluation["mean_return"], rel=1e-6)
 
 
+@pytest.mark.long  # (make test-long: too long for make test's 10 minutes cold)
 @pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_killed_run_resumes_to_the_full_number_of_steps(tmp_path):

@@ -67,6 +67,7 @@ def test_workers_refuse_a_runner_that_trains_one_seed(capsys):
     assert "--workers must be at least 1, got 0" in capsys.readouterr().err
 
 
+@pytest.mark.long  # (make test-long: too long for make test's 10 minutes cold)
 @pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_seeds_over_two_workers_survive_sigterm_and_resume_to_the_numbers_of_an_uninterrupted_run(tmp_path):
