@@ -74,7 +74,7 @@ def compiled_seeds_row() -> list:
             out=Path(out) / "run", progress=False, stop_at_return=None,
         )  # fmt: skip
         seconds = time.perf_counter() - start
-    per_seed = np.asarray(run.result.eval["per_seed_mean"])
+    per_seed = np.array([seed["mean_return"] for seed in run.result.eval["per_seed"]])
     return [
         f"agentax compiled, {SEEDS} seeds vmapped ({pendulum_id()})",
         SEEDS,

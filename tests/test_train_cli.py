@@ -123,7 +123,18 @@ def test_train_then_plot_then_restore_policy(tmp_path, capsys):
 @pytest.mark.timeout(180)
 def test_host_loop_trains_pendulum_and_loads(tmp_path):
     out = tmp_path / "pendulum"
-    argv = ["train", "ppo", "--env", "Pendulum-v1", "--preset", "pendulum", "--total-steps", "4096"]
+    argv = [
+        "train",
+        "ppo",
+        "--env",
+        "Pendulum-v1",
+        "--preset",
+        "pendulum",
+        "--total-steps",
+        "4096",
+        "--runner",
+        "host",
+    ]
     assert main([*argv, "--out", str(out), "--no-progress"]) == 0
     evaluation = json.loads((out / "eval.json").read_text())
     config = json.loads((out / "config.json").read_text())

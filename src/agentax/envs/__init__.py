@@ -21,6 +21,7 @@ from agentax.envs.gym import (
 )
 from agentax.envs.gymnax import factories as gymnax_envs
 from agentax.envs.mdp import lecture_mdp_env
+from agentax.envs.pendulum import MountainCarContinuous, Pendulum
 from agentax.envs.vacuum import Vacuum
 from agentax.errors import UsageError
 
@@ -29,6 +30,8 @@ JAX_ENVS: dict[str, Callable[[], Environment]] = {
     "CartPole-v1": cartpole_v1,
     "Vacuum-v0": Vacuum,
     "LectureMDP-v0": lecture_mdp_env,
+    "Pendulum-v1": Pendulum,
+    "MountainCarContinuous-v0": MountainCarContinuous,
     **gymnax_envs(),  # gymnax/<ID>, where gymnax is installed
 }
 
