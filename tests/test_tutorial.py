@@ -135,6 +135,14 @@ NOISY: dict[str, dict[int, Tolerance]] = {
             "unchanged with AVX2 and SSE4.2 code, a training run all the same)",
         ),
     },
+    "09-continuous-control.md": {
+        3: Tolerance(
+            rtol=1.0,
+            atol=100.0,
+            why="SAC's returns over 5,000 env steps of sampled actions (not measured on other code; "
+            "a training run, given the widest band of any page)",
+        ),
+    },
 }
 
 OUTPUTS_WRITTEN_ON = re.compile(r"^<!-- outputs written on: (?P<platform>.*?) -->[ \t]*\n?", re.MULTILINE)
