@@ -44,6 +44,7 @@ RANKS: dict[str, int] = {
     "agentax.report": 5,
     "agentax.nets": 4,
     "agentax.returns": 4,
+    "agentax.normalize": 4,
     "agentax.policies": 4,
     "agentax.envs": 3,
     "agentax.kernels": 3,

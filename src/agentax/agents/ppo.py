@@ -17,6 +17,21 @@ EnvPool's reset step, see :mod:`agentax.envs.envpool_xla`): every mean above, an
 normalisation, then runs over the valid steps only; the runner marks the step before such a step
 done, so GAE does not cross it.
 
+**Normalisation** (``normalize_observations``, ``normalize_rewards``; CleanRL's MuJoCo PPO wraps its
+env in Gymnasium's ``NormalizeObservation`` and ``NormalizeReward``) is state of the agent, not of an
+env wrapper (:mod:`agentax.normalize`): the observations' running mean and variance, and for rewards
+the running discounted return of each env and its variance. So the compiled program carries them,
+checkpoints save them, and ``act`` and the greedy policy (evaluation, export, video) standardise raw
+observations with the state's statistics without any runner knowing. The order, in ``learn``: the
+statistics first take in the rollout (its observations; its rewards' discounted returns, the per-env
+return carried from the previous rollout), then the iteration trains on the rollout seen through the
+updated statistics: observations standardised and clipped, rewards divided by the return's standard
+deviation and clipped. Acting in rollout ``k`` thus uses the statistics after rollout ``k − 1``
+(Brax's PPO keeps the same order; CleanRL's wrappers instead store each observation as normalised
+when it was acted on): the behaviour log-probabilities were taken under the older statistics, so an
+iteration's first ratios also carry the statistics' change, large in the first iteration and small
+once they settle. They are no parameters: gradients never reach them.
+
 Pure functions: ``init``, ``act`` and ``learn`` serve every runner through ``make_agent``; the
 compiled runner builds its rollout program from them (:mod:`agentax.runners.rollout`).
 """
@@ -31,6 +46,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from agentax import normalize as running
 from agentax.agents.protocol import Agent, EnvSpec, Loop, OnPolicy, check_fields, image_shape_for
 from agentax.envs.core import Box, Discrete
 from agentax.errors import UsageError
@@ -88,6 +104,16 @@ class PPOConfig:
     conv_torso: bool = False
     """MinAtar's conv torso (conv 16 3×3, dense 128) shared by actor and critic instead of the MLPs
     (``hidden`` unused), on an env whose flat observations are an image (``EnvSpec.image_shape``)"""
+    normalize_observations: bool = False
+    """standardise observations by their running mean and variance, kept in the agent state
+    (Gymnasium's NormalizeObservation; flat observations only)"""
+    observation_clip: float = 10.0
+    """clip standardised observations to [−this, this]"""
+    normalize_rewards: bool = False
+    """divide rewards by the running standard deviation of the discounted return (γ the discount
+    factor; Gymnasium's NormalizeReward, SB3's VecNormalize), kept in the agent state"""
+    reward_clip: float = 10.0
+    """clip normalised rewards to [−this, this]"""
 
     def validate(self) -> PPOConfig:
         """Raise a UsageError naming the first bad value (run by ``make_agent`` and the CLI)."""
@@ -100,6 +126,8 @@ class PPOConfig:
                 "learning_rate",
                 "num_minibatches",
                 "update_epochs",
+                "observation_clip",
+                "reward_clip",
             ),
             unit_interval=("discount_factor", "gae_lambda"),
             non_negative=("clip_eps", "ent_coef", "vf_coef", "max_grad_norm"),
@@ -122,11 +150,15 @@ class PPOConfig:
 
 @struct.dataclass
 class PPOAgent:
-    """The learner's state: network parameters, optimizer state and the number of iterations done."""
+    """The learner's state: network parameters, optimizer state and the number of iterations done;
+    with normalisation on, its statistics (None when off, so such a state is as it always was)."""
 
     params: Any
     opt_state: Any
     updates: jax.Array  # int32 []
+    obs_stats: running.RunningMeanStd | None = None  # [*obs_shape]: read by act
+    return_stats: running.RunningMeanStd | None = None  # []: the discounted return's
+    discounted_return: jax.Array | None = None  # float32 [num_envs]: each env's, carried across rollouts
 
 
 def is_continuous(spec: EnvSpec) -> bool:
@@ -160,7 +192,45 @@ def optimizer(cfg: PPOConfig) -> optax.GradientTransformation:
 
 def init(key: jax.Array, spec: EnvSpec, cfg: PPOConfig) -> PPOAgent:
     params = network(cfg, spec).init(key, jnp.zeros(spec.obs_shape, spec.obs_dtype))
-    return PPOAgent(params, optimizer(cfg).init(params), jnp.int32(0))
+    agent = PPOAgent(params, optimizer(cfg).init(params), jnp.int32(0))
+    if cfg.normalize_observations:
+        agent = agent.replace(obs_stats=running.init(spec.obs_shape))
+    if cfg.normalize_rewards:
+        agent = agent.replace(
+            return_stats=running.init(), discounted_return=jnp.zeros(cfg.num_envs, jnp.float32)
+        )
+    return agent
+
+
+def observe(obs_stats: running.RunningMeanStd | None, obs: jax.Array, cfg: PPOConfig) -> jax.Array:
+    """What the network sees of raw observations: standardised and clipped by ``obs_stats``, or
+    ``obs`` itself when observations are not normalised (``obs_stats`` None)."""
+    if obs_stats is None:
+        return obs
+    return running.normalize(obs_stats, obs, cfg.observation_clip)
+
+
+def take_in(agent: PPOAgent, rollout: Transition, cfg: PPOConfig) -> tuple[PPOAgent, Transition]:
+    """The normalisers' step of ``learn``: the statistics updated from ``rollout`` (raw, ``[T, E]``;
+    its ``info["valid"]`` steps only, if marked), and the rollout as the network learns from it,
+    through the updated statistics. Without normalisation both come back unchanged."""
+    valid = rollout.info.get("valid")
+    valid = None if valid is None else valid.reshape(-1)  # (T·E,)
+    if agent.obs_stats is not None:
+        obs_stats = running.update(agent.obs_stats, rollout.obs.reshape(-1, *rollout.obs.shape[2:]), valid)
+        agent = agent.replace(obs_stats=obs_stats)
+        rollout = rollout.replace(
+            obs=observe(obs_stats, rollout.obs, cfg), next_obs=observe(obs_stats, rollout.next_obs, cfg)
+        )
+    if agent.return_stats is not None:
+        done = rollout.terminated | rollout.truncated
+        last_return, returns = running.discounted_returns(
+            agent.discounted_return, rollout.reward, done, cfg.discount_factor
+        )  # (E,), (T, E)
+        return_stats = running.update(agent.return_stats, returns.reshape(-1), valid)
+        agent = agent.replace(return_stats=return_stats, discounted_return=last_return)
+        rollout = rollout.replace(reward=running.scale(return_stats, rollout.reward, cfg.reward_clip))
+    return agent, rollout
 
 
 def _log_prob_entropy(actor_out: Any, action: jax.Array, continuous: bool) -> tuple[jax.Array, jax.Array]:
@@ -190,12 +260,15 @@ def env_action(action: jax.Array, spec: EnvSpec) -> jax.Array:
     return action
 
 
-def greedy_policy(params: Any, spec: EnvSpec, cfg: PPOConfig) -> Policy:
-    """The deterministic policy for evaluation: the most probable action (the Gaussian's mean)."""
+def greedy_policy(
+    params: Any, spec: EnvSpec, cfg: PPOConfig, obs_stats: running.RunningMeanStd | None = None
+) -> Policy:
+    """The deterministic policy for evaluation: the most probable action (the Gaussian's mean), on
+    raw observations standardised by ``obs_stats`` where given."""
     net = network(cfg, spec)
 
     def policy(obs: jax.Array, key: jax.Array) -> jax.Array:
-        actor_out, _ = net.apply(params, obs)
+        actor_out, _ = net.apply(params, observe(obs_stats, obs, cfg))
         if is_continuous(spec):
             return env_action(actor_out[0], spec)
         return jnp.argmax(actor_out, axis=-1).astype(jnp.int32)
@@ -248,9 +321,11 @@ def learn(
     loop: Loop = jax.lax.scan,
 ) -> tuple[PPOAgent, dict[str, jax.Array]]:
     """One PPO iteration on a rollout ``[T, E, ...]`` (``info["log_prob"]`` from :func:`act`, the
-    behaviour policy's; ``info["valid"]``, if there, the steps to learn from): GAE, then epochs of
-    minibatch SGD, each run by ``loop`` (``lax.scan``'s signature; the runner chooses it)."""
+    behaviour policy's; ``info["valid"]``, if there, the steps to learn from): the normalisers take
+    the rollout in (:func:`take_in`), then GAE, then epochs of minibatch SGD, each run by ``loop``
+    (``lax.scan``'s signature; the runner chooses it)."""
     net, tx = network(cfg, spec), optimizer(cfg)
+    agent, rollout = take_in(agent, rollout, cfg)
     # Both values from the learner's parameters: a rollout collected with older ones (a parallel
     # runner's policy lag) would otherwise feed each change of V into the targets again.
     _, values = net.apply(agent.params, rollout.obs)  # (T, E)
@@ -298,7 +373,7 @@ def learn(
     (params, opt_state), metrics = loop(
         epoch, (agent.params, agent.opt_state), jax.random.split(key, cfg.update_epochs)
     )
-    agent = PPOAgent(params, opt_state, agent.updates + 1)
+    agent = agent.replace(params=params, opt_state=opt_state, updates=agent.updates + 1)
     return agent, jax.tree.map(jnp.mean, metrics)
 
 
@@ -307,16 +382,20 @@ def make_agent(spec: EnvSpec, cfg: PPOConfig, *, loop: Loop = jax.lax.scan) -> A
     ``loop`` runs the learning steps (the runner's :func:`agentax.kernels.learning_loop`)."""
     cfg.validate()
     action_dim(spec)  # a clear error for actions PPO cannot take
+    if cfg.normalize_observations and is_image(spec.obs_shape):
+        raise UsageError(
+            f"normalize_observations standardises flat observations, not frames {spec.obs_shape}"
+        )
 
     def act_with_info(state: PPOAgent, obs: jax.Array, key: jax.Array, progress: jax.Array):
-        action, action_log_prob, _ = act(state.params, obs, key, spec, cfg)
+        action, action_log_prob, _ = act(state.params, observe(state.obs_stats, obs, cfg), key, spec, cfg)
         return action, {"log_prob": action_log_prob}
 
     return Agent(
         name="ppo",
         init=lambda key: init(key, spec, cfg),
         act=act_with_info,
-        greedy_policy=lambda state: greedy_policy(state.params, spec, cfg),
+        greedy_policy=lambda state: greedy_policy(state.params, spec, cfg, state.obs_stats),
         learn=lambda state, rollout, key: learn(state, rollout, key, spec, cfg, loop),
         experience=OnPolicy(cfg.num_envs, cfg.num_steps),
         total_steps=cfg.total_steps,

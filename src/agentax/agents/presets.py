@@ -139,6 +139,33 @@ PPO_PRESETS: dict[str, Preset] = {
         "--no-conv-torso for the MLP)",
         updates_per_chunk=10,
     ),
+    "mujoco": Preset(
+        PPOConfig(
+            total_steps=1_000_000,
+            num_envs=1,
+            num_steps=2048,
+            learning_rate=3e-4,
+            anneal_lr=True,
+            discount_factor=0.99,
+            gae_lambda=0.95,
+            num_minibatches=32,
+            update_epochs=10,
+            clip_eps=0.2,
+            ent_coef=0.0,
+            vf_coef=0.5,
+            max_grad_norm=0.5,
+            hidden=(64, 64),
+            activation="tanh",
+            normalize_observations=True,
+            observation_clip=10.0,
+            normalize_rewards=True,
+            reward_clip=10.0,
+        ),
+        "MuJoCo (HalfCheetah-v5, Hopper-v5, ...): CleanRL's ppo_continuous_action settings (1 env × 2048 "
+        "steps, lr 3e-4 annealed, 10 epochs × 32 minibatches, entropy 0, net 64-64 tanh, observations "
+        "and rewards normalised and clipped at 10; no value clipping), 1M steps",
+        eval_episodes=10,
+    ),
 }
 
 
@@ -405,6 +432,8 @@ MINATAR = {
     for game in ("Asterix", "Breakout", "Freeway", "Seaquest", "SpaceInvaders")
 }
 
+MUJOCO = {f"{task}-v5": "mujoco" for task in ("HalfCheetah", "Hopper", "Walker2d", "Ant", "Humanoid")}
+
 DEFAULT_PRESETS: dict[str, dict[str, str]] = {
     "ppo": {
         "atari": "atari",
@@ -412,6 +441,7 @@ DEFAULT_PRESETS: dict[str, dict[str, str]] = {
         "CartPole-v1": "cartpole-fast",
         "Pendulum-v1": "pendulum",
         **MINATAR,
+        **MUJOCO,
     },
     "dqn": {"atari": "lecture-atari"},
     "pqn": {"atari": "atari", **MINATAR},
