@@ -95,7 +95,7 @@ PPO_PRESETS: dict[str, Preset] = {
             update_epochs=10,
             ent_coef=0.0,
         ),
-        "continuous control (Pendulum-v1, host loop): Gaussian policy, γ 0.9, 10 epochs",
+        "continuous control (Pendulum-v1): Gaussian policy, γ 0.9, 10 epochs",
     ),
     "atari": Preset(
         PPOConfig(
