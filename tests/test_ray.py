@@ -43,14 +43,25 @@ from agentax.runners.ray import RayRunnerConfig  # noqa: E402
 from agentax.runs import Run  # noqa: E402
 
 pytestmark = pytest.mark.xdist_group("ray")  # one worker, one cluster
+PREFIX = f"axr{os.getpid()}_"
+"""Every Ray of this process's tests has a RAY_TMPDIR /tmp/PREFIX..., which its watchdog sweeps"""
 AGENTAX = [str(Path(sys.executable).parent / "agentax")]
 CONFIG = {"algo": "any", "env": "CartPole-v1"}
 
 
+@pytest.fixture(scope="module", autouse=True)
+def watchdog():
+    """Kills this process's test Rays once it ends, however it ends (tests/ray_watchdog.py)."""
+    from ray_watchdog import start
+
+    yield start(f"/tmp/{PREFIX}")
+
+
 @pytest.fixture(scope="module")
-def cluster():
+def cluster(monkeypatch_module):
     from ray.cluster_utils import Cluster
 
+    monkeypatch_module.setenv("RAY_TMPDIR", tempfile.mkdtemp(prefix=PREFIX, dir="/tmp"))  # for the watchdog
     node = {"num_cpus": 1, "object_store_memory": 150 * 2**20}
     cluster = Cluster(initialize_head=True, head_node_args={**node, "include_dashboard": False})
     cluster.add_node(**node)
@@ -58,6 +69,12 @@ def cluster():
     yield cluster
     ray.shutdown()
     cluster.shutdown()
+
+
+@pytest.fixture(scope="module")
+def monkeypatch_module():
+    with pytest.MonkeyPatch.context() as patch:
+        yield patch
 
 
 def make(module, cfg):
@@ -106,7 +123,7 @@ def assert_none_left(marker: str, seconds: float = 15.0) -> None:
 @pytest.fixture
 def own_ray_tmpdir():
     """A short, fresh RAY_TMPDIR (Ray's socket paths must stay under 108 bytes); kills what is left."""
-    marker = tempfile.mkdtemp(prefix="axr", dir="/tmp")
+    marker = tempfile.mkdtemp(prefix=PREFIX, dir="/tmp")
     yield marker
     stop_ray_of(marker)
 
@@ -126,6 +143,30 @@ def stop_ray_of(marker: str) -> None:
             process.kill()
         except psutil.Error:
             continue
+
+
+def test_the_watchdog_kills_the_rays_of_a_killed_test_process_and_nothing_else():
+    """What a ``make test`` killed by its timeout leaves: a Ray (here a stand-in process) with a
+    RAY_TMPDIR under the dead process's prefix, which the watchdog kills; another Ray it leaves alone."""
+    from ray_watchdog import start
+
+    sleeper = [sys.executable, "-c", "import time; time.sleep(120)"]
+    test_process = subprocess.Popen(sleeper)
+    prefix = tempfile.mkdtemp(prefix=PREFIX, dir="/tmp")
+    ours = subprocess.Popen(sleeper, env={**os.environ, "RAY_TMPDIR": f"{prefix}/cluster"})
+    others = subprocess.Popen(sleeper, env={**os.environ, "RAY_TMPDIR": "/tmp/someone-elses-ray"})
+    try:
+        watcher = start(prefix, pid=test_process.pid)
+        time.sleep(1.0)
+        assert ours.poll() is None and watcher.poll() is None  # nothing happens while it lives
+        test_process.kill()
+        test_process.wait()
+        assert ours.wait(timeout=15) == -signal.SIGKILL
+        assert watcher.wait(timeout=15) == 0
+        assert others.poll() is None
+    finally:
+        for process in (test_process, ours, others):
+            process.kill()
 
 
 # ---------------------------------------------------------------- the wire format
@@ -493,7 +534,10 @@ def test_the_cli_starts_and_stops_its_own_ray_also_on_ctrl_c_and_on_errors(own_r
 
 
 @pytest.mark.timeout(180)
-def test_ray_address_auto_joins_a_cluster_started_by_ray_start(own_ray_tmpdir, tmp_path):
+def test_beside_a_ray_start_cluster_a_run_has_its_own_ray_and_auto_joins_it(own_ray_tmpdir, tmp_path):
+    """A user's ``ray start --head`` running: without ``--ray-address`` the run starts a Ray of its own
+    (plain ``ray.init`` would join the cluster and refuse ``num_cpus``) and leaves the cluster running;
+    ``--ray-address auto`` joins it. Either way the cluster outlives the run, the run's actors do not."""
     env = agentax_env(own_ray_tmpdir)
     ray_cli = str(Path(sys.executable).parent / "ray")
     head = ["--head", "--port=0", "--num-cpus=2", "--include-dashboard=false", "--disable-usage-stats"]
@@ -501,22 +545,25 @@ def test_ray_address_auto_joins_a_cluster_started_by_ray_start(own_ray_tmpdir, t
     assert started.returncode == 0, started.stderr
     cluster_processes = {p.pid for p in processes_with(own_ray_tmpdir)}
     assert cluster_processes
-    train = [*AGENTAX, "train", "dqn", "--env", "CartPole-v1", "--runner", "ray", "--ray-address", "auto"]
-    done = subprocess.run(
-        [*train, "--total-steps", "3000", "--no-progress", "--out", str(tmp_path)],
-        env=env,
-        capture_output=True,
-        text=True,
-    )
-    assert done.returncode == 0, done.stderr
-    assert json.loads((tmp_path / "config.json").read_text())["runner"]["ray_address"] == "auto"
-    # the cluster outlives the run (it was not the run's to stop); the run's actors do not
-    time.sleep(1)
-    alive = {p.pid for p in processes_with(own_ray_tmpdir)}
-    assert cluster_processes <= alive
-    assert not [
-        p for p in processes_with(own_ray_tmpdir) if (p.cmdline() or [""])[0].startswith("ray::Collector")
-    ]
+    for address in ([], ["--ray-address", "auto"]):
+        out = tmp_path / (address[-1] if address else "own")
+        train = [*AGENTAX, "train", "dqn", "--env", "CartPole-v1", "--runner", "ray", *address]
+        done = subprocess.run(
+            [*train, "--total-steps", "3000", "--no-progress", "--out", str(out)],
+            env=env,
+            capture_output=True,
+            text=True,
+        )
+        assert done.returncode == 0, done.stderr
+        assert json.loads((out / "config.json").read_text())["runner"]["ray_address"] == (
+            address[-1] if address else None
+        )
+        time.sleep(1)
+        alive = {p.pid for p in processes_with(own_ray_tmpdir)}
+        assert cluster_processes <= alive
+        assert not [
+            p for p in processes_with(own_ray_tmpdir) if (p.cmdline() or [""])[0].startswith("ray::Collector")
+        ]
 
 
 def free_port() -> int:

@@ -103,7 +103,9 @@ def ray_session(address: str | None) -> Iterator[Any]:
                 refuse_if_token_refused(address)
                 ray.init(address=address, **quiet)
             else:
-                ray.init(num_cpus=os.cpu_count(), **quiet)
+                # "local": a Ray of this run's own even where one is running already (a user's
+                # `ray start --head`), which plain ray.init() would join and then refuse num_cpus for
+                ray.init(address="local", num_cpus=os.cpu_count(), **quiet)
         except ConnectionError as error:
             raise UsageError(join_failure(address, error)) from None
         try:
