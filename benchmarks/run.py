@@ -12,9 +12,10 @@ Each ``benchmarks/bench_<NAME>.py`` is one section. It exposes ``run() -> dict``
 
 ``run()`` takes no arguments, measures everything it reports in the same process (ratios against
 a reference run side by side, never against stored numbers) and should finish within ~2-3 minutes.
-The harness adds machine info (cpu count, platform, python, jax version and backend, date) and the
-section's wall time, prints the table, writes ``benchmarks/results/<NAME>.json`` and then rebuilds
-``benchmarks/README.md`` from every stored result, so sections run on different days coexist.
+The harness adds machine info (the CPU as ``lscpu`` names it: model, vendor, family, model number
+and flags; cpu count, platform, python, jax version and backend, date) and the section's wall time,
+prints the table, writes ``benchmarks/results/<NAME>.json`` and then rebuilds ``benchmarks/README.md``
+from every stored result, so sections run on different days coexist.
 
 ``python benchmarks/run.py`` runs every section; ``python benchmarks/run.py envs dqn`` runs the named
 ones; ``--list`` prints the names. A section that raises prints its traceback and the others still
@@ -30,6 +31,7 @@ import importlib.util
 import json
 import os
 import platform
+import subprocess
 import sys
 import time
 import traceback
@@ -55,6 +57,7 @@ def machine_info() -> dict:
         "cpu_count": os.cpu_count(),
         "cpus_usable": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
         "processor": _processor_name(),
+        "cpu": cpu_info(),
         "platform": platform.platform(),
         "python": platform.python_version(),
         "jax": jax.__version__,
@@ -71,6 +74,68 @@ def _processor_name() -> str:
     except OSError:
         pass
     return platform.processor() or platform.machine()
+
+
+LSCPU_FIELDS = {
+    "Model name:": "model_name",
+    "Vendor ID:": "vendor",
+    "CPU family:": "family",
+    "Model:": "model",
+}
+
+
+def cpu_info() -> dict:
+    """The CPU as ``lscpu`` names it: ``{"model_name", "vendor", "family", "model", "flags": [...]}``
+    (``/proc/cpuinfo``'s fields where ``lscpu`` is missing). The flags say what a figure may depend
+    on (``amx_tile``: oneDNN's bf16 on AMX; ``avx512f``); ``{}`` where neither can be read."""
+    try:
+        entries = json.loads(
+            subprocess.run(["lscpu", "--json"], capture_output=True, text=True, timeout=10).stdout
+        )
+    except (OSError, ValueError, subprocess.SubprocessError):
+        return _cpuinfo_fields()
+    info = {}
+    for entry in _flatten(entries.get("lscpu", [])):
+        if entry.get("field") in LSCPU_FIELDS:
+            info.setdefault(LSCPU_FIELDS[entry["field"]], entry.get("data"))
+        elif entry.get("field") == "Flags:":
+            info["flags"] = (entry.get("data") or "").split()
+    return info or _cpuinfo_fields()
+
+
+def _flatten(entries: list[dict]):
+    for entry in entries:
+        yield entry
+        yield from _flatten(entry.get("children", []))
+
+
+def _cpuinfo_fields() -> dict:
+    names = {"model name": "model_name", "vendor_id": "vendor", "cpu family": "family", "model": "model"}
+    info = {}
+    try:
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+    except OSError:
+        return info
+    for line in lines:
+        key, _, value = (part.strip() for part in line.partition(":"))
+        if key in names:
+            info.setdefault(names[key], value)
+        elif key == "flags":
+            info.setdefault("flags", value.split())
+    return info
+
+
+def cpu_label(machine: dict) -> str:
+    """A short name for the CPU a result was measured on: ``AMD EPYC, no AMX``, ``Intel Xeon, AMX``;
+    without recorded flags (results older than the ``cpu`` field) the model name alone."""
+    name = machine.get("cpu", {}).get("model_name") or machine.get("processor") or "CPU not recorded"
+    name = " ".join(
+        word for word in name.replace("(R)", "").replace("(TM)", "").split() if word != "Processor"
+    )
+    flags = machine.get("cpu", {}).get("flags")
+    if not flags:
+        return name
+    return f"{name}, {'AMX' if 'amx_tile' in flags else 'no AMX'}"
 
 
 def load_section(name: str, path: Path):
@@ -148,7 +213,8 @@ def render_readme(results: list[dict]) -> str:
             "",
             result["notes"].strip(),
             "",
-            f"*Measured {machine.get('date', '?')} on {machine.get('processor', '?')} "
+            f"*Measured {machine.get('date', '?')} on {cpu_label(machine)}"
+            f"{'' if machine.get('cpu', {}).get('flags') else ', CPU flags not recorded'} "
             f"({machine.get('cpus_usable', '?')} of {machine.get('cpu_count', '?')} CPUs usable), "
             f"jax {machine.get('jax', '?')} ({machine.get('jax_backend', '?')}), "
             f"Python {machine.get('python', '?')}; "
