@@ -10,7 +10,7 @@ GYMNAX := gymnax==1.0.1
 # conversion: installed without its declared dependencies too; what it imports is in the lock (extra export).
 JAX2ONNX := jax2onnx==0.17.1
 
-.PHONY: kernel kernel-where-buildable demo test test-long bench lint docs lock clean
+.PHONY: kernel kernel-where-buildable demo test test-long bench figures lint docs lock clean
 
 # The oneDNN convolution kernel (agentax.kernels): compiled against the onednn wheels of the lock
 # (x86-64 Linux), which put libdnnl and its headers under $(VENV)/lib and $(VENV)/include. Where they
@@ -57,6 +57,11 @@ test-long: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/run.py
+
+# Every marked figure of the README and the docs printed from its result file (scripts/figures.py);
+# make test checks them (tests/test_figures.py).
+figures: $(STAMP)
+	$(PY) scripts/figures.py --write
 
 # The documentation site (mkdocs.yml) into site/; --strict: a broken link or reference fails.
 docs: $(STAMP)
