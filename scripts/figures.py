@@ -188,7 +188,7 @@ WORKERS = {
     "taskset": "2 workers, confined to one core (taskset -c 0)",
     "two": "2 workers, both cores",
 }
-HALFCHEETAH = "ppo-halfcheetah-1m"
+TRAINED = ("ppo-halfcheetah-1m",)  # the folders of evidence/ whose scores the pages show
 
 
 def _figures() -> dict[str, Figure]:
@@ -542,13 +542,14 @@ def _figures() -> dict[str, Figure]:
             "mujoco", agent, "Stable-Baselines3 (torch, 1 thread(s))", col="agent steps/s", fmt="{:.1f}"
         )
 
-    # trained scores, each from its evidence folder
-    figures[f"{HALFCHEETAH}.mean"] = evidence(HALFCHEETAH, "eval.json", "mean_return", "{:,.1f}")
-    figures[f"{HALFCHEETAH}.std"] = evidence(HALFCHEETAH, "eval.json", "std_return", "{:.1f}")
-    figures[f"{HALFCHEETAH}.episodes"] = evidence(HALFCHEETAH, "eval.json", "episodes")
-    figures[f"{HALFCHEETAH}.steps"] = evidence(HALFCHEETAH, "eval.json", "env_steps", thousands)
-    figures[f"{HALFCHEETAH}.wall"] = evidence(HALFCHEETAH, "run.json", "wall_seconds", minutes)
-    figures[f"{HALFCHEETAH}.cpu"] = evidence(HALFCHEETAH, "run.json", "cpu")
+    # trained scores, each from its evidence folder: NAME.mean, .std, .episodes, .steps, .wall, .cpu
+    for name in TRAINED:
+        figures[f"{name}.mean"] = evidence(name, "eval.json", "mean_return", "{:,.1f}")
+        figures[f"{name}.std"] = evidence(name, "eval.json", "std_return", "{:.1f}")
+        figures[f"{name}.episodes"] = evidence(name, "eval.json", "episodes")
+        figures[f"{name}.steps"] = evidence(name, "eval.json", "env_steps", thousands)
+        figures[f"{name}.wall"] = evidence(name, "run.json", "wall_seconds", minutes)
+        figures[f"{name}.cpu"] = evidence(name, "run.json", "cpu")
     return figures
 
 
