@@ -29,7 +29,6 @@ import functools
 import json
 import sys
 import time
-from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -37,97 +36,15 @@ from typing import TYPE_CHECKING, Any
 import jax
 import numpy as np
 
-from agentax.agents import algorithm, algorithm_config, config_from_dict, config_to_dict, presets_of
+from agentax.agents import algorithm, algorithm_config, config_from_dict, config_to_dict
 from agentax.errors import TrainingInterrupted, UsageError
 from agentax.evaluate import EvalStats
 from agentax.policies import Policy
+from agentax.runfile import RunArgs, choose_preset
 from agentax.runners import RUNNERS
 
 if TYPE_CHECKING:
     from agentax.agents.presets import Preset
-
-
-@dataclass(frozen=True)
-class RunArgs:
-    """Where and how to train (the algorithm's own settings follow)."""
-
-    env: str = "CartPole-v1"
-    """environment id (agentax's JAX envs train compiled; other Gymnasium ids on the host)"""
-    preset: str = "auto"
-    """named, tuned settings to start from; 'auto' picks the algorithm's preset for the env, else 'default'"""
-    seed: int = 0
-    """seed of the first agent (agent k uses seed + k)"""
-    seeds: int = 1
-    """independent agents trained together (vmapped into one program)"""
-    workers: int = 1
-    """compiled runner: processes the seeds are split over, one per core (the same split gives the
-    same numbers; --stop-at-return then stops each worker once its own seeds reach the return)"""
-    stop_at_return: str = "auto"
-    """stop once the evaluation mean reaches this number; 'none' trains for all of total_steps; 'auto' uses
-    the env's solved threshold in solving presets"""
-    out: str | None = None
-    """run folder (default runs/<algo>-<env>-<time>)"""
-    progress: bool = True
-    """show a progress bar"""
-    runner: str = "auto"
-    """compiled (JAX envs, seeds vmapped; Atari and MuJoCo v5: PPO with EnvPool's step inside the
-    program), host (any env, one step after the other), parallel (actor
-    threads beside a learner), ray (the parallel runner's actors as Ray actor processes, on any node
-    of a cluster); auto: compiled for agentax's JAX envs, else host"""
-    actors: int | None = None
-    """parallel and ray runners: actors (the envs are split evenly between them); default 2, or 1
-    when the preset's envs do not split in two (DQN's Atari presets step one env)"""
-    envs_per_actor: int | None = None
-    """parallel and ray runners: envs per actor (sets the algorithm's number of envs to actors × this)"""
-    policy_lag: int = 1
-    """parallel runner, on-policy: parameter versions between collecting and learning (0: sequential)"""
-    ray_address: str | None = None
-    """ray runner: the Ray cluster to join ('auto', or HOST:PORT of `ray start --head`); default: a
-    local Ray for this run, shut down after it. Compiled runner: run the --workers as Ray tasks there"""
-    cpus_per_actor: float = 1.0
-    """ray runner: CPUs Ray reserves for each actor process"""
-    env_backend: str = "auto"
-    """Atari: envpool or ale (ale-py with Gymnasium's wrappers); auto: envpool where it is installed.
-    MuJoCo: auto is Gymnasium's (mujoco) on the host runners, EnvPool's with --runner compiled"""
-    checkpoint_replay: bool = True
-    """off-policy (host, parallel): save the replay buffer with the checkpoints (--no-checkpoint-replay)"""
-    sticky_actions: float = 0.25
-    """Atari: probability that the emulator repeats the last action (0.25 as Gymnasium's v5; 0 as
-    CleanRL's and EnvPool's published figures)"""
-    freeze_at_return: str = "auto"
-    """compiled runner, off-policy agents: each seed stops learning once its greedy policy's last
-    freeze_episodes side episodes all return at least this; 'none': never; 'auto': the preset's"""
-    freeze_episodes: int = 8
-    """compiled runner: the greedy side episodes behind --freeze-at-return"""
-
-    def check(self) -> RunArgs:
-        """Raise ``UsageError`` on a value no runner accepts; return ``self``."""
-        if self.seeds < 1:
-            raise UsageError(f"--seeds must be at least 1, got {self.seeds}")
-        if self.workers < 1:
-            raise UsageError(f"--workers must be at least 1, got {self.workers}")
-        if self.freeze_at_return not in ("auto", "none"):
-            try:
-                float(self.freeze_at_return)
-            except ValueError:
-                raise UsageError(
-                    f"--freeze-at-return must be a number, 'none' or 'auto', got {self.freeze_at_return!r}"
-                ) from None
-        return self
-
-    def freeze(self, preset: Preset, kind: str) -> float | None:
-        """The per-seed early stop's return for a ``kind`` runner: the compiled runner's option
-        (the preset's under 'auto'); a number for another runner is refused."""
-        if self.freeze_at_return == "none":
-            return None
-        if self.freeze_at_return == "auto":
-            return None if RUNNERS[kind].host_loop else preset.freeze_at_return
-        if RUNNERS[kind].host_loop:
-            raise UsageError(
-                f"--freeze-at-return stops seeds inside the compiled runner's program; the {kind} "
-                "runner cannot (train a JAX env with --runner compiled, or drop the flag)"
-            )
-        return float(self.freeze_at_return)
 
 
 # The trained run.
@@ -352,21 +269,6 @@ def host_env_spec(env_id: str, backend: str, sticky_actions: float) -> tuple[Any
 # Choosing the settings (shared with ``agentax train``).
 
 
-def choose_preset(algo: str, env_id: str, name: str = "auto") -> tuple[str, Preset]:
-    """``(name, preset)``: ``name``, or for 'auto' the algorithm's preset for the env (any Atari id
-    counts as 'atari'), else 'default'."""
-    presets = presets_of(algo)
-    if name == "auto":
-        from agentax.agents.presets import DEFAULT_PRESETS
-        from agentax.envs.atari import is_atari_id
-
-        key = "atari" if is_atari_id(env_id) else env_id
-        name = DEFAULT_PRESETS.get(algo, {}).get(key, "default")
-    if name not in presets:
-        raise UsageError(f"unknown {algo} preset {name!r}; choose from {', '.join(presets)}")
-    return name, presets[name]
-
-
 def parse_stop(value: str, preset: Any, env: Any) -> float | None:
     if value == "none":
         return None
@@ -443,11 +345,28 @@ def _announce(message: str, quiet: bool) -> None:
         print(message, file=sys.stderr)
 
 
+def _create(out: Path, algo: str, run_args: RunArgs, cfg: Any, kind: str, runner: Any) -> Any:
+    """The new run folder ``out``: config.json, and run.toml (the run file that repeats it)."""
+    from agentax import runfile
+    from agentax.runs import Run as RunFolder
+    from agentax.runs import run_config
+
+    config = run_config(algo, run_args.env, run_args.preset, kind, runner, config_to_dict(cfg))
+    run = RunFolder.create(out, config)
+    header = f"the run in {out}: agentax train --config {out / RUN_FILE} --out NEW_FOLDER repeats it"
+    resolved = dataclasses.replace(run_args, preset=choose_preset(algo, run_args.env, run_args.preset)[0])
+    runfile.write(out / RUN_FILE, algo, resolved, cfg, header)
+    return run
+
+
+RUN_FILE = "run.toml"
+"""The run file (:mod:`agentax.runfile`) every run folder holds beside config.json."""
+
+
 def start(algo: str, run_args: RunArgs, cfg: Any, preset: Preset, *, quiet: bool = False) -> Run:
     """Create the run folder and train ``cfg`` of ``algo`` as ``run_args`` say; the trained :class:`Run`."""
     from agentax import _xla
-    from agentax.runs import Run as RunFolder
-    from agentax.runs import default_run_dir, run_config
+    from agentax.runs import default_run_dir
 
     module = algorithm(algo)
     _xla.enable_compilation_cache()
@@ -478,10 +397,7 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Preset, *, quiet: bool
                 "--ray-address sends the compiled runner's --workers to a Ray cluster: give --workers N "
                 "(or --runner ray for the Ray runner's actors)"
             )
-        settings = config_to_dict(cfg)
-        run = RunFolder.create(
-            out, run_config(algo, run_args.env, run_args.preset, "compiled", runner, settings)
-        )
+        run = _create(out, algo, run_args, cfg, "compiled", runner)
         from agentax.runners.workers import split
 
         shown = f", {len(split(runner))} workers" if runner.workers > 1 else ""
@@ -505,8 +421,6 @@ def _start_host(
     from agentax.runners import compiled_atari
     from agentax.runners.host import HostRunnerConfig
     from agentax.runners.parallel import ParallelRunnerConfig
-    from agentax.runs import Run as RunFolder
-    from agentax.runs import run_config
 
     run_args.freeze(preset, kind)  # refused here before anything is made
     if run_args.seeds != 1 and RUNNERS[kind].envs == "any":  # (the compiled Atari check says why)
@@ -548,9 +462,7 @@ def _start_host(
         if RUNNERS[kind].envs in ("atari", "mujoco"):
             compiled_atari.check(agent, run_args.env, runner, run_args.seeds)
             where = "compiled, EnvPool inside the program"
-    run = RunFolder.create(
-        out, run_config(algo, run_args.env, run_args.preset, kind, runner, config_to_dict(cfg))
-    )
+    run = _create(out, algo, run_args, cfg, kind, runner)
     _announce(f"training {algo} on {run_args.env} ({where}) into {out}", quiet)
     return _train_host(agent, remake, kind, runner, run, resume=False, progress=run_args.progress)
 

@@ -13,7 +13,8 @@ The sweep folder holds ``sweep.json`` (what was asked, and which names were trac
 each with its 95 % stratified-bootstrap interval, :mod:`agentax.report`), ``scores.png`` (the IQM
 against each hyperparameter) and ``best.json`` (the best setting by IQM and the ``agentax train``
 command that trains it alone with the same seeds: the same numbers, since agent ``(s, k)`` of a
-sweep starts from seed ``k``'s keys).
+sweep starts from seed ``k``'s keys) and ``best.toml``, the same training as a run file
+(``agentax train --config best.toml``).
 """
 
 from __future__ import annotations
@@ -381,8 +382,27 @@ def _write_results(path: Path, request, settings, scores) -> SweepResult:
         path / "best.json",
         {"setting": setting, "iqm": best["iqm"], "scores": best["scores"], "command": command},
     )
+    _write_best_run_file(path / "best.toml", request, setting, command)
     _plot(path / "scores.png", rows, list(settings[0]), request)
     return SweepResult(path, list(settings[0]), rows, {**best, "command": command})
+
+
+def _write_best_run_file(path: Path, request: dict[str, Any], setting: dict[str, Any], command: str) -> None:
+    """best.toml: the best setting as a run file (:mod:`agentax.runfile`), the same training as
+    best.json's ``command``: ``agentax train --config best.toml``."""
+    from agentax import runfile
+
+    _, chosen = runfile.choose_preset(request["algo"], request["env"], request["preset"])
+    cfg = dataclasses.replace(chosen.config, total_steps=request["total_steps"], **setting)
+    run_args = runfile.RunArgs(
+        env=request["env"],
+        preset=request["preset"],
+        seed=request["seed"],
+        seeds=request["seeds"],
+        stop_at_return="none",
+    )
+    header = f"the best setting of the sweep in {path.parent}: {command}\nor: agentax train --config {path}"
+    runfile.write(path, request["algo"], run_args, cfg, header)
 
 
 def _plot(out: Path, rows: list[dict], names: list[str], request: dict) -> None:

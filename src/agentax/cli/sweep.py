@@ -99,5 +99,6 @@ def main(argv: list[str]) -> int:
         values = "  ".join(f"{row[n]:g}" if isinstance(row[n], float) else str(row[n]) for n in names)
         interval = f"[{row['iqm_low']:.1f}, {row['iqm_high']:.1f}]"
         print(f"{values}  {row['iqm']:.1f} {interval}  {row['mean']:.1f}  {row['median']:.1f}")
-    print(f"best: {result.best['command']}\nsweep folder: {result.path} (results.csv, scores.png, best.json)")
+    print(f"best: {result.best['command']}")
+    print(f"sweep folder: {result.path} (results.csv, scores.png, best.json, best.toml)")
     return 0

@@ -1,6 +1,8 @@
 """``agentax train ALGO --env ID [--runner compiled|host|parallel|ray] [--preset NAME] [--seeds N] ...``.
 
-Also ``agentax train --resume DIR`` (continue an interrupted run from its newest good checkpoint).
+Also ``agentax train --config FILE [flags]`` (a run file, :mod:`agentax.runfile`: its fields are
+the flags' defaults, so the flags given override them) and ``agentax train --resume DIR`` (continue
+an interrupted run from its newest good checkpoint).
 The algorithm's config dataclass becomes flags (``--learning-rate``, ``--num-envs``, ...), its
 defaults taken from the preset. ``--runner auto`` trains agentax's JAX envs on the compiled runner
 (all seeds in one vmapped program) and other ids on the host runner; ``host``, ``parallel``
@@ -24,7 +26,7 @@ from typing import Annotated, Any
 
 import tyro
 
-from agentax import api
+from agentax import api, runfile
 from agentax.agents import ALGORITHMS, presets_of
 from agentax.api import RunArgs
 from agentax.errors import UsageError
@@ -76,11 +78,16 @@ def _as(cls: type, value: Any) -> Any:
     return cls(**{field.name: getattr(value, field.name) for field in dataclasses.fields(cls)})
 
 
-def parse(algo: str, argv: list[str]) -> tuple[RunArgs, Any, Any]:
-    """``(run_args, algorithm config, preset)`` from the command line."""
-    preset_name, preset = api.choose_preset(
-        algo, _option(argv, "--env", RunArgs.env), _option(argv, "--preset", "auto")
-    )
+def parse(algo: str, argv: list[str], base: runfile.RunFile | None = None) -> tuple[RunArgs, Any, Any]:
+    """``(run_args, algorithm config, preset)`` from the command line; the flags' defaults are the
+    preset's, or ``base``'s (a run file's) where given."""
+    if base is None:
+        preset_name, preset = api.choose_preset(
+            algo, _option(argv, "--env", RunArgs.env), _option(argv, "--preset", "auto")
+        )
+        default_run, default_config = RunArgs(preset=preset_name), preset.config
+    else:
+        default_run, default_config, preset = base.run_args, base.config, base.preset
     presets = presets_of(algo)
     config_type = type(preset.config)
     cli_type = with_aliases(config_type, ALIASES.get(algo, {}))
@@ -98,20 +105,51 @@ def parse(algo: str, argv: list[str]) -> tuple[RunArgs, Any, Any]:
         Args,
         args=argv,
         prog=f"agentax train {algo}",
-        default=Args(RunArgs(preset=preset_name), _as(cli_type, preset.config)),
+        default=Args(default_run, _as(cli_type, default_config)),
         description=f"Train {algo}. Presets: "
         + "; ".join(f"{name}: {p.description}" for name, p in presets.items()),
     )
     config = _as(config_type, args.config)
     if hasattr(config, "validate"):
         config.validate()
+    if base is not None:  # --env or --preset beside --config: the preset of the run as it is
+        preset = api.choose_preset(algo, args.run.env, args.run.preset)[1]
     return args.run.check(), config, preset
+
+
+def parse_file(argv: list[str]) -> tuple[str, RunArgs, Any, Any]:
+    """``(algo, run_args, config, preset)`` of ``[ALGO] --config FILE [flags]``: the run file's
+    fields, the flags beside it overriding them (checked as the flags are, :mod:`agentax.runfile`)."""
+    path, rest = _config_path(argv)
+    base = runfile.load(path, env=_option(rest, "--env", ""), preset=_option(rest, "--preset", ""))
+    if rest and not rest[0].startswith("-"):
+        if rest[0] != base.algo:
+            raise UsageError(f"--config {path} trains {base.algo}, not {rest[0]}: drop {rest[0]} or the file")
+        rest = rest[1:]
+    return (base.algo, *parse(base.algo, rest, base))
+
+
+def _config_path(argv: list[str]) -> tuple[str, list[str]]:
+    """The FILE of ``--config FILE`` / ``--config=FILE`` and argv without it."""
+    for i, arg in enumerate(argv):
+        if arg == "--config":
+            if i + 1 >= len(argv):
+                raise UsageError("--config needs the run file: agentax train --config FILE")
+            return argv[i + 1], argv[:i] + argv[i + 2 :]
+        if arg.startswith("--config="):
+            return arg.partition("=")[2], argv[:i] + argv[i + 1 :]
+    raise UsageError("no --config FILE")
+
+
+def has_config(argv: list[str]) -> bool:
+    return any(arg == "--config" or arg.startswith("--config=") for arg in argv)
 
 
 def main(argv: list[str]) -> int:
     if not argv or argv[0] in ("-h", "--help"):
         print("usage: agentax train ALGO [--env ID] [--preset NAME] [--seed S] [--seeds N] [--total-steps N]")
         print("                         [--stop-at-return R|none] [--out DIR] [algorithm flags...]")
+        print("       agentax train --config FILE [flags overriding its fields]  (a run file, TOML)")
         print("       agentax train --resume DIR")
         print("                         [--runner compiled|host|parallel|ray] [--actors N] [--policy-lag L]")
         print("                         [--ray-address auto|HOST:PORT] [--cpus-per-actor C]")
@@ -123,6 +161,8 @@ def main(argv: list[str]) -> int:
         if not run_dir:
             raise UsageError("--resume needs the run folder: agentax train --resume DIR")
         return resume(Path(run_dir), progress="--no-progress" not in argv)
+    if has_config(argv):
+        return start(*parse_file(argv))
     algo, rest = argv[0], argv[1:]
     run_args, cfg, preset = parse(algo, rest)
     return start(algo, run_args, cfg, preset)
