@@ -8,6 +8,7 @@ bfloat16 to 2 % of the largest entry (8 bits of mantissa in the products, accumu
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -269,16 +270,207 @@ def test_a_test_run_without_the_kernel_says_so_in_its_summary(tmp_path):
     assert any(expected in line for line in summary), summary
 
 
+ALL = ["xla", "onednn", "onednn-bf16"]
+ZEN4 = ("AMD EPYC", frozenset({"avx2", "avx512f", "avx512_bf16"}))
+ZEN4_MS = {"xla": 29.5, "onednn": 28.6, "onednn-bf16": 19.0}  # issue 29's learner bench, every CPU
+
+
+class FakeTimer:
+    """``measure``'s signature with made-up timings (no test times anything for real), counting calls."""
+
+    def __init__(self, ms: dict[str, float], errors: dict[str, str] | None = None):
+        self.ms, self.errors, self.calls = ms, errors or {}, []
+
+    def __call__(self, runnable, batch):
+        self.calls.append((list(runnable), batch))
+        return {k: v for k, v in self.ms.items() if k in runnable}, self.errors
+
+
+def never(runnable, batch):
+    raise AssertionError("measured, where the kept choice should have served")
+
+
+@pytest.fixture
+def on_the_cpu(monkeypatch):
+    """No accelerator expected, no choice remembered from an earlier test."""
+    monkeypatch.setattr(kernels._xla, "_accelerator_expected", lambda: False)
+    monkeypatch.setattr(kernels, "_resolved", {})
+
+
 @pytest.mark.parametrize(
-    ("loads", "amx", "chosen"), [(True, True, "onednn-bf16"), (True, False, "onednn"), (False, True, "xla")]
+    ("ms", "chosen"),
+    [
+        (ZEN4_MS, "onednn-bf16"),
+        ({"xla": 10.0, "onednn": 28.6, "onednn-bf16": 19.0}, "xla"),
+        ({"xla": 29.5, "onednn": 12.0, "onednn-bf16": 19.0}, "onednn"),
+    ],
 )
-def test_auto_takes_bf16_on_amx_float32_elsewhere_and_xla_without_the_library(
-    monkeypatch, loads, amx, chosen
-):
-    monkeypatch.setattr(kernels, "_load", lambda: (object() if loads else None, "" if loads else "missing"))
-    monkeypatch.setattr(kernels, "has_amx_bf16", lambda: amx)
+def test_auto_takes_the_fastest_measured(on_the_cpu, tmp_path, ms, chosen):
+    timer = FakeTimer(ms)
+    got = kernels.resolve(ALL, {}, timer=timer, path=tmp_path / "kernels.json", cpu=ZEN4)
+    assert (got["backend"], got["source"], got["ms"]) == (chosen, "measured", ms)
+    assert timer.calls == [(ALL, kernels.CHOICE_BATCH)]
+
+
+def test_a_kept_choice_is_reused_and_another_cpu_measures_again(on_the_cpu, tmp_path):
+    path = tmp_path / "kernels.json"
+    first = kernels.resolve(ALL, {}, timer=FakeTimer(ZEN4_MS), path=path, cpu=ZEN4)
+    kept = kernels.resolve(ALL, {}, timer=never, path=path, cpu=ZEN4)
+    assert (kept["backend"], kept["ms"], kept["source"]) == (first["backend"], ZEN4_MS, "kept")
+    xeon_ms = {"xla": 30.2, "onednn": 18.5, "onednn-bf16": 11.3}
+    for cpu in [("Intel Xeon Platinum 8481C", ZEN4[1]), ("AMD EPYC", ZEN4[1] | {"amx_bf16"})]:
+        timer = FakeTimer(xeon_ms)  # another name, or the same name with other flags
+        assert kernels.resolve(ALL, {}, timer=timer, path=path, cpu=cpu)["source"] == "measured"
+        assert timer.calls
+    assert len(json.loads(path.read_text())["choices"]) == 3  # each machine's choice kept
+    assert kernels.resolve(ALL, {}, timer=never, path=path, cpu=ZEN4)["backend"] == "onednn-bf16"
+    again = FakeTimer({"xla": 5.0, "onednn": 28.6})
+    assert kernels.resolve(ALL, {}, timer=again, path=path, cpu=ZEN4, again=True)["backend"] == "xla"
+
+
+def test_a_rebuilt_library_measures_again(on_the_cpu, monkeypatch, tmp_path):
+    library = tmp_path / "kernel.so"
+    library.write_bytes(b"built once")
+    monkeypatch.setenv("AGENTAX_ONEDNN_LIB", str(library))
+    path = tmp_path / "kernels.json"
+    kernels.resolve(ALL, {}, timer=FakeTimer(ZEN4_MS), path=path, cpu=ZEN4)
+    os.utime(library, ns=(0, 10**18))
+    timer = FakeTimer(ZEN4_MS)
+    assert kernels.resolve(ALL, {}, timer=timer, path=path, cpu=ZEN4)["source"] == "measured"
+
+
+@pytest.mark.parametrize(
+    "kept",
+    [
+        b"{not json",
+        b"\xff\xfe\x00",
+        b"[1, 2]",
+        b'{"choices": []}',
+        b'{"choices": {"KEY": "onednn"}}',
+        b'{"choices": {"KEY": {"backend": "cudnn", "ms": {}}}}',
+        b'{"choices": {"KEY": {"backend": "onednn", "ms": {"onednn": "fast"}}}}',
+    ],
+    ids=[
+        "truncated",
+        "not-utf8",
+        "a-list",
+        "choices-a-list",
+        "entry-a-string",
+        "unknown-backend",
+        "ms-a-string",
+    ],
+)
+def test_a_corrupt_cache_is_ignored_and_rewritten(on_the_cpu, tmp_path, kept):
+    path = tmp_path / "kernels.json"
+    key = kernels.choice_key(kernels.choice_fields(ZEN4))
+    path.write_bytes(kept.replace(b"KEY", key.encode()))
+    timer = FakeTimer(ZEN4_MS)
+    got = kernels.resolve(ALL, {}, timer=timer, path=path, cpu=ZEN4)
+    assert got["source"] == "measured" and timer.calls
+    assert json.loads(path.read_text())["choices"][key]["backend"] == "onednn-bf16"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        ".kernels.json.lock",
+        "kernels.json",
+    ]  # no temporary
+
+
+@pytest.mark.parametrize(("flags", "chosen"), [(ZEN4[1], "onednn-bf16"), (frozenset({"avx2"}), "onednn")])
+def test_nothing_timed_takes_the_cpu_flags_choice(on_the_cpu, tmp_path, flags, chosen):
+    """A measuring process that failed or hung: bfloat16 where the CPU has its arithmetic."""
+    timer = FakeTimer({}, {name: "no result in 180 s" for name in ALL})
+    got = kernels.resolve(ALL, {}, timer=timer, path=tmp_path / "kernels.json", cpu=("AMD EPYC", flags))
+    assert got["backend"] == chosen and "nothing could be timed" in got["why"]
+
+
+def test_without_the_library_or_off_x86_auto_is_xla_unmeasured(on_the_cpu, monkeypatch, tmp_path):
     monkeypatch.setenv("AGENTAX_CONV", "auto")
-    assert kernels.backend() == chosen
+    monkeypatch.setenv("AGENTAX_KERNELS_CACHE", str(tmp_path / "kernels.json"))
+    monkeypatch.setattr(kernels, "measure", never)
+    monkeypatch.setattr(kernels, "_load", lambda: (None, "none.so is missing"))
+    assert kernels.candidates() == (
+        ["xla"],
+        {"onednn": "none.so is missing", "onednn-bf16": "none.so is missing"},
+    )
+    assert kernels.backend() == "xla" and "none.so is missing" in kernels.choice()["why"]
+    monkeypatch.setattr(kernels, "_load", lambda: (object(), ""))
+    monkeypatch.setattr(kernels.platform, "machine", lambda: "aarch64")
+    assert kernels.candidates()[0] == ["xla"]
+    assert kernels.backend() == "xla" and "not an x86-64 CPU (aarch64)" in kernels.choice()["why"]
+    assert not (tmp_path / "kernels.json").exists()
+
+
+def test_on_an_accelerator_auto_is_xla_unmeasured(monkeypatch, tmp_path):
+    monkeypatch.setattr(kernels._xla, "_accelerator_expected", lambda: True)
+    got = kernels.resolve(ALL, {}, timer=never, path=tmp_path / "kernels.json", cpu=ZEN4)
+    assert got["backend"] == "xla" and "accelerator" in got["why"]
+
+
+@pytest.mark.parametrize(("loads", "bf16", "runnable"), [(True, True, ALL), (True, False, ALL[:2])])
+def test_the_candidates_are_what_loads_and_runs_here(monkeypatch, loads, bf16, runnable):
+    monkeypatch.setattr(kernels.platform, "machine", lambda: "x86_64")
+    monkeypatch.setattr(kernels, "_load", lambda: (object(), ""))
+    monkeypatch.setattr(kernels, "bf16_runs", lambda: bf16)
+    assert kernels.candidates()[0] == runnable
+
+
+@needs_kernel
+def test_auto_traces_the_chosen_backend_deciding_inside_the_trace(on_the_cpu, monkeypatch, tmp_path):
+    """The first ``backend()`` of a process may come while a program is traced: the choice is made
+    then (by another process, here a fake one) and the program holds the chosen kernel."""
+    monkeypatch.setenv("AGENTAX_CONV", "auto")
+    monkeypatch.setenv("AGENTAX_KERNELS_CACHE", str(tmp_path / "kernels.json"))
+    x, w, _ = arrays((2, 9, 9, 64), 3, 64)
+    for ms, in_program in [({"xla": 1.0, "onednn": 2.0}, False), ({"xla": 2.0, "onednn": 1.0}, True)]:
+        monkeypatch.setattr(kernels, "_resolved", {})
+        monkeypatch.setattr(kernels, "measure", FakeTimer(ms))
+        kernels.choice(again=True)  # the fake's timings, not the kept ones
+        monkeypatch.setattr(kernels, "_resolved", {})
+        text = jax.jit(lambda x, w: kernels.conv2d(x, w, (1, 1))).lower(x, w).as_text()
+        assert ("agentax_conv_fwd" in text) == in_program
+
+
+def test_agentax_kernels_shows_the_cpu_the_timings_the_choice_and_the_file(
+    on_the_cpu, monkeypatch, tmp_path, capsys
+):
+    from agentax.cli import main
+
+    path = tmp_path / "kernels.json"
+    monkeypatch.setenv("AGENTAX_CONV", "auto")
+    monkeypatch.setenv("AGENTAX_KERNELS_CACHE", str(path))
+    monkeypatch.setattr(kernels, "candidates", lambda: (ALL, {}))
+    monkeypatch.setattr(kernels, "cpu_info", lambda: ZEN4)
+    timer = FakeTimer(ZEN4_MS)
+    monkeypatch.setattr(kernels, "measure", timer)
+    assert main(["kernels"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "CPU: AMD EPYC (bfloat16 flags: avx512_bf16)"
+    assert lines[1] == "AGENTAX_CONV=auto -> onednn-bf16: the fastest of 3 measured"
+    assert [line.split() for line in lines[3:6]] == [
+        ["xla", "29.50"],
+        ["onednn", "28.60"],
+        ["onednn-bf16", "19.00", "<-", "chosen"],
+    ]
+    assert lines[-1].startswith("measured now (") and lines[-1].endswith(f"kept in {path}")
+    monkeypatch.setattr(kernels, "_resolved", {})
+    assert main(["kernels", "--json"]) == 0
+    about = json.loads(capsys.readouterr().out)
+    assert (about["backend"], about["ms"], about["source"], about["cache"]) == (
+        "onednn-bf16",
+        ZEN4_MS,
+        "kept",
+        str(path),
+    )
+    assert main(["kernels", "--measure"]) == 0 and len(timer.calls) == 2
+
+
+@pytest.mark.long
+@needs_kernel
+def test_the_measuring_process_times_every_candidate_here():
+    """The real measurement (~10-20 s on 2 cores): a positive time for each candidate, no errors."""
+    runnable = kernels.candidates()[0]
+    ms, errors = kernels.measure(runnable)
+    assert errors == {} and sorted(ms) == sorted(runnable)
+    assert all(0 < t < 10_000 for t in ms.values())
 
 
 @needs_kernel

@@ -32,6 +32,7 @@ from agentax.errors import NodeLost, StorageFull, TrainingDiverged, TrainingInte
 
 COMMANDS: dict[str, str] = {
     "envs": "list the environments with their observation and action spaces",
+    "kernels": "the convolution kernels AGENTAX_CONV=auto measured and chose on this machine, and why",
     "evaluate": "evaluate a policy (basic, random, or a trained run) over N episodes",
     "play": "play one episode and write it as a GIF or MP4",
     "export": "write a trained run's policy as an ONNX or StableHLO file, with a model card beside it",
