@@ -7,6 +7,7 @@ from pathlib import Path
 
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 os.environ.setdefault("MPLBACKEND", "Agg")
+os.environ.setdefault("AGENTAX_KERNELS_MEASURE", "0")  # AGENTAX_CONV=auto times nothing in tests
 
 REPO_ROOT = str(Path(__file__).resolve().parents[1])
 if REPO_ROOT not in sys.path:

@@ -292,9 +292,11 @@ def never(runnable, batch):
 
 @pytest.fixture
 def on_the_cpu(monkeypatch):
-    """No accelerator expected, no choice remembered from an earlier test."""
+    """No accelerator expected, no choice remembered from an earlier test, measuring allowed (the
+    suite turns it off: conftest.py), into a file of the test's own."""
     monkeypatch.setattr(kernels._xla, "_accelerator_expected", lambda: False)
     monkeypatch.setattr(kernels, "_resolved", {})
+    monkeypatch.setenv("AGENTAX_KERNELS_MEASURE", "1")
 
 
 @pytest.mark.parametrize(
@@ -411,6 +413,27 @@ def test_the_candidates_are_what_loads_and_runs_here(monkeypatch, loads, bf16, r
     monkeypatch.setattr(kernels, "_load", lambda: (object(), ""))
     monkeypatch.setattr(kernels, "bf16_runs", lambda: bf16)
     assert kernels.candidates()[0] == runnable
+
+
+def test_a_program_without_convolutions_is_named_without_measuring(on_the_cpu, monkeypatch, tmp_path):
+    """The stored programs' names (``runners.programs``) ask :func:`known_backend`, which never
+    measures: a CartPole run costs no measurement; with ``AGENTAX_KERNELS_MEASURE=0`` the kept
+    choice serves, else the CPU flags', kept nowhere."""
+    path = tmp_path / "kernels.json"
+    monkeypatch.setenv("AGENTAX_CONV", "auto")
+    monkeypatch.setenv("AGENTAX_KERNELS_CACHE", str(path))
+    monkeypatch.setattr(kernels, "candidates", lambda: (ALL, {}))
+    monkeypatch.setattr(kernels, "cpu_info", lambda: ZEN4)
+    monkeypatch.setattr(kernels, "measure", never)
+    assert kernels.known_backend() == "auto, unmeasured"
+    monkeypatch.setenv("AGENTAX_KERNELS_MEASURE", "0")
+    assert kernels.known_backend() == kernels.backend() == "onednn-bf16"  # avx512_bf16: the flags'
+    assert kernels.choice()["source"] == "unmeasured" and not path.exists()
+    kernels.resolve(ALL, {}, timer=FakeTimer({"xla": 1.0, "onednn": 2.0}), path=path, cpu=ZEN4)
+    monkeypatch.setattr(kernels, "_resolved", {})
+    assert kernels.known_backend() == kernels.backend() == "xla"  # the kept choice
+    monkeypatch.setenv("AGENTAX_CONV", "onednn")
+    assert kernels.known_backend() == "onednn"
 
 
 @needs_kernel

@@ -19,17 +19,23 @@ AVX-512); on any other platform, and where the library is missing, they are
   machine (:func:`choice`): ``xla``; ``onednn`` where the library loads on an x86-64 CPU;
   ``onednn-bf16`` where oneDNN also has a bfloat16 implementation (not its reference one) of every
   convolution and product. The measure is a Nature-CNN DQN update of batch 32 (target network
-  forward, online forward and backward, an SGD step), each candidate compiled in one fresh process
-  (this one may be tracing) and timed in interleaved rounds, the fastest round kept: ~10 s. The
-  choice is kept in ``~/.cache/agentax/kernels.json`` (``$AGENTAX_KERNELS_CACHE``; ``none``: not
-  kept), keyed by the CPU's name and flags, the library's size and time, jax's version, the oneDNN
-  threads and CPUs, and the measured shape; ``agentax kernels`` shows it and ``--measure`` measures
-  again. No library, a CPU other than x86-64, or jax on an accelerator: ``xla``, unmeasured. One
-  CPU flag was the rule before, and it chose the slower path on the next CPU: on an AMD EPYC (Zen
-  4, AVX-512 BF16, no AMX) oneDNN bfloat16 took 19.0 ms per update against 28.6 in float32 and
-  29.5 with XLA's (``benchmarks/run.py learner``). bfloat16 learns: PQN's ``breakout-hour`` preset
-  with it scored 52.1 ± 9.8 on Breakout in 26 minutes on AMX, and each convolution and gradient
-  stays within 2 % of float32's (``tests/test_kernels.py``, run on the CPU at hand).
+  forward, online forward and backward, an SGD step): the candidates compiled in a fresh process
+  (never in this one, which may be tracing), timed there in interleaved rounds, the fastest round
+  of each kept; ~10-15 s. The choice is kept in ``~/.cache/agentax/kernels.json``
+  (``$AGENTAX_KERNELS_CACHE``; ``none``: kept nowhere), keyed by the CPU's name and flags, the
+  library's size and time, jax's version, oneDNN's threads, the CPUs and the measured shape;
+  ``agentax kernels`` shows it, ``--measure`` measures again. ``AGENTAX_KERNELS_MEASURE=0`` (the
+  test suite's) never measures: the kept choice, else the CPU flags' (bfloat16 where the CPU has
+  ``amx_bf16`` or ``avx512_bf16``). Stored programs are named without measuring
+  (:func:`known_backend`), so a run without convolutions measures nothing. Without the library, on
+  a CPU other than x86-64, or with jax on an accelerator: ``xla``, unmeasured.
+
+  One CPU flag was the rule before, and it chose the slower path on the next CPU: on an AMD EPYC
+  (Zen 4, AVX-512 BF16, no AMX) oneDNN bfloat16 took 19.0 ms per update against 28.6 in float32 and
+  29.5 with XLA's (issue 29's ``benchmarks/run.py learner``). bfloat16 learns: PQN's
+  ``breakout-hour`` preset with it scored 52.1 ± 9.8 on Breakout in 26 minutes on AMX, and each
+  convolution and gradient stays within 2 % of float32's (``tests/test_kernels.py``, on the CPU at
+  hand).
 
 ``AGENTAX_CONV_THREADS`` sets oneDNN's OpenMP threads (default 1; ``OMP_WAIT_POLICY`` defaults to
 ``PASSIVE``, so that idle OpenMP threads sleep instead of spinning on a core that XLA or an env
@@ -403,11 +409,13 @@ def resolve(
     path: Path | None = None,
     cpu: tuple[str, frozenset[str]] | None = None,
     again: bool = False,
+    measuring: bool = True,
 ) -> dict[str, Any]:
     """``auto``'s choice among ``runnable``: the kept one for this machine (:func:`choice_fields`),
     else the fastest that ``timer(runnable, batch) -> (ms, errors)`` (default :func:`measure`)
     finds, kept in ``path`` for the next process (``again``: measured afresh). Where nothing could
-    be timed, :func:`flag_rule`'s."""
+    be timed, :func:`flag_rule`'s; without ``measuring``, where nothing is kept, :func:`flag_rule`'s
+    too, kept nowhere (``source``: ``unmeasured``)."""
     name, flags = cpu or cpu_info()
     about = {"mode": "auto", "cpu": name, "candidates": runnable, "excluded": excluded}
     about["cache"] = None if path is None else str(path)
@@ -422,6 +430,15 @@ def resolve(
         choices = read_choices(path)
         entry = None if again else _kept(choices.get(key), runnable)
         source = "kept"
+        if entry is None and not measuring:
+            why = "not measured (AGENTAX_KERNELS_MEASURE=0): the CPU flags' choice"
+            return {
+                **about,
+                "backend": flag_rule(runnable, flags),
+                "why": why,
+                "ms": {},
+                "source": "unmeasured",
+            }
         if entry is None:
             ms, errors = (timer or measure)(runnable, CHOICE_BATCH)
             entry = {
@@ -447,21 +464,47 @@ _resolved: dict[tuple, dict[str, Any]] = {}
 """``auto``'s choice, once per process, per set of candidates (and why not the others) and cache file."""
 
 
+def _memo_key(runnable: list[str], excluded: dict[str, str], path: Path | None) -> tuple:
+    return tuple(runnable), tuple(excluded.items()), str(path)
+
+
+def measuring() -> bool:
+    """Whether ``auto`` may measure (``AGENTAX_KERNELS_MEASURE``, default 1; the test suite sets 0:
+    then a kept choice serves, else the CPU flags')."""
+    return os.environ.get("AGENTAX_KERNELS_MEASURE", "1").strip().lower() not in ("0", "false", "no", "off")
+
+
 def choice(again: bool = False) -> dict[str, Any]:
     """What :func:`backend` uses and why (a dict for a run's config and ``agentax kernels``):
     ``mode`` (``AGENTAX_CONV``), ``backend``, ``why``, ``cpu``, ``candidates``, ``excluded``
     (backend → why not), and with ``auto`` the measured ``ms`` per backend, ``cache`` (the file)
-    and ``source`` (``kept`` or ``measured``). Measures once per machine (:func:`resolve`), in
-    another process; ``again``: afresh."""
+    and ``source`` (``kept``, ``measured`` or ``unmeasured``). Measures once per machine
+    (:func:`resolve`), in another process; ``again``: afresh."""
     chosen = mode()
     if chosen != "auto":
         return {"mode": chosen, "backend": backend(), "why": f"AGENTAX_CONV={chosen}", "cpu": cpu_info()[0]}
     runnable, excluded = candidates()
     path = cache_path()
-    memo = (tuple(runnable), tuple(excluded.items()), str(path))
+    memo = _memo_key(runnable, excluded, path)
     if again or memo not in _resolved:
-        _resolved[memo] = resolve(runnable, excluded, path=path, again=again)
+        _resolved[memo] = resolve(runnable, excluded, path=path, again=again, measuring=again or measuring())
     return _resolved[memo]
+
+
+def known_backend() -> str:
+    """:func:`backend` where it is known without measuring (a mode other than ``auto``, or ``auto``'s
+    choice made, kept or not to be measured), else ``"auto, unmeasured"``. It names the stored
+    programs (``agentax.runners.programs``): a program without convolutions costs no measurement."""
+    if mode() != "auto":
+        return backend()
+    runnable, excluded = candidates()
+    path = cache_path()
+    about = _resolved.get(_memo_key(runnable, excluded, path))
+    if about is None:
+        about = resolve(runnable, excluded, path=path, measuring=False)
+        if about.get("source") == "unmeasured" and measuring():
+            return "auto, unmeasured"
+    return about["backend"]
 
 
 def backend() -> str:

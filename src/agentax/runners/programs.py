@@ -58,7 +58,7 @@ def fingerprint(description: dict[str, Any], example_args: Any) -> str:
         "backend": jax.default_backend(),
         "x64": bool(jax.config.jax_enable_x64),
         "agentax": source_digest(),
-        "conv": kernels.backend(),  # XLA's convolutions or oneDNN's: another program
+        "conv": kernels.known_backend(),  # XLA's convolutions or oneDNN's: another program
     }
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:32]
 
