@@ -13,6 +13,8 @@ Rows, all measured in this run:
   beside the rest) and made on one CPU (the compiled runner's, the cure for the XLA CPU hang);
 - the same update in torch 2.13 (``.bench-venv``, a subprocess): float32 and bf16 autocast, both on
   oneDNN, channels-last, ``torch.set_num_threads`` = the CPUs this process may use;
+- ``AGENTAX_CONV=auto``'s choice, measured afresh in this run (``agentax.kernels.resolve``: its own
+  process and timing, on the one-CPU client), against the fastest of the rows above;
 - one PQN learning iteration of the ``breakout-hour`` preset (Q(λ) targets over a 32 × 64 rollout,
   then 2 epochs × 16 minibatches of 128 through the Nature CNN with LayerNorm, RAdam), per backend,
   its SGD steps written out one after the other in the program (what the runners do on XLA's
@@ -263,11 +265,25 @@ def dqn_update_ms_on(client: str) -> dict:
     return times
 
 
+def auto_against_fastest(auto: dict, dqn_ms: dict) -> str:
+    """Whether ``AGENTAX_CONV=auto``'s choice, measured afresh in this run, is the fastest backend
+    of this run's DQN updates on each client."""
+    fastest = {client: min(times, key=times.get) for client, times in dqn_ms.items()}
+    same = all(backend == auto["backend"] for backend in fastest.values())
+    measured = ", ".join(f"{name} {ms:.1f} ms" for name, ms in auto["ms"].items()) or "unmeasured"
+    return (
+        f"AGENTAX_CONV=auto chose {auto['backend']} on {auto['cpu']} ({auto['why']}: {measured}); "
+        f"the fastest here: {', '.join(f'{b} ({c})' for c, b in fastest.items())}: "
+        + ("the same." if same else "NOT the same.")
+    )
+
+
 def run() -> dict:
     from agentax import kernels
 
     flops = dqn_update_flops()
     dqn_ms = {client: dqn_update_ms_on(client) for client in CLIENTS}
+    auto = kernels.resolve(*kernels.candidates(), path=kernels.cache_path(), again=True)
     torch, torch_why = torch_times()
     pqn = {}  # (loop, backend) → (ms, compile s); XLA's convolutions are too slow in a scan to time
     for loop, written_out, backends in (
@@ -288,6 +304,10 @@ def run() -> dict:
         for backend, ms in times.items():
             label = f"{labels[backend]}, {CLIENTS[client]}"
             rows.append(["DQN update, batch 32", label, round(ms, 2), round(flops / ms / 1e6, 1), None])
+    if auto["ms"]:
+        ms = auto["ms"][auto["backend"]]
+        label = f"AGENTAX_CONV=auto's choice: {labels[auto['backend']]}, its own measure (one-cpu)"
+        rows.append(["DQN update, batch 32", label, round(ms, 2), round(flops / ms / 1e6, 1), None])
     if torch is not None:
         for kind, label in (("f32", "torch f32"), ("bf16", "torch bf16 autocast")):
             gflops = round(flops / torch[kind] / 1e6, 1)
@@ -315,6 +335,7 @@ def run() -> dict:
     )
     notes = (
         f"{__doc__.strip()}\n\nRatios to XLA's DQN update in this run: {', '.join(ratios)}{pqn_ratio}. "
+        f"{auto_against_fastest(auto, dqn_ms)} "
         f"oneDNN {loaded}; bf16 forward implementations: {impls}. "
         + (f"torch {torch['torch']}." if torch else f"torch not measured: {torch_why}")
     )
