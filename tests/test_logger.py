@@ -22,7 +22,7 @@ from agentax.errors import TrainingDiverged
 from agentax.runners import host
 from agentax.runners.host import HostRunnerConfig
 from agentax.runners.logger import time_left
-from agentax.runners.session import checkpoint_target
+from agentax.runners.session import Session, checkpoint_target
 from agentax.runs import Run, checkpoints, load_checkpoint, read_config, read_metrics, run_config
 
 DIVERGED = re.compile(
@@ -170,3 +170,38 @@ def test_the_progress_bar_says_how_long_a_run_has_left_and_when_it_ends():
     assert time_left(1_000, 400, 60.0, now=noon) == "left 0:00:10, ends 12:00"
     assert time_left(1_000, 1_000, 60.0, now=noon) == "left 0:00:00, ends 12:00"
     assert time_left(1_000, 0, 0.0) == time_left(1_000, 0, float("nan")) == ""  # no speed yet
+
+
+class ScriptedEvaluator:
+    """Row evaluations (the default seed) at 500; the final evaluation's (``seed=...``) from a list."""
+
+    def __init__(self, finals: list[float]):
+        self.finals, self.final_seeds = finals, []
+
+    def __call__(self, state, seed=None):
+        value = 500.0 if seed is None else self.finals.pop(0)
+        self.final_seeds += [] if seed is None else [seed]
+        return np.full(10, value), np.full(10, 500)
+
+    def close(self):
+        pass
+
+
+def test_a_run_is_solved_only_when_its_final_evaluation_agrees(tmp_path):
+    """The row's evaluation passes stop_at_return at both rows; the final evaluation (fresh episodes)
+    does not at the first, so the run trains on; at the second it does: the run stops solved there and
+    that evaluation is eval.json's, not evaluated once more (issue 30: 'solved', then 470.7)."""
+    agent = make_agent(ppo, presets.preset("ppo", "cartpole-fast").config)
+    runner = HostRunnerConfig(seed=3, stop_at_return=475.0)
+    evaluator = ScriptedEvaluator([470.7, 480.0])
+    session = Session(agent, Run.create(tmp_path, {"algo": "ppo", "env": "CartPole-v1"}), runner, evaluator)
+    with session.begin("test"):
+        rows = [
+            session.log_row(session.state, session.learner_key, steps, 1, [500.0], {}, final=False)
+            for steps in (512, 1024)
+        ]
+        result = session.finish(session.state, 1024, 2)
+    assert rows == [False, True]
+    assert evaluator.finals == [] and len(set(evaluator.final_seeds)) == 1  # the same fresh episodes
+    assert (result.solved_env_steps, result.eval["mean_return"]) == (1024, 480.0)
+    assert [row["eval_return"] for row in read_metrics(tmp_path)] == [500.0, 500.0]

@@ -335,6 +335,7 @@ def train(
         elapsed_before=float(meta["elapsed"]),
     )
     solved_env_steps, solved_seconds = meta.get("solved_env_steps"), meta.get("solved_seconds")
+    final_eval = None
     chunks_this_call = 0
     every = runner.checkpoint_every_chunks
     with logger:
@@ -380,8 +381,15 @@ def train(
             row = logger.log(row, metrics)
             target = runner.stop_at_return
             if do_eval and target is not None and min(map(np.mean, eval_returns)) >= target:  # every seed
-                solved_env_steps, solved_seconds = env_steps, time.perf_counter() - start
-                following = None
+                # solved once the final evaluation (fresh keys) agrees, which then is the final one
+                state, _, *final_eval = call(state, Chunk(0, 0, True, evaluations))
+                if min(map(np.mean, np.asarray(final_eval[0]))) >= target:
+                    solved_env_steps, solved_seconds = env_steps, time.perf_counter() - start
+                    following = None
+                else:
+                    following = chunk_after(updates, chunks_this_call, evaluations + 1)
+                    if following is not None:  # it trains on; its keys spent, evaluations take the next
+                        evaluations, final_eval = evaluations + 1, None
             if not ahead:
                 meta = {
                     "updates": updates,
@@ -411,7 +419,9 @@ def train(
     if updates < algorithm.num_updates and solved_env_steps is None:
         return result  # stopped early by max_chunks: resumable, not finished
 
-    state, _, returns, lengths = call(state, Chunk(0, 0, True, evaluations))
+    if final_eval is None:
+        state, _, *final_eval = call(state, Chunk(0, 0, True, evaluations))
+    returns, lengths = final_eval
     result.state, result.final_returns = state, (np.asarray(returns), np.asarray(lengths))
     result.eval = logger.finish(
         np.asarray(returns),

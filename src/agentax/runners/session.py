@@ -78,6 +78,11 @@ def evaluated_if_stopping(row: dict[str, float], runner: Any, evaluator: Any, st
     return row["eval_return"] >= runner.stop_at_return
 
 
+def final_evaluation(evaluator: Any, state: Any, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """The final evaluation's returns and lengths: fresh episodes, from ``seed + EVAL_SEED_OFFSET``."""
+    return evaluator(state, seed=seed + EVAL_SEED_OFFSET)
+
+
 def row_of(
     env_steps: int, updates: int, finished_returns: list[float], steps_per_second: float
 ) -> dict[str, float]:
@@ -120,6 +125,8 @@ class Session:
         self.before_checkpoint = None  # what must be on disk before a checkpoint commits (the replay)
         self.next_log = self.env_steps + runner.log_every_steps
         self.logger: RunLogger | None = None
+        self.solved: tuple[float, float, tuple[np.ndarray, np.ndarray]] | None = None
+        """once the run stopped solved: its env steps, seconds and final evaluation"""
 
     def begin(self, description: str, progress: bool = False) -> RunLogger:
         """The run logger (a context manager: Ctrl-C becomes ``TrainingInterrupted``), its progress
@@ -162,7 +169,9 @@ class Session:
         now = time.perf_counter()
         speed = (env_steps - self.steps_at_log) / max(now - self.time_at_log, 1e-9)
         row = {**row_of(env_steps, updates, returns, speed), **(extra or {})}
-        solved = evaluated_if_stopping(row, self.runner, self.evaluator, state)
+        solved = evaluated_if_stopping(row, self.runner, self.evaluator, state) and self.confirmed(
+            state, env_steps
+        )
         self.logger.log(row, metrics)
         self.steps_at_log, self.time_at_log = env_steps, time.perf_counter()
         meta = {
@@ -176,13 +185,28 @@ class Session:
         )
         return solved
 
+    def confirmed(self, state: Any, env_steps: int) -> bool:
+        """Whether the final evaluation reaches ``stop_at_return`` too, as the row's did: only then is
+        the run solved (and stops), with that evaluation as its final one; else it trains on."""
+        returns, lengths = final_evaluation(self.evaluator, state, self.runner.seed)
+        if np.mean(returns) < self.runner.stop_at_return:
+            return False
+        self.solved = (env_steps, self.logger.wall_seconds(), (returns, lengths))
+        return True
+
     def finish(self, state: Any, env_steps: int, updates: int) -> TrainResult:
         """The final evaluation on fresh episodes (eval.json, curve.png) and the result;
         ``train_seconds`` is the training loop's, to its last row and checkpoint."""
         train_seconds = time.perf_counter() - self.logger.start
-        returns, lengths = self.evaluator(state, seed=self.runner.seed + EVAL_SEED_OFFSET)
+        solved: dict[str, float] = {}
+        if self.solved is None:
+            returns, lengths = final_evaluation(self.evaluator, state, self.runner.seed)
+        else:
+            solved["solved_env_steps"], solved["solved_seconds"], (returns, lengths) = self.solved
         self.evaluator.close()
-        evaluation = self.logger.finish(returns[None], lengths[None], env_steps=env_steps, updates=updates)
+        evaluation = self.logger.finish(
+            returns[None], lengths[None], env_steps=env_steps, updates=updates, **solved
+        )
         return TrainResult(
-            state, updates, env_steps, evaluation, self.logger.rows, train_seconds=train_seconds
+            state, updates, env_steps, evaluation, self.logger.rows, train_seconds=train_seconds, **solved
         )
