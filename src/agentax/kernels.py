@@ -32,7 +32,11 @@ AVX-512); on any other platform, and where the library is missing, they are
 
   One CPU flag was the rule before, and it chose the slower path on the next CPU: on an AMD EPYC
   (Zen 4, AVX-512 BF16, no AMX) oneDNN bfloat16 took 19.0 ms per update against 28.6 in float32 and
-  29.5 with XLA's (issue 29's ``benchmarks/run.py learner``). bfloat16 learns: PQN's
+  29.5 with XLA's (issue 29's ``benchmarks/run.py learner``). On that CPU (``lscpu``: "AMD EPYC",
+  2 cores, shared with other jobs, 2026-12-04) ``auto`` timed XLA 34.1 ms, oneDNN f32 25.1 and bf16
+  17.0 and chose bf16, the fastest of the same learner run on both clients (bf16 22.6 / 19.9 ms,
+  f32 29.7 / 28.1, XLA 40.5 / 37.0 on every CPU / one CPU); ``agentax kernels`` took 10.5 s to
+  measure. bfloat16 learns: PQN's
   ``breakout-hour`` preset with it scored 52.1 ± 9.8 on Breakout in 26 minutes on AMX, and each
   convolution and gradient stays within 2 % of float32's (``tests/test_kernels.py``, on the CPU at
   hand).
