@@ -110,6 +110,21 @@ class PolicyNet(nn.Module):
         return nn.Dense(self.num_actions)(x)
 
 
+class GaussianPolicyNet(nn.Module):
+    """A diagonal Gaussian over actions ``[..., action_dim]``: ``obs -> (mean, log_std)``, the mean an
+    MLP's output and ``log_std`` a learned parameter independent of the state (PPO's head)."""
+
+    action_dim: int
+    hidden: Sequence[int] = (64, 64)
+    activation: str = "tanh"
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+        mean = MLP(self.hidden, self.activation, out=self.action_dim)(obs)
+        log_std = self.param("log_std", nn.initializers.zeros, (self.action_dim,))
+        return mean, jnp.broadcast_to(log_std, mean.shape)
+
+
 class NatureConvTorso(nn.Module):
     """The Nature CNN's three convolutions without its dense layer: ``[..., 4, 84, 84]`` → ``[..., 3136]``
     (for a noisy 512 layer on top; :class:`NatureCNN` is the same convolutions with a plain one)."""

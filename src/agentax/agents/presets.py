@@ -57,6 +57,21 @@ REINFORCE_PRESETS: dict[str, Preset] = {
     "baseline": Preset(
         ReinforceConfig(baseline=True), "the lecture's settings with a learned value baseline"
     ),
+    "pendulum": Preset(
+        ReinforceConfig(
+            total_steps=4_000_000,
+            episodes_per_update=32,
+            max_steps=200,
+            learning_rate=3e-3,
+            hidden=(64, 64),
+            activation="tanh",
+            sigmoid_head=False,
+            baseline=True,
+            baseline_hidden=(64, 64),
+        ),
+        "continuous control (Pendulum-v1): Gaussian head, value baseline, 32 episodes an update, 4M steps "
+        "(4 seeds vmapped: from about -1,200 to -182.3 here, per seed -136 to -249)",
+    ),
 }
 
 
@@ -443,6 +458,7 @@ DEFAULT_PRESETS: dict[str, dict[str, str]] = {
         **MINATAR,
         **MUJOCO,
     },
+    "reinforce": {"Pendulum-v1": "pendulum", "gymnax/Pendulum-v1": "pendulum"},
     "dqn": {"atari": "lecture-atari"},
     "pqn": {"atari": "atari", **MINATAR},
     "sac": {"Pendulum-v1": "pendulum", "gymnax/Pendulum-v1": "pendulum"},

@@ -12,7 +12,10 @@ gradient, less variance.
 
 The lecture's network is ``PolicyNet(2, hidden=(5,), activation="elu", sigmoid_head=True)``:
 one sigmoid output giving P(left). Its per-step loss, the cross-entropy between the sampled action
-and P weighted by the advantage, is exactly ``−log π(a|s) · advantage``.
+and P weighted by the advantage, is exactly ``−log π(a|s) · advantage``. On a Box action space the
+policy is PPO's diagonal Gaussian head (:class:`~agentax.nets.GaussianPolicyNet`: a mean network and
+a state-independent ``log_std``; ``sigmoid_head`` does not apply); the env gets the sampled action
+clipped to its bounds, the greedy policy the mean.
 
 On the compiled runner the episodes of an iteration run side by side for ``max_steps`` steps;
 steps after an episode's end are masked out.
@@ -29,9 +32,9 @@ import optax
 from flax import struct
 
 from agentax.agents.protocol import Agent, EnvSpec, Episodes, Loop, check_fields
-from agentax.envs.core import Discrete
+from agentax.envs.core import Box, Discrete
 from agentax.errors import UsageError
-from agentax.nets import MLP, PolicyNet, log_prob
+from agentax.nets import MLP, GaussianPolicyNet, PolicyNet, gaussian_log_prob, log_prob
 from agentax.policies import Policy
 from agentax.replay import Transition
 from agentax.returns import discounted_returns, normalize
@@ -56,7 +59,8 @@ class ReinforceConfig:
     activation: str = "elu"
     """activation of the hidden layers: elu, relu, tanh, gelu or swish"""
     sigmoid_head: bool = True
-    """the lecture's single sigmoid output (two actions only); else one logit per action"""
+    """the lecture's single sigmoid output (two actions only); else one logit per action (discrete
+    actions only)"""
     baseline: bool = False
     """learn a value network V(s) and use G_t − V(s_t) as the advantage"""
     baseline_hidden: tuple[int, ...] = (32,)
@@ -83,8 +87,31 @@ class ReinforceAgent:
     opt_state: Any
 
 
-def policy_network(cfg: ReinforceConfig, num_actions: int) -> PolicyNet:
-    return PolicyNet(num_actions, tuple(cfg.hidden), cfg.activation, cfg.sigmoid_head)
+Actions = int | Box
+"""What the policy chooses among: the number of discrete actions, or the Box of continuous ones."""
+
+
+def policy_network(cfg: ReinforceConfig, actions: Actions) -> PolicyNet | GaussianPolicyNet:
+    if isinstance(actions, Box):
+        return GaussianPolicyNet(actions.shape[0], tuple(cfg.hidden), cfg.activation)
+    return PolicyNet(actions, tuple(cfg.hidden), cfg.activation, cfg.sigmoid_head)
+
+
+def action_log_prob(out: Any, action: jax.Array, actions: Actions) -> jax.Array:
+    """``log π(a|s)`` ``[...]`` from the policy network's output."""
+    return gaussian_log_prob(*out, action) if isinstance(actions, Box) else log_prob(out, action)
+
+
+def sample(out: Any, key: jax.Array, actions: Actions) -> jax.Array:
+    if isinstance(actions, Box):
+        mean, log_std = out
+        return mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape)
+    return jax.random.categorical(key, out)
+
+
+def env_action(action: jax.Array, actions: Actions) -> jax.Array:
+    """What the env receives: continuous actions clipped to the Box's bounds."""
+    return jnp.clip(action, actions.low, actions.high) if isinstance(actions, Box) else action
 
 
 def value_network(cfg: ReinforceConfig) -> MLP:
@@ -92,22 +119,22 @@ def value_network(cfg: ReinforceConfig) -> MLP:
 
 
 def init(
-    key: jax.Array, obs_shape: tuple[int, ...], num_actions: int, cfg: ReinforceConfig
+    key: jax.Array, obs_shape: tuple[int, ...], actions: Actions, cfg: ReinforceConfig
 ) -> ReinforceAgent:
     policy_key, value_key = jax.random.split(key)
     obs = jnp.zeros(obs_shape, jnp.float32)
-    params = {"policy": policy_network(cfg, num_actions).init(policy_key, obs)}
+    params = {"policy": policy_network(cfg, actions).init(policy_key, obs)}
     if cfg.baseline:
         params["value"] = value_network(cfg).init(value_key, obs)
     return ReinforceAgent(params, optax.adam(cfg.learning_rate).init(params))
 
 
-def loss_fn(params: Any, batch: dict[str, jax.Array], num_actions: int, cfg: ReinforceConfig):
+def loss_fn(params: Any, batch: dict[str, jax.Array], actions: Actions, cfg: ReinforceConfig):
     """REINFORCE's loss over the valid steps of ``[T, N]`` arrays; returns ``(loss, metrics)``."""
     valid = batch["valid"].astype(jnp.float32)
     count = jnp.maximum(valid.sum(), 1.0)
-    logits = policy_network(cfg, num_actions).apply(params["policy"], batch["obs"])
-    log_probs = log_prob(logits, batch["action"])
+    out = policy_network(cfg, actions).apply(params["policy"], batch["obs"])
+    log_probs = action_log_prob(out, batch["action"], actions)
     returns = batch["returns"]
     metrics = {}
     if cfg.baseline:
@@ -123,24 +150,38 @@ def loss_fn(params: Any, batch: dict[str, jax.Array], num_actions: int, cfg: Rei
     return policy_loss + value_loss, metrics
 
 
-def learn(agent: ReinforceAgent, batch: dict[str, jax.Array], num_actions: int, cfg: ReinforceConfig):
-    grads, metrics = jax.grad(loss_fn, has_aux=True)(agent.params, batch, num_actions, cfg)
+def learn(agent: ReinforceAgent, batch: dict[str, jax.Array], actions: Actions, cfg: ReinforceConfig):
+    grads, metrics = jax.grad(loss_fn, has_aux=True)(agent.params, batch, actions, cfg)
     updates, opt_state = optax.adam(cfg.learning_rate).update(grads, agent.opt_state, agent.params)
     return ReinforceAgent(optax.apply_updates(agent.params, updates), opt_state), metrics
 
 
-def greedy_policy(params: Any, num_actions: int, cfg: ReinforceConfig) -> Policy:
-    net = policy_network(cfg, num_actions)
-    return lambda obs, key: jnp.argmax(net.apply(params["policy"], obs), axis=-1).astype(jnp.int32)
+def greedy_policy(params: Any, actions: Actions, cfg: ReinforceConfig) -> Policy:
+    """The most probable action: the logits' argmax, or the Gaussian's mean clipped to the bounds."""
+    net = policy_network(cfg, actions)
+
+    def policy(obs: jax.Array, key: jax.Array) -> jax.Array:
+        out = net.apply(params["policy"], obs)
+        if isinstance(actions, Box):
+            return env_action(out[0], actions)
+        return jnp.argmax(out, axis=-1).astype(jnp.int32)
+
+    return policy
 
 
-def num_actions_of(spec: EnvSpec, cfg: ReinforceConfig) -> int:
-    """The number of actions; a ``UsageError`` for actions this REINFORCE cannot take."""
-    if not isinstance(spec.action_space, Discrete):
-        raise UsageError(f"REINFORCE here needs discrete actions, not {spec.action_space}")
-    if cfg.sigmoid_head and spec.action_space.n != 2:
-        raise UsageError(f"the sigmoid head needs exactly 2 actions, not {spec.action_space.n}")
-    return spec.action_space.n
+def actions_of(spec: EnvSpec, cfg: ReinforceConfig) -> Actions:
+    """The number of discrete actions, or the flat Box; a ``UsageError`` for what this REINFORCE
+    cannot take."""
+    space = spec.action_space
+    if isinstance(space, Box):
+        if len(space.shape) != 1:
+            raise UsageError(f"REINFORCE needs flat Box actions, got shape {space.shape}")
+        return space
+    if not isinstance(space, Discrete):
+        raise UsageError(f"REINFORCE needs discrete or Box actions, not {space}")
+    if cfg.sigmoid_head and space.n != 2:
+        raise UsageError(f"the sigmoid head needs exactly 2 actions, not {space.n} (--no-sigmoid-head)")
+    return space.n
 
 
 def returns_to_go(reward: jax.Array, ended: jax.Array, discount_factor: float) -> jax.Array:
@@ -156,11 +197,11 @@ def make_agent(spec: EnvSpec, cfg: ReinforceConfig, *, loop: Loop = jax.lax.scan
     episode's end masked out by ``info["valid"]``. ``learn`` is one gradient step (``loop`` unused).
     """
     cfg.validate()
-    num_actions = num_actions_of(spec, cfg)
-    net = policy_network(cfg, num_actions)
+    actions = actions_of(spec, cfg)
+    net = policy_network(cfg, actions)
 
     def act(state: ReinforceAgent, obs: jax.Array, key: jax.Array, progress: jax.Array):
-        return jax.random.categorical(key, net.apply(state.params["policy"], obs)), {}
+        return sample(net.apply(state.params["policy"], obs), key, actions), {}
 
     def learn_episodes(state: ReinforceAgent, trajectory: Transition, key: jax.Array):
         valid = trajectory.info["valid"]
@@ -172,14 +213,15 @@ def make_agent(spec: EnvSpec, cfg: ReinforceConfig, *, loop: Loop = jax.lax.scan
             "valid": valid,
             "returns": returns_to_go(reward, ended, cfg.discount_factor),
         }
-        return learn(state, batch, num_actions, cfg)
+        return learn(state, batch, actions, cfg)
 
     return Agent(
         name="reinforce",
-        init=lambda key: init(key, spec.obs_shape, num_actions, cfg),
+        init=lambda key: init(key, spec.obs_shape, actions, cfg),
         act=act,
-        greedy_policy=lambda state: greedy_policy(state.params, num_actions, cfg),
+        greedy_policy=lambda state: greedy_policy(state.params, actions, cfg),
         learn=learn_episodes,
         experience=Episodes(cfg.episodes_per_update, cfg.max_steps),
         total_steps=cfg.total_steps,
+        env_action=lambda action: env_action(action, actions),
     )
