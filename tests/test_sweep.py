@@ -127,3 +127,34 @@ def test_optuna_asks_batches_and_a_rerun_asks_the_same(tmp_path):
     ]
     with pytest.raises(UsageError, match="suggests traced values only"):
         sweep("ppo", **{**asked, "ranges": {"num_envs": (2.0, 8.0, False)}, "out": tmp_path / "p"})
+
+
+def test_sacs_utd_is_traced_and_a_traced_count_loops_that_many_times():
+    """``--utd`` sets the learning steps per phase, a count: traced, the phase loops as many times
+    as each agent's count (under vmap the longest, the others masked), with the scan's carry and
+    metrics where the count is fixed."""
+    import jax
+    import jax.numpy as jnp
+
+    from agentax.agents import presets, sac
+    from agentax.api import compiled_program
+    from agentax.envs import make_jax
+    from agentax.runners.rollout import traced_count_loop
+    from agentax.runners.sweep import traceable
+
+    env, base = make_jax("Pendulum-v1"), presets.preset("sac", "pendulum").config
+    assert traceable(lambda cfg: compiled_program(sac, env, cfg), base, "utd")
+
+    def step(carry, _):
+        total, key = carry
+        key, draw = jax.random.split(key)
+        value = jax.random.normal(draw)
+        return (total + value, key), {"value": value}
+
+    start = (jnp.float32(0.0), jax.random.key(0))
+    counts = jnp.array([1, 3, 2], jnp.int32)
+    (totals, _), metrics = jax.vmap(lambda n: traced_count_loop(step, start, n))(counts)
+    for k, n in enumerate([1, 3, 2]):
+        (total, _), scanned = jax.lax.scan(step, start, length=n)
+        assert totals[k] == total
+        np.testing.assert_allclose(metrics["value"][k], scanned["value"].mean(), rtol=1e-6)

@@ -60,9 +60,12 @@ class ReplayConfig:
         return self.num_envs * self.train_frequency
 
     @property
-    def gradient_steps(self) -> int:
-        """Learning steps per learning phase."""
-        return max(1, round(self.utd * self.steps_per_update))
+    def gradient_steps(self) -> int | jax.Array:
+        """Learning steps per learning phase (a traced int where ``utd`` is traced)."""
+        steps = self.utd * self.steps_per_update
+        if isinstance(steps, jax.Array):  # utd traced (a sweep over it): the count is a traced int
+            return jnp.maximum(1, jnp.round(steps)).astype(jnp.int32)
+        return max(1, round(steps))
 
     @property
     def num_updates(self) -> int:

@@ -261,6 +261,19 @@ def episodes_program(agent: Agent, envs: VectorEnv) -> Program:
 
 
 # ---------------------------------------------------------------- replay and learning gates (DQN)
+def traced_count_loop(step: Callable, carry: Any, count: jax.Array) -> tuple[Any, dict[str, jax.Array]]:
+    """``step(carry, None) -> (carry, metrics)`` run ``count`` times (a traced int: under vmap, as
+    long as the largest, the others masked), and the mean of its metrics: the scan of a fixed count."""
+    shapes = jax.eval_shape(step, carry, None)[1]
+    zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+
+    def body(_, state):
+        inner, total = state
+        inner, metrics = step(inner, None)
+        return inner, jax.tree.map(jnp.add, total, metrics)
+
+    carry, total = jax.lax.fori_loop(0, count, body, (carry, zeros))
+    return carry, jax.tree.map(lambda t: t / count, total)
 
 
 @struct.dataclass
@@ -418,10 +431,13 @@ def off_policy_program(agent: Agent, envs: VectorEnv, freeze: Freeze | None = No
             return (agent_state, replay_state, key), scalars(metrics)
 
         key, learn_key = jax.random.split(carry.key)
-        (agent_state, replay_state, _), metrics = jax.lax.scan(
-            one, (carry.agent, carry.replay, learn_key), length=experience.gradient_steps
-        )
-        return carry.replace(agent=agent_state, replay=replay_state, key=key), jax.tree.map(jnp.mean, metrics)
+        inner, steps = (carry.agent, carry.replay, learn_key), experience.gradient_steps
+        if isinstance(steps, int):
+            (agent_state, replay_state, _), metrics = jax.lax.scan(one, inner, length=steps)
+            metrics = jax.tree.map(jnp.mean, metrics)
+        else:  # a traced count (a sweep over SAC's utd): a loop as long, its metrics averaged
+            (agent_state, replay_state, _), metrics = traced_count_loop(one, inner, steps)
+        return carry.replace(agent=agent_state, replay=replay_state, key=key), metrics
 
     def learn_where(carry: OffPolicyCarry, due: jax.Array) -> tuple[OffPolicyCarry, dict[str, jax.Array]]:
         """Learn, keeping the result only where ``due`` (a branch taken when any seed is due). Only
