@@ -188,7 +188,7 @@ WORKERS = {
     "taskset": "2 workers, confined to one core (taskset -c 0)",
     "two": "2 workers, both cores",
 }
-TRAINED = ("ppo-halfcheetah-1m", "ppo-halfcheetah-1m-seed1", "ppo-halfcheetah-1m-seed2")  # the folders of evidence/ whose scores the pages show
+TRAINED = ("ppo-halfcheetah-1m", "ppo-halfcheetah-1m-seed1", "ppo-halfcheetah-1m-seed2", "sac-halfcheetah-1m")  # the folders of evidence/ whose scores the pages show
 
 
 def _figures() -> dict[str, Figure]:
