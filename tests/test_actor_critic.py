@@ -12,13 +12,12 @@ import pytest
 
 from agentax.agents import presets, sac, td3
 from agentax.agents.protocol import EnvSpec, scale_action
-from agentax.api import compiled_program
 from agentax.cli import main
 from agentax.envs import JAX_ENVS, make_jax
 from agentax.envs.core import Box, Discrete
 from agentax.errors import UsageError
 from agentax.replay import ReplaySample, Transition
-from agentax.runners.compiled import RunnerConfig, train
+from agentax.runners.compiled import RunnerConfig, compiled_program, train
 
 PENDULUM = "Pendulum-v1" if "Pendulum-v1" in JAX_ENVS else "gymnax/Pendulum-v1"
 SPEC = EnvSpec((3,), Box(np.full(1, -2.0, np.float32), np.full(1, 2.0, np.float32), (1,)))

@@ -14,8 +14,8 @@ import jax
 import numpy as np
 import pytest
 
-from agentax.api import agent_maker
 from agentax.cli import main
+from agentax.runners.launch import agent_maker
 
 pytest.importorskip("ale_py")
 pytest.importorskip("cv2")

@@ -19,11 +19,11 @@ import pytest
 
 from agentax.agents import ppo, presets
 from agentax.agents.protocol import EnvSpec
-from agentax.api import agent_maker
 from agentax.envs.core import Discrete
 from agentax.envs.envpool_xla import EpisodeTracker, PoolStep, XlaAtari, track
 from agentax.errors import UsageError
 from agentax.replay import Transition
+from agentax.runners.launch import agent_maker
 from agentax.runs import Run, read_metrics, run_config
 
 pytest.importorskip("envpool")

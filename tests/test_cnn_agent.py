@@ -8,9 +8,9 @@ import pytest
 
 from agentax.agents import dqn, ppo, presets
 from agentax.agents.protocol import EnvSpec
-from agentax.api import agent_maker
 from agentax.envs import make_host_env
 from agentax.runners import host
+from agentax.runners.launch import agent_maker
 
 
 class PixelSide(gymnasium.Env):

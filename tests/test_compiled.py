@@ -14,10 +14,9 @@ import pytest
 
 from agentax import _xla
 from agentax.agents import ppo
-from agentax.api import compiled_program
 from agentax.envs import make_jax
 from agentax.errors import UsageError
-from agentax.runners.compiled import RunnerConfig, train
+from agentax.runners.compiled import RunnerConfig, compiled_program, train
 from agentax.runs import Run, checkpoints, read_metrics
 from benchmarks import _pin  # benchmarks/_pin.py (tests/conftest.py puts the repo root on sys.path)
 
@@ -27,7 +26,7 @@ HANG_PROGRAM = textwrap.dedent(
     import agentax  # jax's CPU client will be made on one CPU (agentax._xla.create_cpu_client_on_one_cpu)
     import jax
     from agentax.agents import ppo, presets
-    from agentax.api import compiled_program
+    from agentax.runners.compiled import compiled_program
     from agentax.envs import make_jax
     from agentax.runners.compiled import RunnerConfig, train
 

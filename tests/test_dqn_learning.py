@@ -8,12 +8,11 @@ import pytest
 
 from agentax.agents import config_to_dict, dqn, presets
 from agentax.agents.protocol import EnvSpec
-from agentax.api import compiled_program
 from agentax.envs import make_jax
 from agentax.envs.gym import GymnasiumEnv
 from agentax.evaluate import host_episode_returns
 from agentax.runners import host, session
-from agentax.runners.compiled import RunnerConfig, train
+from agentax.runners.compiled import RunnerConfig, compiled_program, train
 from agentax.runs import Run, load_checkpoint, run_config
 
 # The tuned preset, cut down: 16 learning steps per 64 env steps instead of 128 per 256, the target

@@ -25,8 +25,9 @@ import pytest
 
 from agentax.agents import ppo, presets
 from agentax.agents.protocol import EnvSpec
-from agentax.api import RunArgs, agent_maker, runner_kind
 from agentax.errors import UsageError
+from agentax.runners import kind_for
+from agentax.runners.launch import agent_maker
 from agentax.runs import Run, read_metrics, run_config
 
 pytest.importorskip("mujoco")
@@ -148,9 +149,9 @@ def test_hopper_same_reset_same_actions_same_fall():
 
 
 def test_compiled_picks_envpool_and_auto_the_host():
-    assert runner_kind(RunArgs(env="HalfCheetah-v5", runner="compiled")) == "compiled-mujoco"
-    assert runner_kind(RunArgs(env="HalfCheetah-v5")) == "host"
-    assert runner_kind(RunArgs(env="Hopper-v5", runner="parallel")) == "parallel"
+    assert kind_for("compiled", "HalfCheetah-v5") == "compiled-mujoco"
+    assert kind_for("auto", "HalfCheetah-v5") == "host"
+    assert kind_for("parallel", "Hopper-v5") == "parallel"
 
 
 def _ppo_agent(spec: EnvSpec, total_steps: int, num_envs: int, num_steps: int):

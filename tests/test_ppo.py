@@ -8,11 +8,10 @@ import numpy as np
 import pytest
 
 from agentax.agents import ppo, presets
-from agentax.api import compiled_program
 from agentax.envs import make_jax
 from agentax.errors import UsageError
 from agentax.nets import gaussian_entropy, gaussian_log_prob
-from agentax.runners.compiled import RunnerConfig, train
+from agentax.runners.compiled import RunnerConfig, compiled_program, train
 
 
 def test_clipped_surrogate_loss_hand_computed():

@@ -9,10 +9,9 @@ import pytest
 
 from agentax import _xla
 from agentax.agents import config_to_dict, ppo, presets
-from agentax.api import compiled_program
 from agentax.envs import make_jax
 from agentax.runners import programs
-from agentax.runners.compiled import RunnerConfig, train
+from agentax.runners.compiled import RunnerConfig, compiled_program, train
 
 pytestmark = pytest.mark.timeout(240)
 

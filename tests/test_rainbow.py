@@ -11,13 +11,13 @@ import pytest
 
 from agentax.agents import dqn, presets
 from agentax.agents.protocol import EnvSpec
-from agentax.api import compiled_program
 from agentax.envs import make_host_env, make_jax
 from agentax.envs.core import Discrete
 from agentax.errors import UsageError
 from agentax.nets import NoisyDense, factorised_noise, random_shift, scaled_noise, shift
 from agentax.replay import ReplaySample, Transition
 from agentax.runners import host
+from agentax.runners.compiled import compiled_program
 from agentax.runners.host import HostRunnerConfig
 
 Z3 = jnp.array([-1.0, 0.0, 1.0])

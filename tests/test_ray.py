@@ -33,11 +33,11 @@ psutil = pytest.importorskip("psutil")
 
 from agentax.agents import dqn, ppo, presets  # noqa: E402
 from agentax.agents.protocol import EnvSpec  # noqa: E402
-from agentax.api import agent_maker  # noqa: E402
 from agentax.envs import make_host_env  # noqa: E402
 from agentax.errors import TrainingDiverged  # noqa: E402
 from agentax.runners import parallel  # noqa: E402
 from agentax.runners import ray as ray_runner  # noqa: E402
+from agentax.runners.launch import agent_maker  # noqa: E402
 from agentax.runners.parallel import ParallelRunnerConfig  # noqa: E402
 from agentax.runners.ray import RayRunnerConfig  # noqa: E402
 from agentax.runs import Run  # noqa: E402

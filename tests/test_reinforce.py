@@ -8,11 +8,10 @@ import pytest
 
 from agentax.agents import presets, reinforce
 from agentax.agents.protocol import EnvSpec
-from agentax.api import compiled_program
 from agentax.envs import make_jax
 from agentax.envs.core import Discrete
 from agentax.errors import UsageError
-from agentax.runners.compiled import RunnerConfig, train
+from agentax.runners.compiled import RunnerConfig, compiled_program, train
 
 
 def test_loss_is_minus_mean_log_prob_times_normalized_return():

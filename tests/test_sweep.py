@@ -137,8 +137,8 @@ def test_sacs_utd_is_traced_and_a_traced_count_loops_that_many_times():
     import jax.numpy as jnp
 
     from agentax.agents import presets, sac
-    from agentax.api import compiled_program
     from agentax.envs import make_jax
+    from agentax.runners.compiled import compiled_program
     from agentax.runners.rollout import traced_count_loop
     from agentax.runners.sweep import traceable
 

@@ -43,6 +43,8 @@ from agentax.errors import StorageFull, UsageError
 from agentax.evaluate import EvalStats
 from agentax.report import aggregate
 
+RUN_FILE = "run.toml"
+"""The run file (:mod:`agentax.runfile`) every run folder holds beside config.json."""
 CHECKPOINT_PREFIX = "ckpt-"
 REPLAY_PREFIX = "replay-"
 

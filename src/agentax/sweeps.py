@@ -126,9 +126,10 @@ def sweep(
     ``batch`` at a time as one program; ``seeds`` seeds each. Writes and returns the sweep (see the
     module docstring); ``out`` naming an unfinished sweep of the same request resumes it."""
     from agentax import _xla
-    from agentax.api import algorithm, choose_preset, compiled_program
+    from agentax.agents import algorithm
     from agentax.envs import JAX_ENVS, make_jax
-    from agentax.runners.compiled import RunnerConfig
+    from agentax.runfile import choose_preset
+    from agentax.runners.compiled import RunnerConfig, compiled_program
     from agentax.runners.sweep import float_fields, traceable
     from agentax.runners.workers import map_processes
 
@@ -330,9 +331,10 @@ def _train_program(folder: Path, request, cfg, runner, table, progress: bool = F
     """One program of the sweep in its run folder (resumed from its checkpoint, or read back when
     it finished): the final evaluation's mean return of each agent ``[settings × seeds]``. Its
     arguments are data, so a worker process can run it."""
-    from agentax.api import algorithm, compiled_program, config_to_dict
+    from agentax.agents import algorithm, config_to_dict
     from agentax.envs import make_jax
     from agentax.runners import compiled
+    from agentax.runners.compiled import compiled_program
     from agentax.runners.sweep import sweep_program
     from agentax.runs import Run, checkpoints, run_config
 

@@ -39,13 +39,12 @@ def main(argv: list[str]) -> int:
 
     from agentax import _xla
     from agentax.agents import config_to_dict, ppo, presets_of
-    from agentax.api import compiled_program
     from agentax.cli.evaluate import stats_table
     from agentax.envs import make_jax
     from agentax.evaluate import evaluate
     from agentax.policies import basic_policy
     from agentax.render import check_video_path, save_episode
-    from agentax.runners.compiled import RunnerConfig, restore_policy, train
+    from agentax.runners.compiled import RunnerConfig, compiled_program, restore_policy, train
     from agentax.runs import Run, default_run_dir, run_config
 
     _xla.enable_compilation_cache()

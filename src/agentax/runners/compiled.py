@@ -442,12 +442,46 @@ def restore_policy(
     """The greedy policy of one seed of a run's newest checkpoint (the best seed by eval.json if None)."""
     target = jax.eval_shape(init_from_seeds(algorithm), seeds_of(runner))
     state, _, _ = load_checkpoint(run_dir, target)
-    if seed_index is None:
-        seed_index = 0
-        eval_path = Path(run_dir) / "eval.json"
-        if eval_path.is_file():
-            per_seed = json.loads(eval_path.read_text()).get("per_seed", [])
-            if per_seed:
-                seed_index = int(np.argmax([s["mean_return"] for s in per_seed]))
-    one = jax.tree.map(lambda x: x[seed_index], state)
+    one = jax.tree.map(lambda x: x[best_seed(run_dir) if seed_index is None else seed_index], state)
     return algorithm.greedy_policy(one)
+
+
+def best_of(per_seed: list[dict[str, Any]]) -> int:
+    """The index of the best seed by an evaluation's ``per_seed`` rows (0 if there are none)."""
+    return int(np.argmax([s["mean_return"] for s in per_seed])) if per_seed else 0
+
+
+def best_seed(run_dir: str | Path) -> int:
+    """The index of a run's best seed by its final evaluation (eval.json), else 0."""
+    path = Path(run_dir) / "eval.json"
+    return best_of(json.loads(path.read_text()).get("per_seed", []) if path.is_file() else [])
+
+
+def compiled_program(module: Any, env: Environment, cfg: Any, runner: RunnerConfig | None = None) -> Program:
+    """The program of ``module``'s agent (an algorithm module, ``cfg`` its config) on the JAX env
+    ``env``, with the per-seed early stop of ``runner`` if given."""
+    from agentax.agents.protocol import EnvSpec
+    from agentax.runners.launch import agent_maker
+    from agentax.runners.rollout import program
+
+    agent = agent_maker(module, EnvSpec.of(env), cfg)()
+    try:
+        return program(agent, env, freeze=None if runner is None else freeze_of(runner))
+    except ValueError as error:
+        raise UsageError(f"--freeze-at-return: {error}") from None
+
+
+def train_module(
+    module: Any, env: Environment, cfg: Any, runner: RunnerConfig, run: Run, *, resume: bool, progress: bool
+) -> tuple[TrainResult, Policy]:
+    """Train ``module``'s agent on ``env`` into ``run`` (:func:`train`); the result and the greedy
+    policy of its best seed by the final evaluation."""
+    # algo, env id, config and the freeze determine the program (agentax's own envs take no params)
+    description = {key: run.config[key] for key in ("algo", "env", "config")}
+    description["freeze"] = [runner.freeze_at_return, runner.freeze_episodes]
+    algorithm = compiled_program(module, env, cfg, runner)
+    result = train(
+        algorithm, env, runner, run, resume=resume, progress=progress, program_description=description
+    )
+    best = best_of(result.eval.get("per_seed", []))
+    return result, algorithm.greedy_policy(jax.tree.map(lambda x: x[best], result.state))

@@ -76,6 +76,12 @@ class HostRunnerConfig:
     """off-policy: save the replay at most this often (it can hold gigabytes), and at the end"""
 
 
+def configure(run_args: Any, agent: Agent, common: dict[str, Any]) -> tuple[HostRunnerConfig, str]:
+    """The host runner's settings for a run: the family's ``common`` ones
+    (:func:`agentax.runners.host_launch.prepare`) and nothing more."""
+    return HostRunnerConfig(**common), "host"
+
+
 def env_factory(env_id: str, runner: Any) -> Callable[..., Any]:
     """``make(num_envs, training=False)``: the run's envs, with the runner's Atari options."""
     options = {"backend": runner.env_backend, "sticky_actions": runner.sticky_actions}

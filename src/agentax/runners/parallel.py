@@ -24,6 +24,7 @@ the last row).
 
 from __future__ import annotations
 
+import dataclasses
 import queue
 import signal
 import threading
@@ -83,6 +84,39 @@ class ParallelRunnerConfig(HostRunnerConfig):
             )
         if isinstance(agent.experience, OffPolicy) and agent.experience.by_episode:
             raise UsageError("the episode schedule (--schedule-unit episodes) runs on the host runner only")
+
+
+DEFAULT_ACTORS = 2
+"""Actors of the parallel and Ray runners when ``--actors`` is not given (and the envs split in two)."""
+
+
+def envs_per_actor(cfg: Any, run_args: Any) -> Any:
+    """The algorithm's ``cfg`` with ``--actors × --envs-per-actor`` envs (episodes per update, for
+    an episodic agent)."""
+    envs = "num_envs" if hasattr(cfg, "num_envs") else "episodes_per_update"
+    actors = run_args.actors or DEFAULT_ACTORS
+    return dataclasses.replace(cfg, **{envs: actors * run_args.envs_per_actor}).validate()
+
+
+def configure(
+    run_args: Any,
+    agent: Agent,
+    common: dict[str, Any],
+    config_type: type[ParallelRunnerConfig] = ParallelRunnerConfig,
+    actor: str = "actor",
+    **settings: Any,
+) -> tuple[ParallelRunnerConfig, str]:
+    """The parallel runner's settings for a run (the family's ``common`` ones, ``--actors``,
+    ``--policy-lag``, and a subclass's further ``settings``), checked against the agent, and the
+    announcement's "2 actors, policy lag 1"."""
+    num_envs = agent.experience.num_envs
+    actors = run_args.actors or (DEFAULT_ACTORS if num_envs % DEFAULT_ACTORS == 0 else 1)
+    runner = config_type(**common, actors=actors, policy_lag=run_args.policy_lag, **settings)
+    runner.check(agent)
+    where = f"{runner.actors} {actor}{'s' if runner.actors > 1 else ''}"
+    if not isinstance(agent.experience, OffPolicy):
+        where += f", policy lag {runner.policy_lag}"
+    return runner, where
 
 
 class Stopped(Exception):

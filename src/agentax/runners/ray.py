@@ -58,6 +58,7 @@ from agentax.replay import Transition
 from agentax.runners.driver import EnvironmentSteps, TrajectoryObserver
 from agentax.runners.host import Actor, actor_seed, fold_actor_key
 from agentax.runners.parallel import POLL_SECONDS, Coordinator, Fleet, ParallelRunnerConfig
+from agentax.runners.parallel import configure as configure_parallel
 from agentax.runners.parallel import train as train_parallel
 from agentax.runners.session import TrainResult
 from agentax.runs import Run
@@ -78,6 +79,19 @@ class RayRunnerConfig(ParallelRunnerConfig):
     """CPUs Ray reserves for each actor process (it places the actors by them)"""
     max_actor_restarts: int = 100
     """collector processes replaced over the whole run before it gives up"""
+
+
+def configure(run_args: Any, agent: Agent, common: dict[str, Any]) -> tuple[RayRunnerConfig, str]:
+    """The Ray runner's settings for a run: the parallel runner's and where its actors run."""
+    return configure_parallel(
+        run_args,
+        agent,
+        common,
+        RayRunnerConfig,
+        "Ray actor",
+        ray_address=run_args.ray_address,
+        cpus_per_actor=run_args.cpus_per_actor,
+    )
 
 
 def import_ray() -> Any:

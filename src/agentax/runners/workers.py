@@ -216,3 +216,106 @@ def _ordered(row: dict[str, float], like: dict[str, float]) -> dict[str, float]:
 
 
 __all__ = ["FINAL_RETURNS", "map_processes", "map_ray", "merge_rows", "node", "split", "worker_dir"]
+
+
+def worker_of(runner: Any, seed_index: int) -> tuple[int, int]:
+    """``(w, k)``: seed ``seed_index`` of the run is seed ``k`` of worker ``w`` (:func:`split`)."""
+    parts = split(runner)
+    w = next(w for w, part in enumerate(parts) if seed_index < part.seed - runner.seed + part.num_seeds)
+    return w, seed_index - (parts[w].seed - runner.seed)
+
+
+def train(run: Any, runner: Any, *, resume: bool, progress: bool) -> Any:
+    """Train the seeds of ``runner`` split over ``runner.workers`` processes, each in
+    ``worker-<w>/`` (resumed, or read back where it finished), then write the run's merged
+    metrics, eval.json and curve.png; the run's :class:`~agentax.runners.session.TrainResult`
+    (``state=None``: the agents stayed in the workers)."""
+    import shutil
+
+    from agentax.curves import plot_curves
+    from agentax.errors import TrainingInterrupted
+    from agentax.runners.session import TrainResult
+    from agentax.runs import Run, read_json, read_metrics
+
+    parts = split(runner)
+    jobs = [(str(run.path.resolve()), w, part, resume, progress and w == 0) for w, part in enumerate(parts)]
+    try:
+        timings = map_processes(train_worker, jobs, runner.ray_address)
+    except KeyboardInterrupt:  # each worker stopped at its safe point: the run resumes as a whole
+        raise TrainingInterrupted(str(run.path)) from None
+    except Exception as error:
+        if getattr(error, "run_dir", None):  # a worker's folder: resume the run it belongs to
+            error.run_dir = str(run.path)
+        raise
+    folders = [worker_dir(run.path, w) for w in range(len(parts))]
+    rows = merge_rows([read_metrics(f) for f in folders], [part.num_seeds for part in parts])
+    for written in ("metrics.csv", "tensorboard"):  # rewritten whole, a resumed run's too
+        target = run.path / written
+        shutil.rmtree(target) if target.is_dir() else target.unlink(missing_ok=True)
+    merged = Run(run.path, run.config)
+    for row in rows:
+        merged.log(row)
+    finals = [read_json(f / FINAL_RETURNS) for f in folders]
+    solved = [t["solved_env_steps"] for t in timings]
+    result = TrainResult(
+        state=None,
+        updates=int(rows[-1]["updates"]),
+        env_steps=float(rows[-1]["env_steps"]),
+        eval={},
+        rows=rows,
+        solved_env_steps=None if None in solved else max(solved),
+        solved_seconds=None if None in solved else max(t["solved_seconds"] for t in timings),
+        compile_seconds=max(t["compile_seconds"] for t in timings),
+        train_seconds=max(t["train_seconds"] for t in timings),
+    )
+    result.eval = merged.write_eval(
+        np.concatenate([np.asarray(f["returns"]) for f in finals]),
+        np.concatenate([np.asarray(f["lengths"]) for f in finals]),
+        env_steps=result.env_steps,
+        updates=result.updates,
+        solved_env_steps=result.solved_env_steps,
+        solved_seconds=result.solved_seconds,
+        compile_seconds=result.compile_seconds,
+        train_seconds=result.train_seconds,
+        workers=len(parts),
+    )
+    merged.close()
+    plot_curves([run.path], run.path / "curve.png")
+    return result
+
+
+def train_worker(run_dir: str, w: int, runner: Any, resume: bool, progress: bool) -> dict[str, Any]:
+    """Worker ``w`` of a run (in a process of its own): its seeds (``runner``) as a compiled run in
+    ``worker-<w>/``, resumed from its checkpoint if there is one; its timings. A worker that had
+    finished is only read back."""
+    import shutil
+
+    from agentax.envs import make_jax
+    from agentax.runners import algorithm_of
+    from agentax.runners.compiled import train_module
+    from agentax.runs import Run, checkpoints, read_config, read_json, write_json
+
+    folder = worker_dir(run_dir, w)
+    done = folder / FINAL_RETURNS
+    if done.is_file():
+        return read_json(done)["timings"]
+    config = read_config(run_dir)
+    module, cfg = algorithm_of(config)
+    resumed = resume and (folder / "config.json").is_file() and bool(checkpoints(folder))
+    if resumed:
+        run = Run.open(folder)
+    else:
+        if folder.exists():  # made but never checkpointed: start it again
+            shutil.rmtree(folder)
+        run = Run.create(folder, {**config, "runner": dataclasses.asdict(runner)})
+    result, _ = train_module(
+        module, make_jax(config["env"]), cfg, runner, run, resume=resumed, progress=progress
+    )
+    timings = {
+        name: getattr(result, name)
+        for name in ("solved_env_steps", "solved_seconds", "compile_seconds", "train_seconds")
+    }
+    returns, lengths = result.final_returns
+    finals = {"returns": returns.tolist(), "lengths": lengths.tolist(), "timings": timings, "node": node()}
+    write_json(done, finals)
+    return timings

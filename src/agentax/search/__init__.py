@@ -3,6 +3,11 @@ settings evaluated at once by ``evaluate_settings``); a genetic algorithm and th
 the parameters of a neural policy, each population evaluated in one vmapped call.
 """
 
+import importlib
+from pathlib import Path
+from typing import Any
+
+from agentax.errors import UsageError
 from agentax.search import cem, genetic
 from agentax.search.cem import CEMConfig
 from agentax.search.genetic import GAConfig
@@ -31,6 +36,17 @@ cem a neural policy's parameters."""
 VACUUM_METHODS = ("grid", "random")
 NEURAL_METHODS = ("ga", "cem")
 
+
+def load_policy(run_dir: Path, config: dict[str, Any], also_known: tuple[str, ...] = ()) -> Any:
+    """The policy a policy search's run found (its method's ``load_policy``); a ``UsageError``
+    naming the known methods (and ``also_known``) for another "algo" in its config.json."""
+    algo = config["algo"]
+    if algo not in METHODS:
+        known = ", ".join([*also_known, *METHODS])
+        raise UsageError(f"{run_dir}: unknown algorithm {algo!r} in config.json; known: {known}")
+    return importlib.import_module(METHODS[algo]).load_policy(run_dir, config)
+
+
 __all__ = [
     "METHODS",
     "NEURAL_METHODS",
@@ -47,6 +63,7 @@ __all__ = [
     "evaluate_settings",
     "genetic",
     "grid_search",
+    "load_policy",
     "make_env",
     "make_fitness",
     "mean_confidence_interval",
