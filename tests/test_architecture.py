@@ -24,6 +24,7 @@ from agentax.agents import (
 from agentax.agents.presets import DEFAULT_PRESETS, PRESETS
 from agentax.agents.protocol import ACTING_UNUSED, Agent, EnvSpec, acting_view
 from agentax.cli import main
+from agentax.runners import RUNNERS
 
 PACKAGE_ROOT = Path(agentax.__file__).resolve().parent
 RANKS: dict[str, int] = {
@@ -234,6 +235,63 @@ def test_the_checker_catches_violations():
     assert violations("from agentax.envs.core import Box\n", "agentax.nets", "n.py") == []
     assert violations("from agentax import _xla\n", "agentax.runners.host", "h.py") == []
     assert violations("from agentax.api import train\n", "agentax", "__init__.py", is_package=True) == []
+
+
+COMPARISONS = (ast.Eq, ast.NotEq, ast.In, ast.NotIn)
+
+
+def _strings(node: ast.AST) -> list[str]:
+    """The string literals ``node`` is, or holds as a tuple, list or set display."""
+    items = node.elts if isinstance(node, ast.Tuple | ast.List | ast.Set) else [node]
+    return [item.value for item in items if isinstance(item, ast.Constant) and isinstance(item.value, str)]
+
+
+def runner_name_branches(source: str, filename: str) -> list[str]:
+    """``file:line`` of every ``==``, ``!=``, ``in`` or ``not in`` with a runner kind's name
+    (a key of :data:`agentax.runners.RUNNERS`) as a literal on either side."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if not isinstance(node, ast.Compare):
+            continue
+        operands = [node.left, *node.comparators]
+        for op, left, right in zip(node.ops, operands[:-1], operands[1:], strict=True):
+            names = [n for n in _strings(left) + _strings(right) if n in RUNNERS]
+            if isinstance(op, COMPARISONS) and names:
+                found.append(f"{filename}:{node.lineno}: compares with {', '.join(map(repr, names))}")
+    return found
+
+
+def test_only_the_runners_table_branches_on_a_runner_name():
+    """Adding a runner is a row of :data:`agentax.runners.RUNNERS` (and its launcher): no other module
+    picks behaviour by comparing a kind's name."""
+    table = PACKAGE_ROOT / "runners" / "__init__.py"
+    found = []
+    for path in sorted(PACKAGE_ROOT.rglob("*.py")):
+        if path != table:
+            found += runner_name_branches(path.read_text(), str(path.relative_to(PACKAGE_ROOT.parent)))
+    assert not found, "branches on a runner's name outside the table:\n" + "\n".join(found)
+
+
+def test_the_runner_name_checker_catches_branches():
+    source = (
+        'if kind == "compiled":\n    pass\n'
+        'ok = kind in ("parallel", "ray")\n'
+        'x = "compiled-atari" != kind\n'
+        'y = kind not in ["host"]\n'
+        'z = a < b == "ray"\n'
+    )
+    assert runner_name_branches(source, "m.py") == [
+        "m.py:1: compares with 'compiled'",
+        "m.py:3: compares with 'parallel', 'ray'",
+        "m.py:4: compares with 'compiled-atari'",
+        "m.py:5: compares with 'host'",
+        "m.py:6: compares with 'ray'",
+    ]
+    # names used as data, and other strings compared, pass
+    allowed = (
+        'run_config("ppo", env, "p", "compiled", r, c)\nif choice == "auto":\n    pass\nd = {"host": 1}\n'
+    )
+    assert runner_name_branches(allowed, "m.py") == []
 
 
 def test_the_cycle_check_finds_cycles_closed_by_a_lazy_import():
