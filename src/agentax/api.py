@@ -13,18 +13,17 @@
 ``agentax train`` parses its flags into a :class:`RunArgs` and the algorithm's config, then calls
 :func:`start` (``--resume``: :func:`resume`), as :func:`train` does. Both only read the runners'
 table (:mod:`agentax.runners`): it picks the kind, whose launcher configures, trains and restores
-it. :func:`restore_policy` rebuilds the greedy policy of any run folder (any algorithm, any runner,
-or a policy search), for ``Run.policy`` and ``agentax evaluate/play --policy DIR``.
+it; :func:`restore_policy` rebuilds the greedy policy of any run folder.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import importlib
 import json
 import sys
 import time
-from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -34,11 +33,10 @@ from agentax.evaluate import EvalStats
 from agentax.policies import Policy
 from agentax.runfile import RunArgs, choose_preset
 from agentax.runners import RUNNERS, algorithm_of, kind_for, kind_of, resumes, runner_settings, upgraded
-from agentax.runners.compiled import compiled_program  # noqa: F401  (re-exported for old imports)
-from agentax.runners.launch import Launch, agent_maker  # noqa: F401  (agent_maker: re-exported)
 
 if TYPE_CHECKING:
     from agentax.agents.presets import Preset
+    from agentax.runners.launch import Launch
 
 
 class Run:
@@ -82,7 +80,7 @@ class Run:
     def runner_kind(self) -> str:
         return kind_of(self.config)
 
-    @cached_property
+    @functools.cached_property
     def policy(self) -> Policy:
         """The greedy policy ``(obs, key) -> action`` of the run's best seed, from its newest checkpoint."""
         return _restore_learned(self.path, self.config)
@@ -151,6 +149,13 @@ def load(run_dir: str | Path) -> Run:
     return Run(run_dir)
 
 
+def __getattr__(name: str) -> Any:  # names older code (the benchmarks) imports from here, now in the runners
+    homes = {"compiled_program": "agentax.runners.compiled", "agent_maker": "agentax.runners.launch"}
+    if name in homes:
+        return getattr(importlib.import_module(homes[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 def restore_policy(run_dir: str | Path) -> tuple[str, Policy]:
     """``(env_id, policy)`` of a trained run: a learning algorithm's greedy policy (its best seed, from
     its newest good checkpoint) or a policy search's (its module's ``load_policy``)."""
@@ -183,15 +188,13 @@ def _announce(message: str, quiet: bool) -> None:
 
 def _create(out: Path, algo: str, run_args: RunArgs, cfg: Any, kind: str, runner: Any) -> Any:
     """The new run folder ``out``: config.json, and run.toml (the run file that repeats it)."""
-    from agentax import runfile
-    from agentax.runs import RUN_FILE, run_config
-    from agentax.runs import Run as RunFolder
+    from agentax import runfile, runs
 
-    config = run_config(algo, run_args.env, run_args.preset, kind, runner, config_to_dict(cfg))
-    run = RunFolder.create(out, config)
-    header = f"the run in {out}: agentax train --config {out / RUN_FILE} --out NEW_FOLDER repeats it"
+    config = runs.run_config(algo, run_args.env, run_args.preset, kind, runner, config_to_dict(cfg))
+    run = runs.Run.create(out, config)
+    header = f"the run in {out}: agentax train --config {out / runs.RUN_FILE} --out NEW_FOLDER repeats it"
     resolved = dataclasses.replace(run_args, preset=choose_preset(algo, run_args.env, run_args.preset)[0])
-    runfile.write(out / RUN_FILE, algo, resolved, cfg, header)
+    runfile.write(out / runs.RUN_FILE, algo, resolved, cfg, header)
     return run
 
 
@@ -203,11 +206,10 @@ def _trained(launch: Launch, run: Any, *, resume: bool, progress: bool) -> Run:
 
 def start(algo: str, run_args: RunArgs, cfg: Any, preset: Preset, *, quiet: bool = False) -> Run:
     """Create the run folder and train ``cfg`` of ``algo`` as ``run_args`` say; the trained :class:`Run`."""
-    from agentax import _xla
-    from agentax.runs import default_run_dir
+    from agentax import _xla, runs
 
     _xla.enable_compilation_cache()
-    out = Path(run_args.out) if run_args.out else default_run_dir(algo, run_args.env)
+    out = Path(run_args.out) if run_args.out else runs.default_run_dir(algo, run_args.env)
     kind = kind_for(run_args.runner, run_args.env)
     launch = RUNNERS[kind].launch().prepare(algo, algorithm(algo), run_args, cfg, preset, kind)
     run = _create(out, algo, run_args, cfg, kind, launch.runner)
@@ -219,22 +221,20 @@ def resume(run_dir: str | Path, progress: bool = True, *, quiet: bool = False) -
     """Continue the run in ``run_dir`` from its newest good checkpoint; the trained :class:`Run`. A
     run stopped before its first checkpoint loses nothing by starting again: it trains from its
     config.json (its rows, if any, dropped)."""
-    from agentax import _xla
-    from agentax.runs import Run as RunFolder
-    from agentax.runs import read_config
+    from agentax import _xla, runs
 
     run_dir = Path(run_dir)
-    config = upgraded(read_config(run_dir))
+    config = upgraded(runs.read_config(run_dir))
     resume = resumes(run_dir, config)
     (module, cfg), algo, kind = algorithm_of(config), config["algo"], kind_of(config)
     _xla.enable_compilation_cache()
     _announce(f"resuming {algo} on {config['env']} ({kind} runner) from {run_dir}", quiet)
     if not resume:
         _announce(f"{run_dir} has no checkpoint yet: training it from its config.json", quiet)
-        RunFolder.open(run_dir).truncate_metrics(0)
+        runs.Run.open(run_dir).truncate_metrics(0)
     runner = runner_settings(config, f"{run_dir}/config.json")
     launch = RUNNERS[kind].launch().reopen(config, module, cfg, runner)
-    return _trained(launch, RunFolder.open(run_dir), resume=resume, progress=progress)
+    return _trained(launch, runs.Run.open(run_dir), resume=resume, progress=progress)
 
 
 def train(
