@@ -200,15 +200,24 @@ def python_blocks(page: Path) -> list[str]:
     return BLOCK.findall(page.read_text())
 
 
+DEFAULT_PRINT_OPTIONS = {"precision": 8, "suppress": False, "linewidth": 75, "threshold": 1000}
+"""numpy's defaults of the options the pages change."""
+
+
 def run_cells(page: Path, page_cells: list[Cell]) -> list[str]:
-    """Run the cells in order in one namespace (in the current directory); return what each printed."""
+    """Run the cells in order in one namespace (in the current directory); return what each printed.
+    Each page starts from numpy's default print options and leaves them as it found them (pages 5
+    and 6 set a precision, which had changed page 9's printed arrays when one process ran them all)."""
+    import numpy as np
+
     namespace: dict = {"__name__": "__tutorial__"}
     printed = []
-    for cell in page_cells:
-        output = io.StringIO()
-        with contextlib.redirect_stdout(output):
-            exec(compile(cell.source, f"{page.name}[block {cell.number}]", "exec"), namespace)
-        printed.append(output.getvalue().rstrip())
+    with np.printoptions(**DEFAULT_PRINT_OPTIONS):
+        for cell in page_cells:
+            output = io.StringIO()
+            with contextlib.redirect_stdout(output):
+                exec(compile(cell.source, f"{page.name}[block {cell.number}]", "exec"), namespace)
+            printed.append(output.getvalue().rstrip())
     return printed
 
 
