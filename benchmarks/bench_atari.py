@@ -434,7 +434,8 @@ def agentax_dqn(runner: str, cache: str) -> dict:
 RUNNERS = {
     "host": "host runner",
     "parallel": "parallel runner (1 actor, policy lag 1)",
-    "compiled": "compiled Atari runner (EnvPool inside the program)",
+    "compiled": "compiled Atari runner (EnvPool inside the program, policy lag 0)",
+    "compiled-lag1": "compiled Atari runner (policy lag 1: collection beside learning)",
     "ray": "Ray runner (1 actor process, policy lag 1)",
 }
 ON_POLICY = {"ppo": "atari", "pqn": "breakout-hour"}
@@ -468,8 +469,9 @@ def on_policy_rate(algo: str, runner: str) -> dict:
     elif runner == "ray":
         config = ray_runner.RayRunnerConfig(actors=1, policy_lag=1, **options)
         result = ray_runner.train(agent, ENV_ID, config, make_agent=make_agent)
-    elif runner == "compiled":
-        result = compiled_atari.train(agent, ENV_ID, host.HostRunnerConfig(**options))
+    elif runner.startswith("compiled"):
+        config = compiled_atari.PoolRunnerConfig(policy_lag=int(runner == "compiled-lag1"), **options)
+        result = compiled_atari.train(agent, ENV_ID, config)
     else:
         result = host.train(agent, ENV_ID, host.HostRunnerConfig(**options))
     total = time.perf_counter() - start
@@ -696,8 +698,10 @@ def _on_policy_notes(runs: dict[str, dict[str, dict]]) -> str:
         "**PPO and PQN**: PPO's `atari` preset (8 envs × 128 steps, 4 epochs × 4 minibatches, Nature "
         "CNN) and PQN's `breakout-hour` preset (64 envs × 32 steps, 2 epochs × 16 minibatches, Nature "
         f"CNN with LayerNorm), {UPDATES + 1} updates each through `host.train`, `parallel.train` (1 "
-        "actor, policy lag 1), `compiled_atari.train` (one jitted call per update: the rollout with "
-        "EnvPool's XLA step inside a `lax.scan`, then the learning step) and `ray.train` (a local Ray, "
+        "actor, policy lag 1), `compiled_atari.train` (policy lag 0: one jitted call per update, the "
+        "rollout with EnvPool's XLA step inside a `lax.scan`, then the learning step; policy lag 1: "
+        "the rollout and the learning step as two programs, rollout k+1 in a thread beside the "
+        "learning on rollout k) and `ray.train` (a local Ray, "
         "1 actor process, policy lag 1; its start-up counts in the first update) from this process, "
         "one after the other, EnvPool, a metrics row per update; agent steps/s from the first row "
         "(its update compiles; 'compile / warm-up s' is the seconds to it) to the last; `÷ reference` "
@@ -705,8 +709,9 @@ def _on_policy_notes(runs: dict[str, dict[str, dict]]) -> str:
         "after each lost life or game, masked out of learning) as agent steps: "
         f"{masked:.1%} of PPO's steps here. What overlaps: in the parallel and Ray runners the actor (a "
         "thread; a process) steps the envs and acts with the policy of one update before while the "
-        "learner learns (policy lag 1), so collection runs beside learning on the other core; the "
-        "host and compiled runners collect, then learn. Convolutions: "
+        "learner learns (policy lag 1), so collection runs beside learning on the other core, as in "
+        "the compiled runner at policy lag 1; the host runner and the compiled one at lag 0 collect, "
+        "then learn. Convolutions: "
         f"`AGENTAX_CONV` {kernels_backend()}."
     )
 

@@ -272,3 +272,76 @@ def test_short_run_writes_the_run_folder_loads_and_resumes(tmp_path):
     resumed = compiled_atari.train(longer, BREAKOUT, runner, Run.open(tmp_path / "run"), resume=True)
     assert resumed.updates == 4
     assert [r["env_steps"] for r in read_metrics(tmp_path / "run")] == [64, 128, 192, 256]
+
+
+def _versioned_steps(lag: int, count: int):
+    """The compiled EnvPool runner's iterations on a stand-in whose parameters are a version number:
+    ``collect`` records the version it acted with, ``learn`` makes the next version; with lag 1,
+    learning on rollout k waits until the collection of rollout k+1 has begun (it would time out
+    if the two ran one after the other)."""
+    import threading
+
+    from agentax.runners.compiled_atari import in_one_program, side_by_side
+    from agentax.runners.rollout import OnPolicyCarry
+
+    began = [threading.Event() for _ in range(count + 1)]
+    collected: list[int] = []
+
+    def collect(carry):
+        began[len(collected)].set()
+        collected.append(int(carry.agent))
+        return carry, {"k": len(collected) - 1}, None
+
+    def learn(state, trajectory, key):
+        if lag and trajectory["k"] + 1 < count:
+            assert began[trajectory["k"] + 1].wait(timeout=10), "rollout k+1 did not run beside learning on k"
+        return state + 1, key, {"learned_on": trajectory["k"]}
+
+    def update(carry, key):
+        carry, trajectory, games = collect(carry)
+        state, key, metrics = learn(carry.agent, trajectory, key)
+        return carry.replace(agent=state), key, metrics, games
+
+    carry = OnPolicyCarry(0, None, None, None, None)
+    steps = side_by_side(collect, learn, carry, None, count) if lag else in_one_program(update, carry, None)
+    states = [state for state, _, _, _ in (next(steps) for _ in range(count))]
+    steps.close()
+    return collected, states
+
+
+@pytest.mark.timeout(60)
+def test_policy_lag_1_collects_rollout_k_plus_1_beside_learning_on_k_with_its_starting_parameters():
+    """Lag 0: rollout k acts with the parameters of k updates. Lag 1: rollout k+1 is collected
+    while the learner updates on rollout k, with the parameters that update starts from, so each
+    rollout is one version behind lag 0's (the first two both act with the starting parameters);
+    the learner's versions are the same, and no rollout is collected past the last update."""
+    collected, states = _versioned_steps(lag=0, count=5)
+    assert collected == [0, 1, 2, 3, 4] and states == [1, 2, 3, 4, 5]
+    collected, states = _versioned_steps(lag=1, count=5)
+    assert collected == [0, 0, 1, 2, 3] and states == [1, 2, 3, 4, 5]
+
+
+@pytest.mark.timeout(150)
+def test_policy_lag_1_on_a_real_pool_learns_the_first_update_as_lag_0_and_then_goes_its_way(tmp_path):
+    """Two iterations of 2 Breakout envs × 32 steps at lag 0 and at lag 1 (a row each, a large
+    step size so that one update changes how the policy acts): the first rollouts act with the same
+    parameters, so the first rows agree; the second acts with older ones at lag 1, so the second
+    rows do not. A bad lag is refused."""
+    from agentax.runners import compiled_atari
+    from agentax.runners.compiled_atari import PoolRunnerConfig
+
+    probe = XlaAtari(BREAKOUT, 1, sticky_actions=0.0)
+    overrides = dict(num_envs=2, num_steps=32, num_minibatches=2, update_epochs=1, learning_rate=0.05)
+    agent = _ppo_agent(probe, total_steps=128, **overrides)
+    probe.close()
+    losses = {}
+    for lag in (0, 1):
+        runner = PoolRunnerConfig(log_every_steps=64, eval_episodes=1, sticky_actions=0.0, policy_lag=lag)
+        config = run_config("ppo", BREAKOUT, "atari", compiled_atari.RUNNER_KIND, runner, {})
+        result = compiled_atari.train(agent, BREAKOUT, runner, Run.create(tmp_path / f"lag{lag}", config))
+        assert result.updates == 2 and result.env_steps == 128
+        losses[lag] = np.array([[r["policy_loss"], r["value_loss"]] for r in read_metrics(tmp_path / f"lag{lag}")])
+    np.testing.assert_allclose(losses[1][0], losses[0][0], rtol=1e-4)
+    assert not np.allclose(losses[1][1], losses[0][1], rtol=1e-3)
+    with pytest.raises(UsageError, match="policy lag 0 or 1"):
+        compiled_atari.check(agent, BREAKOUT, PoolRunnerConfig(policy_lag=2))

@@ -79,6 +79,7 @@ CASES: dict[str, dict[str, Any]] = {
         "num_steps": 32,
         "num_minibatches": 2,
         "update_epochs": 1,
+        "policy_lag": 0,  # one program an iteration, as before policy lag 1 (the default) existed
     },
 }
 

@@ -195,14 +195,15 @@ def test_host_ppo_on_half_cheetah_two_updates(tmp_path):
 def test_compiled_ppo_on_hopper_two_updates(tmp_path):
     """PPO with EnvPool's Hopper-v5 inside the program: 4 envs x 64 steps, two updates. An untrained
     Hopper falls within ~20-80 steps, so episodes finish (a mean return in each row) and EnvPool's
-    reset steps are masked (``masked_fraction`` > 0); the checkpoint loads as the host runner's."""
+    reset steps are masked (``masked_fraction`` > 0); the checkpoint loads as the host runner's.
+    Policy lag 1: the second rollout runs beside the first update."""
     from agentax.runners import compiled_atari, host
 
     pool = XlaMujoco("Hopper-v5", 1)
     spec = EnvSpec.of(pool)
     pool.close()
     agent = _ppo_agent(spec, total_steps=512, num_envs=4, num_steps=64)
-    runner = host.HostRunnerConfig(log_every_steps=256, eval_episodes=1)
+    runner = compiled_atari.PoolRunnerConfig(log_every_steps=256, eval_episodes=1, policy_lag=1)
     kind = compiled_atari.MUJOCO_RUNNER_KIND
     run = Run.create(tmp_path / "run", run_config("ppo", "Hopper-v5", "default", kind, runner, {}))
     result = compiled_atari.train(agent, "Hopper-v5", runner, run)

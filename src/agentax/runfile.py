@@ -79,7 +79,8 @@ class RunArgs:
     envs_per_actor: int | None = None
     """parallel and ray runners: envs per actor (sets the algorithm's number of envs to actors × this)"""
     policy_lag: int = 1
-    """parallel runner, on-policy: parameter versions between collecting and learning (0: sequential)"""
+    """parallel runner (on-policy) and compiled runner on Atari and MuJoCo: parameter versions between
+    collecting and learning (0: one after the other)"""
     ray_address: str | None = None
     """ray runner: the Ray cluster to join ('auto', or HOST:PORT of `ray start --head`); default: a
     local Ray for this run, shut down after it. Compiled runner: run the --workers as Ray tasks there"""

@@ -111,7 +111,7 @@ RUNNERS: dict[str, RunnerSpec] = {
     ),
     "compiled-atari": RunnerSpec(
         "agentax.runners.compiled_atari",
-        "agentax.runners.host.HostRunnerConfig",
+        "agentax.runners.compiled_atari.PoolRunnerConfig",
         "atari",
         False,
         _HOST,
@@ -120,7 +120,7 @@ RUNNERS: dict[str, RunnerSpec] = {
     ),
     "compiled-mujoco": RunnerSpec(
         "agentax.runners.compiled_atari",
-        "agentax.runners.host.HostRunnerConfig",
+        "agentax.runners.compiled_atari.PoolRunnerConfig",
         "mujoco",
         False,
         _HOST,

@@ -37,6 +37,9 @@ whole games on the host adapter, greedy with 1 % random actions).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from typing import Any
 
 import jax
@@ -68,6 +71,17 @@ MUJOCO_RUNNER_KIND = "compiled-mujoco"
 """config.json's ``runner_kind`` of these runs on EnvPool's MuJoCo tasks."""
 
 XlaPool = XlaAtari | XlaMujoco
+
+
+@dataclass(frozen=True)
+class PoolRunnerConfig(host.HostRunnerConfig):
+    """The compiled EnvPool runner's settings (the host runner's and this); saved in config.json
+    under "runner" (a run written before it existed resumes with ``policy_lag`` 0, as it ran)."""
+
+    policy_lag: int = 0
+    """parameter versions between collecting a rollout and learning from it: 0 runs rollout and
+    learning one after the other in one program; 1 collects rollout k+1 in a thread beside the
+    learning on rollout k, with the parameters that learning starts from"""
 
 
 @struct.dataclass
@@ -109,6 +123,10 @@ class AtariEnvs:
 
 def check(agent: Agent, env_id: str, runner: host.HostRunnerConfig, num_seeds: int = 1) -> None:
     """A ``UsageError`` for what this runner cannot train, before anything is made or written."""
+    if policy_lag_of(runner) not in (0, 1):
+        raise UsageError(
+            f"the compiled EnvPool runner collects with policy lag 0 or 1, not --policy-lag {runner.policy_lag}"
+        )
     if num_seeds != 1:
         raise UsageError(
             "the compiled EnvPool runner trains one seed per process (--seeds 1): EnvPool's pool, stepped "
@@ -146,21 +164,83 @@ def start(agent_state: Any, env: XlaPool, key: jax.Array, env_steps: int) -> OnP
     return OnPolicyCarry(agent_state, Pool(handle, EpisodeTracker.create(env.num_envs)), obs, key, episodes)
 
 
-def make_update(agent: Agent, env: XlaPool):
-    """``update(carry, learner_key) -> (carry, learner_key, metrics, games [T, E])`` (jittable): one
-    iteration, the on-policy rollout on ``env`` then ``agent.learn`` (keys as the host runner's)."""
+def make_collect(agent: Agent, env: XlaPool) -> Callable:
+    """``collect(carry) -> (carry, trajectory, games [T, E])`` (jittable): the on-policy rollout on
+    ``env`` with ``carry.agent``'s parameters, the games it finished taken out of the trajectory."""
     rollout = on_policy_rollout(agent, AtariEnvs(env), kernels.learning_loop(env.observation_space().shape))
 
-    def update(carry: OnPolicyCarry, learner_key: jax.Array):
-        learner_key, learn_key = jax.random.split(learner_key)
+    def collect(carry: OnPolicyCarry):
         carry, trajectory = rollout(carry)
         info = dict(trajectory.info)
         games = info.pop("games")
-        state, metrics = agent.learn(carry.agent, trajectory.replace(info=info), learn_key)
-        metrics = {**metrics, "masked_fraction": 1.0 - info["valid"].mean()}
+        return carry, trajectory.replace(info=info), games
+
+    return collect
+
+
+def make_learn(agent: Agent) -> Callable:
+    """``learn(state, trajectory, learner_key) -> (state, learner_key, metrics)`` (jittable):
+    ``agent.learn`` on one rollout, its key split from the learner's chain (the host runner's)."""
+
+    def learn(state: Any, trajectory: Any, learner_key: jax.Array):
+        learner_key, learn_key = jax.random.split(learner_key)
+        state, metrics = agent.learn(state, trajectory, learn_key)
+        metrics = {**metrics, "masked_fraction": 1.0 - trajectory.info["valid"].mean()}
+        return state, learner_key, metrics
+
+    return learn
+
+
+def make_update(agent: Agent, env: XlaPool):
+    """``update(carry, learner_key) -> (carry, learner_key, metrics, games [T, E])`` (jittable): one
+    iteration, the rollout on ``env`` then ``agent.learn`` on it (policy lag 0, one program)."""
+    collect, learn = make_collect(agent, env), make_learn(agent)
+
+    def update(carry: OnPolicyCarry, learner_key: jax.Array):
+        carry, trajectory, games = collect(carry)
+        state, learner_key, metrics = learn(carry.agent, trajectory, learner_key)
         return carry.replace(agent=state), learner_key, metrics, games
 
     return update
+
+
+Iteration = tuple[Any, jax.Array, dict[str, jax.Array], Games]
+"""``(agent state, learner key, metrics, games)`` after one learning iteration."""
+
+
+def in_one_program(update: Callable, carry: OnPolicyCarry, learner_key: jax.Array) -> Iterator[Iteration]:
+    """Policy lag 0: each iteration ``update`` (rollout, then learning on it) in one call."""
+    while True:
+        carry, learner_key, metrics, games = update(carry, learner_key)
+        yield carry.agent, learner_key, metrics, games
+
+
+def side_by_side(
+    collect: Callable, learn: Callable, carry: OnPolicyCarry, learner_key: jax.Array, count: int
+) -> Iterator[Iteration]:
+    """Policy lag 1, ``count`` iterations: while ``learn`` runs on rollout k here, a thread runs
+    ``collect`` for rollout k+1 with the parameters that learning on rollout k starts from (one
+    version behind those it makes), so EnvPool and acting overlap learning (XLA's client for every
+    CPU runs both programs at once). The first two rollouts both use the starting parameters.
+    Closed early, it waits for the thread's rollout to end (leaving the executor does)."""
+
+    def collected(carry: OnPolicyCarry):
+        return jax.block_until_ready(collect(carry))
+
+    state = carry.agent
+    with ThreadPoolExecutor(1, thread_name_prefix="agentax-collect") as thread:
+        pending = thread.submit(collected, carry)
+        for k in range(count):
+            carry, trajectory, games = pending.result()
+            if k + 1 < count:
+                pending = thread.submit(collected, carry.replace(agent=state))
+            state, learner_key, metrics = learn(state, trajectory, learner_key)
+            yield state, learner_key, metrics, games
+
+
+def policy_lag_of(runner: host.HostRunnerConfig) -> int:
+    """The runner's policy lag (a plain ``HostRunnerConfig``, as tests build, has 0)."""
+    return getattr(runner, "policy_lag", 0)
 
 
 def finished_games(games: Games) -> list[tuple[float, int]]:
@@ -191,27 +271,32 @@ def train(
     experience: OnPolicy = agent.experience
     env = make_pool(env_id, experience.num_envs, host.actor_seed(runner.seed, 0, updates), runner)
     carry = start(session.state, env, host.fold_actor_key(session.actors_key, 0, updates), env_steps)
-    update = jax.jit(make_update(agent, env), donate_argnums=0)
-    total_updates = host.num_updates(agent)
-    scores: list[float] = []
-    with session.begin(f"{agent.name} {env_id} (compiled)", progress):
+    total_updates, lag = host.num_updates(agent), policy_lag_of(runner)
+    if lag == 0:
+        steps = in_one_program(jax.jit(make_update(agent, env), donate_argnums=0), carry, learner_key)
+    else:  # the collector's carry shares the parameters the learner reads: nothing donated
+        collect, learn = jax.jit(make_collect(agent, env)), jax.jit(make_learn(agent))
+        steps = side_by_side(collect, learn, carry, learner_key, total_updates - updates)
+    state, scores = carry.agent, []
+    with session.begin(f"{agent.name} {env_id} (compiled{', policy lag 1' if lag else ''})", progress):
         try:
             while updates < total_updates:
-                carry, learner_key, metrics, games = update(carry, learner_key)
+                state, learner_key, metrics, games = next(steps)
                 updates += 1
                 env_steps += experience.num_envs * experience.num_steps
-                finished = finished_games(games)  # waits for the iteration: speeds count all of it
+                finished = finished_games(games)  # waits for the rollout: speeds count all of it
                 games_done += len(finished)
                 scores += [score for score, _ in finished]
                 last = updates >= total_updates
                 if not session.row_due(env_steps, last):
                     continue
-                args = (carry.agent, learner_key, env_steps, updates, scores, metrics)
+                args = (state, learner_key, env_steps, updates, scores, metrics)
                 extra = {"frames": FRAME_SKIP * env_steps} if isinstance(env, XlaAtari) else {}
                 counts = {"games": games_done}
                 scores = []
                 if session.log_row(*args, final=last, extra=extra, counts=counts):
                     break
         finally:
+            steps.close()  # the collector's rollout ends before its pool does
             env.close()
-    return session.finish(carry.agent, env_steps, updates)
+    return session.finish(state, env_steps, updates)

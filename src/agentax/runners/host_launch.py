@@ -62,11 +62,10 @@ def configure_in_program(run_args: Any, agent: Any, common: dict[str, Any]) -> t
     """The compiled EnvPool runners' settings (the host runner's), refused where the program
     cannot step the env or train the agent."""
     from agentax.runners import compiled_atari
-    from agentax.runners.host import HostRunnerConfig
 
-    runner = HostRunnerConfig(**common)
+    runner = compiled_atari.PoolRunnerConfig(**common, policy_lag=run_args.policy_lag)
     compiled_atari.check(agent, run_args.env, runner, run_args.seeds)
-    return runner, "compiled, EnvPool inside the program"
+    return runner, f"compiled, EnvPool inside the program, policy lag {runner.policy_lag}"
 
 
 def reopen(config: dict[str, Any], module: Any, cfg: Any, runner: Any) -> Launch:
