@@ -17,9 +17,10 @@ Rows, all measured in this run, one after the other:
   learning starts, SB3's DQN (``.bench-venv``: torch on the CPU, its Atari wrappers) and
   ``agentax train dqn`` (host runner, parallel runner with one actor) at the same settings;
 - **PPO and PQN**: agent steps per second of PPO's ``atari`` preset and PQN's ``breakout-hour`` on
-  the host runner, the parallel runner (policy lag 1) and the compiled Atari runner (EnvPool stepped
-  inside the jitted rollout), after the first update (which compiles). ``python
-  benchmarks/bench_atari.py on-policy`` measures these rows alone and prints them.
+  the host runner, the parallel runner (policy lag 1), the compiled Atari runner (EnvPool stepped
+  inside the jitted rollout; policy lag 0 and 1) and the Ray runner, after the first update (which
+  compiles), in a process of their own (jax's client for every CPU, as ``agentax train`` makes it).
+  ``python benchmarks/bench_atari.py on-policy`` measures these rows alone and prints them.
 
 ``AGENTAX_BENCH_QUICK=1`` shortens every run (the notes say so).
 """
@@ -510,6 +511,18 @@ def on_policy_rows() -> tuple[list[list], dict[str, dict[str, dict]]]:
     return rows, runs
 
 
+def on_policy_rows_in_a_fresh_process() -> tuple[list[list], dict[str, dict[str, dict]]]:
+    """:func:`on_policy_rows` in a new process, as ``agentax train`` runs them: this one's jax client
+    was made on one CPU for the learning-step rows, and on it XLA runs one program at a time, so the
+    parallel runner and the compiled one at policy lag 1 could not overlap collection and learning."""
+    command = [sys.executable, str(Path(__file__).resolve()), "on-policy", "--json"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=1_800)
+    if done.returncode != 0:
+        raise RuntimeError(f"the on-policy rows failed:\n{done.stderr[-2000:]}")
+    table, runs = json.loads(done.stdout.strip().splitlines()[-1])
+    return table, runs
+
+
 # ---------------------------------------------------------------- the section
 
 
@@ -612,7 +625,7 @@ def run() -> dict:
                 ]
             )
 
-    more_rows, on_policy_runs = on_policy_rows()
+    more_rows, on_policy_runs = on_policy_rows_in_a_fresh_process()
     rows += more_rows
 
     notes = _notes(sb3, dqn_runs, on_policy_runs, load_before, notes_extra)
@@ -733,9 +746,12 @@ def _sb3_version() -> str:
 
 
 if __name__ == "__main__":
-    if sys.argv[1:] != ["on-policy"]:
-        sys.exit("usage: python benchmarks/bench_atari.py on-policy  (all of it: benchmarks/run.py atari)")
+    if sys.argv[1:] not in (["on-policy"], ["on-policy", "--json"]):
+        sys.exit("usage: python benchmarks/bench_atari.py on-policy [--json]  (all of it: benchmarks/run.py atari)")
     table, figures = on_policy_rows()
+    if sys.argv[2:] == ["--json"]:
+        print(json.dumps([table, figures]))
+        sys.exit(0)
     for what, runner, rate, _, ratio, first, _ in table:
         print(f"{what:<36} {runner:<52} {rate:8.1f} agent steps/s  x{ratio:.2f}  first update {first} s")
     print(_on_policy_notes(figures))

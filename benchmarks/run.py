@@ -15,7 +15,9 @@ a reference run side by side, never against stored numbers) and should finish wi
 The harness adds machine info (the CPU as ``lscpu`` names it: model, vendor, family, model number
 and flags; cpu count, platform, python, jax version and backend, date) and the section's wall time,
 prints the table, writes ``benchmarks/results/<NAME>.json`` and then rebuilds ``benchmarks/README.md``
-from every stored result, so sections run on different days coexist.
+from every stored result, so sections run on different days coexist. A result never replaces another
+CPU's: where ``<NAME>.json`` was measured on another CPU, this one's goes to ``<NAME>@<cpu>.json``
+beside it (``amd-epyc``, ``intel-xeon``), so where the CPU changes a figure both machines' stand.
 
 ``python benchmarks/run.py`` runs every section; ``python benchmarks/run.py envs dqn`` runs the named
 ones; ``--list`` prints the names. A section that raises prints its traceback and the others still
@@ -138,6 +140,20 @@ def cpu_label(machine: dict) -> str:
     return f"{name}, {'AMX' if 'amx_tile' in flags else 'no AMX'}"
 
 
+def cpu_slug(machine: dict) -> str:
+    """The CPU in a file name: ``amd-epyc``, ``intel-xeon`` (the first two words of its label)."""
+    return "-".join(cpu_label(machine).replace(",", " ").lower().split()[:2])
+
+
+def result_path(name: str, machine: dict) -> Path:
+    """Where this machine's result of section ``name`` goes: ``results/NAME.json``, unless that file
+    holds another CPU's figures, which stay beside it: then ``results/NAME@CPU.json`` (``cpu_slug``)."""
+    path = RESULTS_DIR / f"{name}.json"
+    if path.is_file() and cpu_slug(json.loads(path.read_text()).get("machine", {})) != cpu_slug(machine):
+        return RESULTS_DIR / f"{name}@{cpu_slug(machine)}.json"
+    return path
+
+
 def load_section(name: str, path: Path):
     """Import ``path`` as a module (the benchmarks folder is importable, for shared helpers)."""
     if str(BENCH_DIR) not in sys.path:
@@ -233,9 +249,10 @@ def run_section(name: str, path: Path) -> dict:
     check_result(name, result)
     result = dict(result, machine=machine_info(), wall_seconds=round(time.perf_counter() - start, 1))
     RESULTS_DIR.mkdir(exist_ok=True)
-    tmp = RESULTS_DIR / f".{name}.json.tmp"
+    path = result_path(name, result["machine"])
+    tmp = path.with_name(f".{path.name}.tmp")
     tmp.write_text(json.dumps(result, indent=1) + "\n")
-    tmp.replace(RESULTS_DIR / f"{name}.json")
+    tmp.replace(path)
     return result
 
 

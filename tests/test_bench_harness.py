@@ -55,6 +55,25 @@ def test_runs_sections_stores_results_and_writes_the_readme(harness, tmp_path, c
     assert "unknown benchmark nope; choose from broken, good" in capsys.readouterr().err
 
 
+def test_a_result_of_another_cpu_stays_and_this_cpus_goes_beside_it(harness, tmp_path, monkeypatch):
+    """A stored result of another CPU is never replaced: this machine's goes to NAME@CPU.json, and a
+    rerun on this CPU replaces only its own."""
+    (tmp_path / "bench_good.py").write_text(GOOD)
+    results = tmp_path / "results"
+    results.mkdir()
+    xeon = {"name": "good", "title": "Good", "headers": ["envs"], "rows": [], "notes": "", "machine": {}}
+    xeon["machine"]["cpu"] = {"model_name": "Intel(R) Xeon(R) Platinum 8481C CPU"}
+    (results / "good.json").write_text(json.dumps(xeon))
+    amd = {"model_name": "AMD EPYC 9B14", "flags": ["fpu", "avx512_bf16"]}
+    monkeypatch.setattr(harness, "cpu_info", lambda: amd)
+    assert harness.main(["good"]) == 0 and harness.main(["good"]) == 0
+    assert json.loads((results / "good.json").read_text()) == xeon
+    assert sorted(p.name for p in results.glob("*.json")) == ["good.json", "good@amd-epyc.json"]
+    assert json.loads((results / "good@amd-epyc.json").read_text())["machine"]["cpu"] == amd
+    (results / "good.json").unlink()  # no other CPU's result: NAME.json
+    assert harness.main(["good"]) == 0 and (results / "good.json").is_file()
+
+
 def test_a_result_that_breaks_the_contract_fails_its_section(harness, tmp_path):
     (tmp_path / "bench_good.py").write_text(WRONG_NAME)
     assert harness.main(["good"]) == 1

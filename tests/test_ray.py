@@ -292,6 +292,7 @@ def test_ppo_on_ray_actors_learns_and_gives_the_thread_actors_numbers(cluster, t
     assert {f for f in files if "tfevents" not in f} == {f for f in thread_files if "tfevents" not in f}
 
 
+@pytest.mark.long  # ~28 s: make test-long (make test keeps the --workers tests without Ray)
 @pytest.mark.timeout(240)
 def test_the_compiled_runners_workers_run_as_ray_tasks_on_both_nodes_with_one_process_numbers(
     cluster, tmp_path
