@@ -179,6 +179,11 @@ RUNNERS = {
     "compiled": "compiled Atari runner (EnvPool inside the program)",
     "ray": "Ray runner (1 actor process, policy lag 1)",
 }
+RUNNERS_NOW = {  # the runner rows since the compiled runner has a policy lag (bench_atari.RUNNERS)
+    **RUNNERS,
+    "compiled": "compiled Atari runner (EnvPool inside the program, policy lag 0)",
+    "compiled-lag1": "compiled Atari runner (policy lag 1: collection beside learning)",
+}
 LEARNER = "DQN update, batch 32"
 PQN_ITERATION = "PQN breakout-hour iteration"
 SAC_PROCESS = "`agentax train sac --env Pendulum-v1` process (compiled runner)"
@@ -474,6 +479,20 @@ def _figures() -> dict[str, Figure]:
                 over_host = ratio("atari", (group, what), (group, RUNNERS["host"]), col="rate")
                 figures[f"atari.{agent}.{key}.over_host"] = over_host
 
+    # the same Atari rows on the AMD EPYC (atari@amd-epyc.json, beside the Xeon's atari.json)
+    amd = "atari@amd-epyc"
+    figures["atari.amd.cpu"] = cpu(amd)
+    for key, what in dqn_runners.items():
+        figures[f"atari.amd.dqn.{key}"] = bench(amd, ATARI_DQN, what, col="rate", fmt=si)
+        if key != "sb3":
+            figures[f"atari.amd.dqn.{key}.ratio"] = bench(amd, ATARI_DQN, what, col="÷ reference", fmt="{:.2f}")
+    for key, what in RUNNERS_NOW.items():
+        for agent, group in (("ppo", ATARI_PPO), ("pqn", ATARI_PQN)):
+            figures[f"atari.amd.{agent}.{key}"] = bench(amd, group, what, col="rate", fmt=si)
+    for agent, group in (("ppo", ATARI_PPO), ("pqn", ATARI_PQN)):
+        lag1, lag0 = (group, RUNNERS_NOW["compiled-lag1"]), (group, RUNNERS_NOW["compiled"])
+        figures[f"atari.amd.{agent}.lag1_over_lag0"] = ratio(amd, lag1, lag0, col="rate")
+
     # the Atari learner (learner.json)
     ms = "ms per update"
     for conv in ("XLA f32", "oneDNN f32", "oneDNN bf16"):
@@ -484,6 +503,17 @@ def _figures() -> dict[str, Figure]:
         figures[f"learner.{key}.one_cpu"] = bench(
             "learner", LEARNER, f"agentax, {conv}, XLA on one CPU (compiled)", col=ms, fmt="{:.1f}"
         )
+    amd = "learner@amd-epyc"  # the same update on the AMD EPYC, beside the Xeon's learner.json
+    figures["learner.amd.cpu"] = cpu(amd)
+    for conv in ("XLA f32", "oneDNN f32", "oneDNN bf16"):
+        key = conv.lower().replace(" ", "_")
+        figures[f"learner.amd.{key}.every_cpu"] = bench(
+            amd, LEARNER, f"agentax, {conv}, XLA on every CPU (host, parallel)", col=ms, fmt="{:.1f}"
+        )
+    for key, what in (("torch_f32", "torch f32"), ("torch_bf16", "torch bf16 autocast")):
+        figures[f"learner.amd.{key}"] = bench(amd, LEARNER, what, col=ms, fmt="{:.1f}")
+    auto = "AGENTAX_CONV=auto's choice: agentax, oneDNN bf16, its own measure (one-cpu)"
+    figures["learner.amd.auto"] = bench(amd, LEARNER, auto, col=ms, fmt="{:.1f}")
     figures["learner.torch_f32"] = bench("learner", LEARNER, "torch f32", col=ms, fmt="{:.1f}")
     figures["learner.torch_bf16"] = bench("learner", LEARNER, "torch bf16 autocast", col=ms, fmt="{:.1f}")
     figures["learner.xla_over_bf16"] = ratio(
