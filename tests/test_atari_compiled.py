@@ -345,3 +345,40 @@ def test_policy_lag_1_on_a_real_pool_learns_the_first_update_as_lag_0_and_then_g
     assert not np.allclose(losses[1][1], losses[0][1], rtol=1e-3)
     with pytest.raises(UsageError, match="policy lag 0 or 1"):
         compiled_atari.check(agent, BREAKOUT, PoolRunnerConfig(policy_lag=2))
+
+
+@pytest.mark.long  # ~40 s: make test-long (2,400 iterations in 6 processes ran clean on 2026-12-06)
+@pytest.mark.timeout(170)
+def test_policy_lag_1_runs_400_iterations_without_hanging():
+    """XLA's CPU client hung on some programs called again and again (DESIGN.md's hazard): 400
+    iterations of a small PPO's rollout in a thread beside its learning, in a fresh process."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent(
+        """
+        import dataclasses, jax
+        from agentax import _xla
+        _xla.let_xla_use_every_cpu()
+        from agentax.agents import ppo, presets
+        from agentax.agents.protocol import EnvSpec
+        from agentax.envs.envpool_xla import XlaAtari
+        from agentax.runners import compiled_atari as ca
+        from agentax.runners.launch import agent_maker
+        probe = XlaAtari("ALE/Breakout-v5", 1, sticky_actions=0.0)
+        cfg = dataclasses.replace(presets.preset("ppo", "atari").config, num_envs=4, num_steps=16,
+                                  num_minibatches=2, update_epochs=1).validate()
+        agent = agent_maker(ppo, EnvSpec.of(probe), cfg)()
+        probe.close()
+        env = ca.make_pool("ALE/Breakout-v5", 4, 0, ca.PoolRunnerConfig())
+        carry = ca.start(agent.init(jax.random.key(0)), env, jax.random.key(1), 0)
+        collect, learn = jax.jit(ca.make_collect(agent, env)), jax.jit(ca.make_learn(agent))
+        steps = ca.side_by_side(collect, learn, carry, jax.random.key(2), 400)
+        done = sum(1 for _, _, metrics, _ in steps if jax.block_until_ready(metrics) is not None)
+        env.close()
+        print("iterations", done)
+        """
+    )
+    ran = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=160)
+    assert ran.returncode == 0 and "iterations 400" in ran.stdout, ran.stderr[-2000:]
