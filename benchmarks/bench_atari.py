@@ -747,7 +747,9 @@ def _sb3_version() -> str:
 
 if __name__ == "__main__":
     if sys.argv[1:] not in (["on-policy"], ["on-policy", "--json"]):
-        sys.exit("usage: python benchmarks/bench_atari.py on-policy [--json]  (all of it: benchmarks/run.py atari)")
+        sys.exit(
+            "usage: python benchmarks/bench_atari.py on-policy [--json]  (all of it: benchmarks/run.py atari)"
+        )
     table, figures = on_policy_rows()
     if sys.argv[2:] == ["--json"]:
         print(json.dumps([table, figures]))

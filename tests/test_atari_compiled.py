@@ -340,7 +340,9 @@ def test_policy_lag_1_on_a_real_pool_learns_the_first_update_as_lag_0_and_then_g
         config = run_config("ppo", BREAKOUT, "atari", compiled_atari.RUNNER_KIND, runner, {})
         result = compiled_atari.train(agent, BREAKOUT, runner, Run.create(tmp_path / f"lag{lag}", config))
         assert result.updates == 2 and result.env_steps == 128
-        losses[lag] = np.array([[r["policy_loss"], r["value_loss"]] for r in read_metrics(tmp_path / f"lag{lag}")])
+        losses[lag] = np.array(
+            [[r["policy_loss"], r["value_loss"]] for r in read_metrics(tmp_path / f"lag{lag}")]
+        )
     np.testing.assert_allclose(losses[1][0], losses[0][0], rtol=1e-4)
     assert not np.allclose(losses[1][1], losses[0][1], rtol=1e-3)
     with pytest.raises(UsageError, match="policy lag 0 or 1"):

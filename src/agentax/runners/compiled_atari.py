@@ -125,7 +125,8 @@ def check(agent: Agent, env_id: str, runner: host.HostRunnerConfig, num_seeds: i
     """A ``UsageError`` for what this runner cannot train, before anything is made or written."""
     if policy_lag_of(runner) not in (0, 1):
         raise UsageError(
-            f"the compiled EnvPool runner collects with policy lag 0 or 1, not --policy-lag {runner.policy_lag}"
+            "the compiled EnvPool runner collects with policy lag 0 or 1, "
+            f"not --policy-lag {runner.policy_lag}"
         )
     if num_seeds != 1:
         raise UsageError(
