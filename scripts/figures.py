@@ -28,6 +28,7 @@ one from a finished run folder, on the machine that trained it)::
 from __future__ import annotations
 
 import argparse
+import csv
 import datetime
 import importlib.util
 import json
@@ -66,7 +67,9 @@ class Figure:
     fmt: str | Callable[[object], str] = "{}"
 
     def show(self, root: Path) -> str:
-        value = self.read(json.loads((root / self.source).read_text()))
+        text = (root / self.source).read_text()
+        record = list(csv.DictReader(text.splitlines())) if self.source.endswith(".csv") else json.loads(text)
+        value = self.read(record)
         return self.fmt(value) if callable(self.fmt) else self.fmt.format(value)
 
 
@@ -120,6 +123,21 @@ def evidence(name: str, file: str, key: str, fmt: str | Callable = "{}") -> Figu
         return record
 
     return Figure(f"evidence/{name}/{file}", read, fmt)
+
+
+def passed(name: str, score: float, column: str, rows: int = 10) -> Figure:
+    """``column`` (``wall_seconds``, ``env_steps``) of the first row of ``evidence/NAME/metrics.csv``
+    where the mean of the last ``rows`` rows' ``mean_return`` (the training games' true score) is at
+    least ``score``."""
+
+    def read(metrics: list[dict]):
+        scores = [float(row["mean_return"]) if row["mean_return"] else float("nan") for row in metrics]
+        for i in range(rows - 1, len(metrics)):
+            if sum(scores[i - rows + 1 : i + 1]) / rows >= score:
+                return float(metrics[i][column])
+        raise LookupError(f"evidence/{name}/metrics.csv never reaches a mean of {score} over {rows} rows")
+
+    return Figure(f"evidence/{name}/metrics.csv", read)
 
 
 def si(value) -> str:

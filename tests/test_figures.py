@@ -198,3 +198,17 @@ def test_an_evidence_folder_from_a_run_folder(tmp_path: Path):
     with pytest.raises(FileNotFoundError, match="lacks eval.json"):
         (run / "eval.json").unlink()
         figures.make_evidence(run, "y", "c", 1.0, root=tmp_path)
+
+
+def test_a_score_passed_is_read_from_the_evidence_metrics(tmp_path: Path):
+    """The first row where the mean of the last 3 rows' score reaches 7, worked by hand: scores
+    1, none (no game finished: its windows never count), 5, 7, 9 (mean 7: this row), 11."""
+    folder = tmp_path / "evidence" / "x"
+    folder.mkdir(parents=True)
+    rows = [(100, 1.0, 10), (200, "", 20), (300, 5.0, 30), (400, 7.0, 40), (500, 9.0, 50), (600, 11.0, 60)]
+    text = "env_steps,mean_return,wall_seconds\n" + "".join(f"{a},{b},{c}\n" for a, b, c in rows)
+    (folder / "metrics.csv").write_text(text)
+    assert figures.passed("x", 7.0, "env_steps", rows=3).show(tmp_path) == "500.0"  # 5, 7, 9
+    assert figures.passed("x", 7.0, "wall_seconds", rows=3).show(tmp_path) == "50.0"
+    with pytest.raises(LookupError, match="never reaches a mean of 100"):
+        figures.passed("x", 100.0, "env_steps", rows=3).show(tmp_path)
