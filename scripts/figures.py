@@ -125,7 +125,7 @@ def evidence(name: str, file: str, key: str, fmt: str | Callable = "{}") -> Figu
     return Figure(f"evidence/{name}/{file}", read, fmt)
 
 
-def passed(name: str, score: float, column: str, rows: int = 10) -> Figure:
+def passed(name: str, score: float, column: str, fmt: str | Callable = "{}", rows: int = 10) -> Figure:
     """``column`` (``wall_seconds``, ``env_steps``) of the first row of ``evidence/NAME/metrics.csv``
     where the mean of the last ``rows`` rows' ``mean_return`` (the training games' true score) is at
     least ``score``."""
@@ -137,7 +137,7 @@ def passed(name: str, score: float, column: str, rows: int = 10) -> Figure:
                 return float(metrics[i][column])
         raise LookupError(f"evidence/{name}/metrics.csv never reaches a mean of {score} over {rows} rows")
 
-    return Figure(f"evidence/{name}/metrics.csv", read)
+    return Figure(f"evidence/{name}/metrics.csv", read, fmt)
 
 
 def si(value) -> str:
@@ -674,7 +674,7 @@ def write(root: Path = ROOT, figures: dict[str, Figure] = FIGURES) -> list[Path]
 
 
 def time_log(path: Path) -> dict:
-    """The command and wall-clock of a GNU ``/usr/bin/time -v`` log."""
+    """The command, wall-clock and (where it says) CPU share of a GNU ``/usr/bin/time -v`` log."""
     text = path.read_text()
     command = re.search(r'Command being timed: "(.*)"', text)
     clock = re.search(r"Elapsed \(wall clock\) time \(h:mm:ss or m:ss\): ([\d:.]+)", text)
@@ -683,11 +683,16 @@ def time_log(path: Path) -> dict:
     seconds = 0.0
     for part in clock.group(1).split(":"):
         seconds = seconds * 60 + float(part)
-    return {"command": command.group(1), "wall_seconds": round(seconds, 1)}
+    timed = {"command": command.group(1), "wall_seconds": round(seconds, 1)}
+    share = re.search(r"Percent of CPU this job got: (\d+)%", text)
+    return {**timed, "cpu_percent": int(share.group(1))} if share else timed
 
 
-def make_evidence(run_dir: Path, name: str, command: str, wall_seconds: float, root: Path = ROOT) -> Path:
-    """``evidence/NAME/`` from a finished run folder, with the command, its wall-clock and this CPU."""
+def make_evidence(
+    run_dir: Path, name: str, command: str, wall_seconds: float, root: Path = ROOT, **timed: float
+) -> Path:
+    """``evidence/NAME/`` from a finished run folder, with the command, its wall-clock (and what
+    else ``timed`` says: ``cpu_percent``) and this CPU."""
     missing = [file for file in ("config.json", "metrics.csv", "eval.json") if not (run_dir / file).is_file()]
     if missing:
         raise FileNotFoundError(f"{run_dir} lacks {', '.join(missing)}: not a finished run folder")
@@ -701,6 +706,7 @@ def make_evidence(run_dir: Path, name: str, command: str, wall_seconds: float, r
     record = {
         "command": command,
         "wall_seconds": wall_seconds,
+        **timed,
         "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "commit": commit,
         "cpu": HARNESS.cpu_info(),
@@ -728,7 +734,7 @@ def main(argv: list[str] | None = None) -> int:
         if not (args.name and args.time_log):
             parser.error("--evidence needs --name and --time-log")
         timed = time_log(args.time_log)
-        folder = make_evidence(args.evidence, args.name, timed["command"], timed["wall_seconds"], args.root)
+        folder = make_evidence(args.evidence, args.name, root=args.root, **timed)
         print(f"wrote {folder}")
         return 0
     if args.list:

@@ -189,12 +189,14 @@ def test_an_evidence_folder_from_a_run_folder(tmp_path: Path):
         (run / file).write_text(content)
     log = tmp_path / "time.log"
     clock = "\tElapsed (wall clock) time (h:mm:ss or m:ss): 1:02:03.5\n"
-    log.write_text('\tCommand being timed: "agentax train ppo --env X"\n' + clock)
+    share = "\tPercent of CPU this job got: 183%\n"
+    log.write_text('\tCommand being timed: "agentax train ppo --env X"\n' + share + clock)
     timed = figures.time_log(log)
-    assert timed == {"command": "agentax train ppo --env X", "wall_seconds": 3723.5}
-    folder = figures.make_evidence(run, "x", timed["command"], timed["wall_seconds"], root=tmp_path)
+    assert timed == {"command": "agentax train ppo --env X", "wall_seconds": 3723.5, "cpu_percent": 183}
+    folder = figures.make_evidence(run, "x", root=tmp_path, **timed)
     assert sorted(p.name for p in folder.iterdir()) == ["config.json", "eval.json", "metrics.csv", "run.json"]
-    assert json.loads((folder / "run.json").read_text())["wall_seconds"] == 3723.5
+    record = json.loads((folder / "run.json").read_text())
+    assert (record["wall_seconds"], record["cpu_percent"]) == (3723.5, 183)
     with pytest.raises(FileNotFoundError, match="lacks eval.json"):
         (run / "eval.json").unlink()
         figures.make_evidence(run, "y", "c", 1.0, root=tmp_path)
