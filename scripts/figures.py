@@ -127,14 +127,16 @@ def evidence(name: str, file: str, key: str, fmt: str | Callable = "{}") -> Figu
 
 def passed(name: str, score: float, column: str, fmt: str | Callable = "{}", rows: int = 10) -> Figure:
     """``column`` (``wall_seconds``, ``env_steps``) of the first row of ``evidence/NAME/metrics.csv``
-    where the mean of the last ``rows`` rows' ``mean_return`` (the training games' true score) is at
-    least ``score``."""
+    where the mean of the last ``rows`` scores (the training games' true score; a row in which no
+    game finished has none) is at least ``score``."""
 
     def read(metrics: list[dict]):
-        scores = [float(row["mean_return"]) if row["mean_return"] else float("nan") for row in metrics]
-        for i in range(rows - 1, len(metrics)):
-            if sum(scores[i - rows + 1 : i + 1]) / rows >= score:
-                return float(metrics[i][column])
+        scores: list[float] = []
+        for row in metrics:
+            if row["mean_return"]:
+                scores.append(float(row["mean_return"]))
+                if len(scores) >= rows and sum(scores[-rows:]) / rows >= score:
+                    return float(row[column])
         raise LookupError(f"evidence/{name}/metrics.csv never reaches a mean of {score} over {rows} rows")
 
     return Figure(f"evidence/{name}/metrics.csv", read, fmt)
@@ -503,7 +505,9 @@ def _figures() -> dict[str, Figure]:
     for key, what in dqn_runners.items():
         figures[f"atari.amd.dqn.{key}"] = bench(amd, ATARI_DQN, what, col="rate", fmt=si)
         if key != "sb3":
-            figures[f"atari.amd.dqn.{key}.ratio"] = bench(amd, ATARI_DQN, what, col="÷ reference", fmt="{:.2f}")
+            figures[f"atari.amd.dqn.{key}.ratio"] = bench(
+                amd, ATARI_DQN, what, col="÷ reference", fmt="{:.2f}"
+            )
     for key, what in RUNNERS_NOW.items():
         for agent, group in (("ppo", ATARI_PPO), ("pqn", ATARI_PQN)):
             figures[f"atari.amd.{agent}.{key}"] = bench(amd, group, what, col="rate", fmt=si)

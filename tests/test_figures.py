@@ -203,14 +203,15 @@ def test_an_evidence_folder_from_a_run_folder(tmp_path: Path):
 
 
 def test_a_score_passed_is_read_from_the_evidence_metrics(tmp_path: Path):
-    """The first row where the mean of the last 3 rows' score reaches 7, worked by hand: scores
-    1, none (no game finished: its windows never count), 5, 7, 9 (mean 7: this row), 11."""
+    """The first row where the mean of the last 3 scores reaches 7, and 4, worked by hand: scores
+    1, none (no game finished in that row), 5, 7, 9, 11: 1-5-7 (mean 4.3) at 400, 5-7-9 (7) at 500."""
     folder = tmp_path / "evidence" / "x"
     folder.mkdir(parents=True)
     rows = [(100, 1.0, 10), (200, "", 20), (300, 5.0, 30), (400, 7.0, 40), (500, 9.0, 50), (600, 11.0, 60)]
     text = "env_steps,mean_return,wall_seconds\n" + "".join(f"{a},{b},{c}\n" for a, b, c in rows)
     (folder / "metrics.csv").write_text(text)
-    assert figures.passed("x", 7.0, "env_steps", rows=3).show(tmp_path) == "500.0"  # 5, 7, 9
+    assert figures.passed("x", 7.0, "env_steps", rows=3).show(tmp_path) == "500.0"
     assert figures.passed("x", 7.0, "wall_seconds", rows=3).show(tmp_path) == "50.0"
+    assert figures.passed("x", 4.0, "env_steps", rows=3).show(tmp_path) == "400.0"
     with pytest.raises(LookupError, match="never reaches a mean of 100"):
         figures.passed("x", 100.0, "env_steps", rows=3).show(tmp_path)
