@@ -213,7 +213,13 @@ WORKERS = {
     "taskset": "2 workers, confined to one core (taskset -c 0)",
     "two": "2 workers, both cores",
 }
-TRAINED = ("ppo-halfcheetah-1m", "ppo-halfcheetah-1m-seed1", "ppo-halfcheetah-1m-seed2", "sac-halfcheetah-1m")  # the folders of evidence/ whose scores the pages show
+TRAINED = (
+    "ppo-halfcheetah-1m",
+    "ppo-halfcheetah-1m-seed1",
+    "ppo-halfcheetah-1m-seed2",
+    "sac-halfcheetah-1m",
+    "pqn-breakout-hour-lag1",
+)  # the folders of evidence/ whose scores the pages show
 
 
 def _figures() -> dict[str, Figure]:
@@ -602,6 +608,10 @@ def _figures() -> dict[str, Figure]:
         figures[f"{name}.steps"] = evidence(name, "eval.json", "env_steps", thousands)
         figures[f"{name}.wall"] = evidence(name, "run.json", "wall_seconds", minutes)
         figures[f"{name}.cpu"] = evidence(name, "run.json", "cpu")
+    breakout = "pqn-breakout-hour-lag1"  # issue 29's run: when its true score passed 30, its CPU share
+    figures[f"{breakout}.passed30.time"] = passed(breakout, 30.0, "wall_seconds", minutes)
+    figures[f"{breakout}.passed30.steps"] = passed(breakout, 30.0, "env_steps", thousands)
+    figures[f"{breakout}.cpu_percent"] = evidence(breakout, "run.json", "cpu_percent")
     return figures
 
 
@@ -678,7 +688,8 @@ def write(root: Path = ROOT, figures: dict[str, Figure] = FIGURES) -> list[Path]
 
 
 def time_log(path: Path) -> dict:
-    """The command, wall-clock and (where it says) CPU share of a GNU ``/usr/bin/time -v`` log."""
+    """The command (its program without the folder), wall-clock and (where it says) CPU share of a
+    GNU ``/usr/bin/time -v`` log."""
     text = path.read_text()
     command = re.search(r'Command being timed: "(.*)"', text)
     clock = re.search(r"Elapsed \(wall clock\) time \(h:mm:ss or m:ss\): ([\d:.]+)", text)
@@ -687,7 +698,8 @@ def time_log(path: Path) -> dict:
     seconds = 0.0
     for part in clock.group(1).split(":"):
         seconds = seconds * 60 + float(part)
-    timed = {"command": command.group(1), "wall_seconds": round(seconds, 1)}
+    program, _, rest = command.group(1).partition(" ")  # .venv/bin/agentax train ... -> agentax train ...
+    timed = {"command": f"{Path(program).name} {rest}".strip(), "wall_seconds": round(seconds, 1)}
     share = re.search(r"Percent of CPU this job got: (\d+)%", text)
     return {**timed, "cpu_percent": int(share.group(1))} if share else timed
 

@@ -190,7 +190,7 @@ def test_an_evidence_folder_from_a_run_folder(tmp_path: Path):
     log = tmp_path / "time.log"
     clock = "\tElapsed (wall clock) time (h:mm:ss or m:ss): 1:02:03.5\n"
     share = "\tPercent of CPU this job got: 183%\n"
-    log.write_text('\tCommand being timed: "agentax train ppo --env X"\n' + share + clock)
+    log.write_text('\tCommand being timed: ".venv/bin/agentax train ppo --env X"\n' + share + clock)
     timed = figures.time_log(log)
     assert timed == {"command": "agentax train ppo --env X", "wall_seconds": 3723.5, "cpu_percent": 183}
     folder = figures.make_evidence(run, "x", root=tmp_path, **timed)
