@@ -45,6 +45,8 @@ def test_train_then_load_scores_the_same(trained, capsys):
     config = json.loads((run.path / "config.json").read_text())
     assert config["preset"] == "cartpole-fast" and config["config"]["learning_rate"] == 2e-3
     assert config["config"]["total_steps"] == 2048 and config["runner"]["num_seeds"] == 2
+    # 2 seeds × 2048 steps are far below the workers' break-even: one process, and run.toml says so
+    assert config["runner"]["workers"] == 1 and "workers = 1" in (run.path / "run.toml").read_text()
     assert run.final_eval == loaded.final_eval == json.loads((run.path / "eval.json").read_text())
     assert len(run.final_eval["per_seed"]) == 2 and "iqm_ci" in run.final_eval
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -16,6 +17,7 @@ from conftest import resume_to_the_end, with_sigint_ignored
 
 import agentax
 from agentax.cli import main
+from agentax.runners import workers
 from agentax.runners.compiled import RunnerConfig
 from agentax.runners.workers import merge_rows, split
 from agentax.runs import read_metrics
@@ -65,6 +67,37 @@ def test_workers_refuse_a_runner_that_trains_one_seed(capsys):
     assert "--workers splits the compiled runner's seeds" in capsys.readouterr().err
     assert main(["train", "ppo", "--workers", "0"]) == 2
     assert "--workers must be at least 1, got 0" in capsys.readouterr().err
+
+
+def test_every_core_by_default_once_the_run_reaches_the_break_even(monkeypatch):
+    monkeypatch.setattr(workers, "usable_cores", lambda: 2)
+    below, at = workers.BREAK_EVEN_AGENT_STEPS - 1, workers.BREAK_EVEN_AGENT_STEPS
+    assert [workers.default_count(8, below), workers.default_count(8, at)] == [1, 2]
+    assert workers.default_count(1, 10 * at) == 1  # never more workers than seeds (or settings)
+    monkeypatch.setattr(workers, "usable_cores", lambda: 1)
+    assert workers.default_count(8, 10 * at) == 1
+
+
+def test_the_chosen_split_is_announced_in_one_line(monkeypatch):
+    from agentax import runfile
+    from agentax.agents import algorithm
+    from agentax.agents.presets import PPO_PRESETS
+    from agentax.runners import compiled_launch
+
+    monkeypatch.setattr(workers, "usable_cores", lambda: 2)
+    preset = PPO_PRESETS["default"]
+    steps = workers.BREAK_EVEN_AGENT_STEPS // 4
+
+    def prepared(**given):
+        run_args = runfile.RunArgs(seeds=4, **given).check()
+        cfg = dataclasses.replace(preset.config, total_steps=steps)
+        return compiled_launch.prepare("ppo", algorithm("ppo"), run_args, cfg, preset, "compiled")
+
+    chosen = prepared()
+    assert chosen.runner.workers == 2
+    assert chosen.where == "4 seeds over 2 worker processes, one per core; --workers 1 keeps one process"
+    assert prepared(workers=1).where == "4 seeds"
+    assert prepared(workers=2).where == "4 seeds over 2 worker processes"
 
 
 @pytest.mark.long  # (make test-long: too long for make test's 10 minutes cold)

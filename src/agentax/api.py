@@ -193,7 +193,9 @@ def _create(out: Path, algo: str, run_args: RunArgs, cfg: Any, kind: str, runner
     config = runs.run_config(algo, run_args.env, run_args.preset, kind, runner, config_to_dict(cfg))
     run = runs.Run.create(out, config)
     header = f"the run in {out}: agentax train --config {out / runs.RUN_FILE} --out NEW_FOLDER repeats it"
-    resolved = dataclasses.replace(run_args, preset=choose_preset(algo, run_args.env, run_args.preset)[0])
+    preset = choose_preset(algo, run_args.env, run_args.preset)[0]
+    workers = getattr(runner, "workers", run_args.workers)  # the compiled runner's, chosen or given
+    resolved = dataclasses.replace(run_args, preset=preset, workers=workers)
     runfile.write(out / runs.RUN_FILE, algo, resolved, cfg, header)
     return run
 

@@ -58,9 +58,10 @@ class RunArgs:
     """seed of the first agent (agent k uses seed + k)"""
     seeds: int = 1
     """independent agents trained together (vmapped into one program)"""
-    workers: int = 1
-    """compiled runner: processes the seeds are split over, one per core (the same split gives the
-    same numbers; --stop-at-return then stops each worker once its own seeds reach the return)"""
+    workers: int | None = None
+    """compiled runner: processes the seeds are split over, one per core; default: every core once
+    the seeds' agent steps reach the measured break-even, else 1 (the same split gives the same
+    numbers; --stop-at-return then stops each worker once its own seeds reach the return)"""
     stop_at_return: str = "auto"
     """stop once the evaluation mean reaches this number; 'none' trains for all of total_steps; 'auto' uses
     the env's solved threshold in solving presets"""
@@ -104,7 +105,7 @@ class RunArgs:
         """Raise ``UsageError`` on a value no runner accepts; return ``self``."""
         if self.seeds < 1:
             raise UsageError(f"--seeds must be at least 1, got {self.seeds}")
-        if self.workers < 1:
+        if self.workers is not None and self.workers < 1:
             raise UsageError(f"--workers must be at least 1, got {self.workers}")
         if self.freeze_at_return not in ("auto", "none"):
             try:

@@ -117,7 +117,7 @@ def sweep(
     preset: str = "auto",
     total_steps: int | None = None,
     out: str | Path | None = None,
-    workers: int = 1,
+    workers: int | None = None,
     ray_address: str | None = None,
     progress: bool = True,
 ) -> SweepResult:
@@ -131,12 +131,12 @@ def sweep(
     from agentax.runfile import choose_preset
     from agentax.runners.compiled import RunnerConfig, compiled_program
     from agentax.runners.sweep import float_fields, traceable
-    from agentax.runners.workers import map_processes
+    from agentax.runners.workers import default_count, map_processes
 
     grid, ranges = grid or {}, ranges or {}
     method = method if method != "auto" else ("grid" if grid else "random")
     _check_request(method, grid, ranges, random, trials, batch)
-    if workers < 1:
+    if workers is not None and workers < 1:
         raise UsageError(f"--workers must be at least 1, got {workers}")
     if env not in JAX_ENVS:
         raise UsageError(
@@ -181,6 +181,11 @@ def sweep(
         _validated(base, setting)
 
     path = Path(out) if out is not None else _default_sweep_dir(algo, env)
+    if workers is None:  # a resumed sweep's own; else every core once the sweep is long enough to gain
+        members = len(settings) or trials
+        workers = _asked(path).get("workers") or default_count(
+            len(settings) or batch, members * seeds * base.total_steps
+        )
     request = {
         "algo": algo,
         "env": env,
@@ -312,19 +317,24 @@ def _default_sweep_dir(algo: str, env: str) -> Path:
     return run.with_name("sweep-" + run.name)
 
 
+def _asked(path: Path) -> dict[str, Any]:
+    """The request in the sweep folder ``path`` (its sweep.json), or {} where there is none yet."""
+    asked = path / "sweep.json"
+    return json.loads(asked.read_text()) if asked.exists() else {}
+
+
 def _open_folder(path: Path, request: dict[str, Any]) -> None:
     """Make the sweep folder, or check that the one there is this sweep's (then it resumes)."""
     from agentax.runs import write_json
 
-    asked = path / "sweep.json"
-    if asked.exists():
-        if json.loads(asked.read_text()) != json.loads(json.dumps(request)):
+    if asked := _asked(path):
+        if asked != json.loads(json.dumps(request)):
             raise UsageError(f"{path} holds another sweep (its sweep.json differs); choose another --out")
         return
     if path.exists() and (not path.is_dir() or any(path.iterdir())):
         raise UsageError(f"--out {path}: not an empty folder nor a sweep's")
     path.mkdir(parents=True, exist_ok=True)
-    write_json(asked, request)
+    write_json(path / "sweep.json", request)
 
 
 def _train_program(folder: Path, request, cfg, runner, table, progress: bool = False) -> np.ndarray:

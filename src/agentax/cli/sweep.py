@@ -44,9 +44,10 @@ class SweepArgs:
     """the preset every setting starts from"""
     total_steps: int | None = None
     """env steps per agent (default: the preset's)"""
-    workers: int = 1
+    workers: int | None = None
     """processes to split each program's settings over (one a CPU core; XLA's CPU client runs the
-    compiled runner on one core); an interrupted sweep resumes with the same number"""
+    compiled runner on one core); default: every core once the sweep's agent steps reach the measured
+    break-even, else 1; an interrupted sweep resumes with the same number"""
     ray_address: str | None = None
     """run the workers as Ray tasks on this cluster ('auto' or HOST:PORT of `ray start --head`); the
     sweep folder must be on a filesystem every node shares"""

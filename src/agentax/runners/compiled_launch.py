@@ -29,7 +29,7 @@ def prepare(algo: str, module: Any, run_args: Any, cfg: Any, preset: Any, kind: 
         stop_at_return=parse_stop(run_args.stop_at_return, preset, env),
         freeze_at_return=run_args.freeze(preset, kind),
         freeze_episodes=run_args.freeze_episodes,
-        workers=run_args.workers,
+        workers=run_args.workers or workers.default_count(run_args.seeds, run_args.seeds * cfg.total_steps),
         ray_address=run_args.ray_address,
     )
     compiled.check_fits(compiled_program(module, env, cfg, runner), runner)
@@ -38,8 +38,17 @@ def prepare(algo: str, module: Any, run_args: Any, cfg: Any, preset: Any, kind: 
             "--ray-address sends the compiled runner's --workers to a Ray cluster: give --workers N "
             "(or --runner ray for the Ray runner's actors)"
         )
-    shown = f", {len(workers.split(runner))} workers" if runner.workers > 1 else ""
-    return _launch(module, env, cfg, runner, f"{run_args.seeds} seed(s){shown}")
+    return _launch(module, env, cfg, runner, _where(runner, chosen=run_args.workers is None))
+
+
+def _where(runner: RunnerConfig, chosen: bool) -> str:
+    """The line's words on the seeds and the processes; ``chosen``: by default, not by --workers."""
+    seeds = f"{runner.num_seeds} seed{'s' if runner.num_seeds > 1 else ''}"
+    if runner.workers == 1:
+        return seeds
+    count = len(workers.split(runner))
+    by_default = ", one per core; --workers 1 keeps one process" if chosen else ""
+    return f"{seeds} over {count} worker processes{by_default}"
 
 
 def reopen(config: dict[str, Any], module: Any, cfg: Any, runner: RunnerConfig) -> Launch:

@@ -29,7 +29,7 @@ def prepare(algo: str, module: Any, run_args: Any, cfg: Any, preset: Any, kind: 
     """The ``kind`` run ``run_args`` describe; what the runner or the agent cannot train is refused
     here, before anything is written."""
     spec = RUNNERS[kind]
-    if run_args.workers > 1:
+    if (run_args.workers or 1) > 1:
         raise UsageError(
             f"--workers splits the compiled runner's seeds over processes; the {kind} runner trains one "
             "seed (train a JAX env with --runner compiled, or drop the flag)"

@@ -38,6 +38,25 @@ FINAL_RETURNS = "final-returns.json"
 ``[seeds, episodes]``, from which the run's pooled eval.json is written."""
 
 
+BREAK_EVEN_AGENT_STEPS = 1_000_000
+"""Agent steps (summed over seeds, and over a sweep's settings) from which a run split over the cores
+finishes sooner than one process: below it, the workers' own start-up (each imports jax and compiles
+its program) costs more than the split saves. Measured with PPO on CartPole, the cheapest agent
+step agentax has, so a costlier step gains sooner (``benchmarks/bench_workers.py``)."""
+
+
+def usable_cores() -> int:
+    """The CPUs this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def default_count(jobs: int, agent_steps: int) -> int:
+    """The ``--workers`` of a run that does not give it: one per usable core (never more than
+    ``jobs``, its seeds or a sweep's settings) once ``agent_steps`` reach
+    :data:`BREAK_EVEN_AGENT_STEPS`, else 1."""
+    return max(1, min(usable_cores(), jobs)) if agent_steps >= BREAK_EVEN_AGENT_STEPS else 1
+
+
 def split(runner: Any) -> list[Any]:
     """The runner config of each worker: ``runner.workers`` contiguous slices of the seeds (as even
     as they divide; never more workers than seeds), each with ``workers=1``."""

@@ -1,0 +1,78 @@
+"""Where every core starts to pay: ``agentax train --seeds N`` in one process against over
+``--workers 2``, the whole command, as the run grows.
+
+A worker is a spawned process that imports jax and loads (or compiles) its program before it
+trains, so a split run pays that start-up once more; it gains once the training it halves is
+longer. The rows run PPO on CartPole (the cheapest agent step agentax has, so a costlier one gains
+sooner) with 64 seeds (vmapped, the cheapest per seed) and 8, over growing numbers of steps. From
+the first size where two workers are faster at both seed counts, ``agentax train`` and
+``agentax sweep`` split by themselves (``agentax.runners.workers.BREAK_EVEN_AGENT_STEPS``). Each
+command runs in a fresh process, its programs from a warm compilation cache (filled by an untimed
+run of each shape first), the fastest of ``REPEATS``, the cases interleaved.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+SIZES = [(64, 4_000), (64, 16_000), (64, 64_000), (8, 32_000), (8, 125_000), (8, 500_000)]
+"""(seeds, total steps of each): agent steps 256k, 1M, 4M at both seed counts"""
+REPEATS = 2
+
+
+def whole_command(seeds: int, steps: int, workers: int, folder: Path) -> float:
+    """Seconds of the whole ``agentax train`` of PPO CartPole."""
+    command = [sys.executable, "-m", "agentax.cli", "train", "ppo", "--env", "CartPole-v1"]
+    command += ["--preset", "default", "--seeds", str(seeds), "--total-steps", str(steps)]
+    command += ["--stop-at-return", "none", "--no-progress", "--workers", str(workers)]
+    start = time.perf_counter()
+    subprocess.run([*command, "--out", str(folder)], check=True, capture_output=True)
+    return time.perf_counter() - start
+
+
+def run() -> dict:
+    from agentax.runners.workers import BREAK_EVEN_AGENT_STEPS
+
+    with tempfile.TemporaryDirectory() as tmp:
+        folders = iter(Path(tmp) / f"run-{i}" for i in range(10_000))
+        for seeds in sorted({seeds for seeds, _ in SIZES}):  # the programs of both splits, cached
+            for workers in (1, 2):
+                whole_command(seeds, 512, workers, next(folders))
+        times = {(size, w): [] for size in SIZES for w in (1, 2)}
+        for _ in range(REPEATS):
+            for (seeds, steps), workers in times:
+                times[(seeds, steps), workers].append(whole_command(seeds, steps, workers, next(folders)))
+    rows = []
+    for seeds, steps in SIZES:
+        one, two = min(times[(seeds, steps), 1]), min(times[(seeds, steps), 2])
+        rows.append([seeds, steps, seeds * steps, round(one, 1), round(two, 1), f"{one / two:.2f}×"])
+    gains = {row[2] for row in rows if row[3] > row[4]}
+    everywhere = sorted(n for n in gains if all(r[3] > r[4] for r in rows if r[2] >= n))
+    found = (
+        f"Two workers are faster from {everywhere[0]:,} agent steps on (at every size from there);"
+        if everywhere
+        else "Two workers were faster at no size measured;"
+    )
+    return {
+        "name": "break_even",
+        "title": "Every core by default: one process against --workers 2 as the run grows (PPO CartPole)",
+        "headers": [
+            "seeds",
+            "steps each",
+            "agent steps",
+            "one process (s)",
+            "2 workers (s)",
+            "speed-up",
+        ],
+        "rows": rows,
+        "notes": __doc__.split("\n\n", 1)[1].strip() + f"\n\n{found} the default split starts at "
+        f"{BREAK_EVEN_AGENT_STEPS:,}.",
+    }
+
+
+if __name__ == "__main__":
+    print(run())
