@@ -439,13 +439,14 @@ RUNNERS = {
     "compiled-lag1": "compiled Atari runner (policy lag 1: collection beside learning)",
     "ray": "Ray runner (1 actor process, policy lag 1)",
 }
-ON_POLICY = {"ppo": "atari", "pqn": "breakout-hour"}
-"""the on-policy agents' rows: algorithm → preset (PPO's 8 envs × 128 steps, PQN's 64 × 32)"""
+ON_POLICY = (("ppo", "atari"), ("pqn", "breakout-hour"), ("pqn", "breakout-15min"))
+"""the on-policy agents' rows: (algorithm, preset) (PPO's 8 envs × 128 steps, PQN's 64 × 32, with 2
+epochs × 16 minibatches in breakout-hour, 1 epoch × 32 in breakout-15min)"""
 
 
-def on_policy_rate(algo: str, runner: str) -> dict:
-    """``algo``'s preset of ``ON_POLICY`` on ``runner`` (a key of ``RUNNERS``) for ``UPDATES + 1``
-    updates: agent steps/s after the first update (it compiles)."""
+def on_policy_rate(algo: str, preset: str, runner: str) -> dict:
+    """``algo``'s ``preset`` on ``runner`` (a key of ``RUNNERS``) for ``UPDATES + 1`` updates: agent
+    steps/s after the first update (it compiles)."""
     from agentax.agents import algorithm, presets
     from agentax.agents.protocol import EnvSpec
     from agentax.api import agent_maker
@@ -455,7 +456,7 @@ def on_policy_rate(algo: str, runner: str) -> dict:
     from agentax.runners import ray as ray_runner
 
     module = algorithm(algo)
-    cfg = presets.preset(algo, ON_POLICY[algo]).config
+    cfg = presets.preset(algo, preset).config
     per_update = cfg.num_envs * cfg.num_steps
     cfg = dataclasses.replace(cfg, total_steps=per_update * (UPDATES + 1))
     env = make_host_env(ENV_ID, cfg.num_envs, sticky_actions=0.0)
@@ -490,13 +491,13 @@ def on_policy_rate(algo: str, runner: str) -> dict:
 
 def on_policy_rows() -> tuple[list[list], dict[str, dict[str, dict]]]:
     """The PPO and PQN rows (host, parallel, compiled runner, one after the other in this process)
-    and the runs' figures by algorithm and runner."""
+    and the runs' figures by "algorithm preset" and runner."""
     rows, runs = [], {}
-    for algo, preset in ON_POLICY.items():
-        runs[algo] = {}
+    for algo, preset in ON_POLICY:
+        runs[f"{algo} {preset}"] = {}
         for runner, label in RUNNERS.items():
-            runs[algo][runner] = result = on_policy_rate(algo, runner)
-            ratio = result["steps_per_second"] / runs["ppo"]["host"]["steps_per_second"]
+            runs[f"{algo} {preset}"][runner] = result = on_policy_rate(algo, preset, runner)
+            ratio = result["steps_per_second"] / runs["ppo atari"]["host"]["steps_per_second"]
             rows.append(
                 [
                     f"{algo.upper()} {preset} preset on Breakout",
@@ -706,12 +707,13 @@ def _notes(sb3, dqn_runs, on_policy_runs, load_before, extra) -> str:
 
 
 def _on_policy_notes(runs: dict[str, dict[str, dict]]) -> str:
-    masked = runs["ppo"].get("compiled", {}).get("masked_fraction", float("nan"))
+    masked = runs["ppo atari"].get("compiled", {}).get("masked_fraction", float("nan"))
     return (
         "**PPO and PQN**: PPO's `atari` preset (8 envs × 128 steps, 4 epochs × 4 minibatches, Nature "
-        "CNN) and PQN's `breakout-hour` preset (64 envs × 32 steps, 2 epochs × 16 minibatches, Nature "
-        f"CNN with LayerNorm), {UPDATES + 1} updates each through `host.train`, `parallel.train` (1 "
-        "actor, policy lag 1), `compiled_atari.train` (policy lag 0: one jitted call per update, the "
+        "CNN) and PQN's `breakout-hour` and `breakout-15min` presets (64 envs × 32 steps, 2 epochs × 16 "
+        f"minibatches of 128; 1 epoch × 32 of 64; Nature CNN with LayerNorm), {UPDATES + 1} updates "
+        "each through `host.train`, `parallel.train` (1 actor, policy lag 1), `compiled_atari.train` "
+        "(policy lag 0: one jitted call per update, the "
         "rollout with EnvPool's XLA step inside a `lax.scan`, then the learning step; policy lag 1: "
         "the rollout and the learning step as two programs, rollout k+1 in a thread beside the "
         "learning on rollout k) and `ray.train` (a local Ray, "

@@ -34,6 +34,10 @@ def whole_command(seeds: int, steps: int, workers: int, folder: Path) -> float:
     return time.perf_counter() - start
 
 
+def run_label(seeds: int, steps: int) -> str:
+    return f"--seeds {seeds} --total-steps {steps:,}"
+
+
 def run() -> dict:
     from agentax.runners.workers import BREAK_EVEN_AGENT_STEPS
 
@@ -49,9 +53,9 @@ def run() -> dict:
     rows = []
     for seeds, steps in SIZES:
         one, two = min(times[(seeds, steps), 1]), min(times[(seeds, steps), 2])
-        rows.append([seeds, steps, seeds * steps, round(one, 1), round(two, 1), f"{one / two:.2f}×"])
-    gains = {row[2] for row in rows if row[3] > row[4]}
-    everywhere = sorted(n for n in gains if all(r[3] > r[4] for r in rows if r[2] >= n))
+        rows.append([run_label(seeds, steps), seeds * steps, round(one, 1), round(two, 1), one / two])
+    gains = {row[1] for row in rows if row[2] > row[3]}
+    everywhere = sorted(n for n in gains if all(r[2] > r[3] for r in rows if r[1] >= n))
     found = (
         f"Two workers are faster from {everywhere[0]:,} agent steps on (at every size from there);"
         if everywhere
@@ -61,8 +65,7 @@ def run() -> dict:
         "name": "break_even",
         "title": "Every core by default: one process against --workers 2 as the run grows (PPO CartPole)",
         "headers": [
-            "seeds",
-            "steps each",
+            "run",
             "agent steps",
             "one process (s)",
             "2 workers (s)",

@@ -224,18 +224,17 @@ def _step_and_track(env, handle, tracker, action):
 
 @pytest.mark.timeout(30)
 def test_refuses_what_it_cannot_run():
-    from agentax.runners.compiled_atari import check
-    from agentax.runners.host import HostRunnerConfig
+    from agentax.runners.compiled_atari import PoolRunnerConfig, check
 
     agent = agent_maker(
         ppo, EnvSpec((4, 84, 84), Discrete(4), jnp.uint8), presets.preset("ppo", "atari").config
     )()
     with pytest.raises(UsageError, match="cannot be vmapped over seeds"):
-        check(agent, BREAKOUT, HostRunnerConfig(), num_seeds=2)
+        check(agent, BREAKOUT, PoolRunnerConfig(), num_seeds=2)
     with pytest.raises(UsageError, match="--env-backend ale"):
-        check(agent, BREAKOUT, HostRunnerConfig(env_backend="ale"))
+        check(agent, BREAKOUT, PoolRunnerConfig(env_backend="ale"))
     with pytest.raises(UsageError, match="Atari games"):
-        check(agent, "CartPole-v1", HostRunnerConfig())
+        check(agent, "CartPole-v1", PoolRunnerConfig())
 
 
 @pytest.mark.timeout(150)
@@ -249,7 +248,7 @@ def test_short_run_writes_the_run_folder_loads_and_resumes(tmp_path):
     overrides = dict(num_envs=2, num_steps=32, num_minibatches=2, update_epochs=1)
     agent = _ppo_agent(probe, total_steps=128, **overrides)
     probe.close()
-    runner = host.HostRunnerConfig(log_every_steps=64, eval_episodes=1, sticky_actions=0.0)
+    runner = compiled_atari.PoolRunnerConfig(log_every_steps=64, eval_episodes=1, sticky_actions=0.0)
     config = run_config("ppo", BREAKOUT, "atari", compiled_atari.RUNNER_KIND, runner, {})
     run = Run.create(tmp_path / "run", config)
     result = compiled_atari.train(agent, BREAKOUT, runner, run)

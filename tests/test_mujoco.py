@@ -221,16 +221,15 @@ def test_compiled_ppo_on_hopper_two_updates(tmp_path):
 
 
 def test_compiled_runner_refuses_an_off_policy_agent_and_other_envs():
-    from agentax.runners.compiled_atari import check
-    from agentax.runners.host import HostRunnerConfig
+    from agentax.runners.compiled_atari import PoolRunnerConfig, check
 
     spec = EnvSpec((11,), XlaMujoco("Hopper-v5", 1).action_space())
     agent = _ppo_agent(spec, total_steps=512, num_envs=4, num_steps=64)
-    check(agent, "Hopper-v5", HostRunnerConfig())
+    check(agent, "Hopper-v5", PoolRunnerConfig())
     with pytest.raises(UsageError, match="MuJoCo tasks"):
-        check(agent, "Pendulum-v1", HostRunnerConfig())
+        check(agent, "Pendulum-v1", PoolRunnerConfig())
     with pytest.raises(UsageError, match="--env-backend ale"):
-        check(agent, "Hopper-v5", HostRunnerConfig(env_backend="ale"))
+        check(agent, "Hopper-v5", PoolRunnerConfig(env_backend="ale"))
 
 
 @pytest.mark.timeout(60)

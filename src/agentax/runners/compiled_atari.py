@@ -66,7 +66,7 @@ from agentax.runners.session import Session, TrainResult
 from agentax.runs import Run
 
 RUNNER_KIND = "compiled-atari"
-"""config.json's ``runner_kind`` of these runs on Atari; their ``runner`` is a ``HostRunnerConfig``."""
+"""config.json's ``runner_kind`` of these runs on Atari; their ``runner`` is a :class:`PoolRunnerConfig`."""
 MUJOCO_RUNNER_KIND = "compiled-mujoco"
 """config.json's ``runner_kind`` of these runs on EnvPool's MuJoCo tasks."""
 
@@ -121,9 +121,9 @@ class AtariEnvs:
         return time_step, Pool(handle, tracker), {"valid": tracked.valid, "games": games}
 
 
-def check(agent: Agent, env_id: str, runner: host.HostRunnerConfig, num_seeds: int = 1) -> None:
+def check(agent: Agent, env_id: str, runner: PoolRunnerConfig, num_seeds: int = 1) -> None:
     """A ``UsageError`` for what this runner cannot train, before anything is made or written."""
-    if policy_lag_of(runner) not in (0, 1):
+    if runner.policy_lag not in (0, 1):
         raise UsageError(
             "the compiled EnvPool runner collects with policy lag 0 or 1, "
             f"not --policy-lag {runner.policy_lag}"
@@ -149,7 +149,7 @@ def check(agent: Agent, env_id: str, runner: host.HostRunnerConfig, num_seeds: i
         )
 
 
-def make_pool(env_id: str, num_envs: int, seed: int, runner: host.HostRunnerConfig) -> XlaPool:
+def make_pool(env_id: str, num_envs: int, seed: int, runner: PoolRunnerConfig) -> XlaPool:
     """The pool of ``env_id`` stepped inside the program: Atari with the runner's sticky actions,
     or a MuJoCo task with its v5 settings."""
     if is_atari_id(env_id):
@@ -239,11 +239,6 @@ def side_by_side(
             yield state, learner_key, metrics, games
 
 
-def policy_lag_of(runner: host.HostRunnerConfig) -> int:
-    """The runner's policy lag (a plain ``HostRunnerConfig``, as tests build, has 0)."""
-    return getattr(runner, "policy_lag", 0)
-
-
 def finished_games(games: Games) -> list[tuple[float, int]]:
     """``(true score, length)`` of each game a rollout finished, in time order (``drain_scores``'s)."""
     finished, score, length = jax.device_get((games.finished, games.score, games.length))
@@ -253,7 +248,7 @@ def finished_games(games: Games) -> list[tuple[float, int]]:
 def train(
     agent: Agent,
     env_id: str,
-    runner: host.HostRunnerConfig,
+    runner: PoolRunnerConfig,
     run: Run | None = None,
     *,
     resume: bool = False,
@@ -272,7 +267,7 @@ def train(
     experience: OnPolicy = agent.experience
     env = make_pool(env_id, experience.num_envs, host.actor_seed(runner.seed, 0, updates), runner)
     carry = start(session.state, env, host.fold_actor_key(session.actors_key, 0, updates), env_steps)
-    total_updates, lag = host.num_updates(agent), policy_lag_of(runner)
+    total_updates, lag = host.num_updates(agent), runner.policy_lag
     if lag == 0:
         steps = in_one_program(jax.jit(make_update(agent, env), donate_argnums=0), carry, learner_key)
     else:  # the collector's carry shares the parameters the learner reads: nothing donated
