@@ -73,7 +73,7 @@ def run() -> dict:
         ],
         "rows": rows,
         "notes": __doc__.split("\n\n", 1)[1].strip() + f"\n\n{found} the default split starts at "
-        f"{BREAK_EVEN_AGENT_STEPS:,}.",
+        f"{BREAK_EVEN_AGENT_STEPS:,} (``BREAK_EVEN_AGENT_STEPS``).",
     }
 
 

@@ -89,7 +89,7 @@ def test_the_chosen_split_is_announced_in_one_line(monkeypatch):
     steps = workers.BREAK_EVEN_AGENT_STEPS // 4
 
     def prepared(**given):
-        run_args = runfile.RunArgs(seeds=4, **given).check()
+        run_args = runfile.RunArgs(**{"seeds": 4, "stop_at_return": "none", **given}).check()
         cfg = dataclasses.replace(preset.config, total_steps=steps)
         return compiled_launch.prepare("ppo", algorithm("ppo"), run_args, cfg, preset, "compiled")
 
@@ -98,6 +98,8 @@ def test_the_chosen_split_is_announced_in_one_line(monkeypatch):
     assert chosen.where == "4 seeds over 2 worker processes, one per core; --workers 1 keeps one process"
     assert prepared(workers=1).where == "4 seeds"
     assert prepared(workers=2).where == "4 seeds over 2 worker processes"
+    # a run that stops at a return may end at any time, and a split would stop each worker apart
+    assert prepared(stop_at_return="400").runner.workers == 1
 
 
 @pytest.mark.long  # (make test-long: too long for make test's 10 minutes cold)

@@ -60,8 +60,9 @@ class RunArgs:
     """independent agents trained together (vmapped into one program)"""
     workers: int | None = None
     """compiled runner: processes the seeds are split over, one per core; default: every core once
-    the seeds' agent steps reach the measured break-even, else 1 (the same split gives the same
-    numbers; --stop-at-return then stops each worker once its own seeds reach the return)"""
+    the seeds' agent steps reach the measured break-even in a run without --stop-at-return, else
+    1 (the same split gives the same numbers; --stop-at-return then stops each worker once its own
+    seeds reach the return)"""
     stop_at_return: str = "auto"
     """stop once the evaluation mean reaches this number; 'none' trains for all of total_steps; 'auto' uses
     the env's solved threshold in solving presets"""

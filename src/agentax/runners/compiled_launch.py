@@ -20,16 +20,17 @@ def prepare(algo: str, module: Any, run_args: Any, cfg: Any, preset: Any, kind: 
     from agentax.envs import make_jax
 
     env = make_jax(run_args.env)
+    stop = parse_stop(run_args.stop_at_return, preset, env)
     runner = RunnerConfig(
         seed=run_args.seed,
         num_seeds=run_args.seeds,
         updates_per_chunk=preset.updates_per_chunk,
         eval_every_chunks=preset.eval_every_chunks,
         eval_episodes=preset.eval_episodes,
-        stop_at_return=parse_stop(run_args.stop_at_return, preset, env),
+        stop_at_return=stop,
         freeze_at_return=run_args.freeze(preset, kind),
         freeze_episodes=run_args.freeze_episodes,
-        workers=run_args.workers or workers.default_count(run_args.seeds, run_args.seeds * cfg.total_steps),
+        workers=run_args.workers or _default_workers(run_args.seeds, cfg.total_steps, stop),
         ray_address=run_args.ray_address,
     )
     compiled.check_fits(compiled_program(module, env, cfg, runner), runner)
@@ -39,6 +40,13 @@ def prepare(algo: str, module: Any, run_args: Any, cfg: Any, preset: Any, kind: 
             "(or --runner ray for the Ray runner's actors)"
         )
     return _launch(module, env, cfg, runner, _where(runner, chosen=run_args.workers is None))
+
+
+def _default_workers(seeds: int, total_steps: int, stop_at_return: float | None) -> int:
+    """Without ``--workers``: every core for a run of all its steps long enough to gain; one process
+    for a run that stops at a return (how long it runs is not known, and a split would stop each
+    worker on its own seeds' return)."""
+    return 1 if stop_at_return is not None else workers.default_count(seeds, seeds * total_steps)
 
 
 def _where(runner: RunnerConfig, chosen: bool) -> str:
