@@ -296,14 +296,24 @@ def init(key: jax.Array, obs_example: jax.Array, num_actions: int, cfg: DQNConfi
 
 def act(state: DQNState, obs: jax.Array, key: jax.Array, epsilon: jax.Array) -> jax.Array:
     """ε-greedy actions ``[num_envs]`` for observations ``[num_envs, *obs_shape]``; a noisy network
-    draws fresh noise (one draw for all envs) from ``key``."""
+    draws fresh noise (one draw for all envs) from ``key``. When every env explores, the network is
+    not run (a ``lax.cond``; the same keys give the same actions, as SB3 skips it for a random one)."""
     noise_key = None
     if state.network.noisy:
         key, noise_key = jax.random.split(key)
-    output = forward(state.network, state.params, obs, noise_key)
-    q = q_values(state.network, output)  # (num_envs, num_actions)
-    keys = jax.random.split(key, q.shape[0])
-    return jax.vmap(epsilon_greedy, in_axes=(0, 0, None))(keys, q, epsilon)
+    keys = jax.random.split(key, obs.shape[0])
+
+    def q_of(params):  # (num_envs, num_actions)
+        return q_values(state.network, forward(state.network, params, obs, noise_key))
+
+    def actions(q):
+        return jax.vmap(epsilon_greedy, in_axes=(0, 0, None))(keys, q, epsilon)
+
+    explores = jax.vmap(lambda k: jax.random.uniform(jax.random.split(k)[0]) < epsilon)(
+        keys
+    )  # epsilon_greedy's draw
+    unused_q = jnp.zeros(jax.eval_shape(q_of, state.params).shape, jnp.float32)
+    return jax.lax.cond(explores.all(), lambda: actions(unused_q), lambda: actions(q_of(state.params)))
 
 
 def greedy_q(state: DQNState, obs: jax.Array) -> jax.Array:
