@@ -12,7 +12,6 @@ from agentax.envs.atari import AtariEnv, atari_games, is_atari_id, make_atari
 from agentax.envs.cartpole import CartPole, cartpole_v0, cartpole_v1
 from agentax.envs.core import Box, Discrete, Environment, TimeStep
 from agentax.envs.gym import (
-    GYMNASIUM_SELECTION,
     NAMESPACE,
     GymnasiumEnv,
     JaxToGymnasium,
@@ -63,21 +62,48 @@ def make(env_id: str, num_envs: int = 1, **gymnasium_kwargs: Any) -> Environment
         return make_atari(env_id, num_envs, **gymnasium_kwargs)
     if is_gymnasium_id(env_id):
         return GymnasiumEnv(env_id, num_envs, **gymnasium_kwargs)
-    atari = [f"ALE/{game}-v5" for game in atari_games()]
-    close = difflib.get_close_matches(env_id, [*JAX_ENVS, *GYMNASIUM_SELECTION, *atari], n=3, cutoff=0.6)
-    hint = f"did you mean {' or '.join(close)}? " if close else ""
-    raise UsageError(
-        f"unknown env {env_id!r}; {hint}choose from agentax's JAX envs ({', '.join(JAX_ENVS)}) "
-        "or any Gymnasium id (agentax envs lists a selection)"
+    raise unknown_env(env_id)
+
+
+def unknown_env(env_id: str) -> UsageError:
+    """The one-line error for an id neither agentax nor Gymnasium registers: the closest ids of each
+    (difflib) and Gymnasium's own word on it (a deprecated or missing version, a misspelt name)."""
+    theirs = [i for i in gymnasium.registry if not i.startswith(f"{NAMESPACE}/")]
+    theirs += [f"ALE/{game}-v5" for game in atari_games()]
+    guesses = [
+        f"{' or '.join(close)} ({owner})"
+        for owner, ids in (("agentax", JAX_ENVS), ("Gymnasium", dict.fromkeys(theirs)))
+        if (close := difflib.get_close_matches(env_id, list(ids), n=3, cutoff=0.6))
+    ]
+    if guesses:
+        where = f"did you mean {', '.join(guesses)}? "
+    else:
+        where = f"choose from agentax's JAX envs ({', '.join(JAX_ENVS)}) or any Gymnasium id; "
+    return UsageError(
+        f"unknown env {env_id!r}; {where}{gymnasium_says(env_id)}(agentax envs lists a selection)"
     )
+
+
+def gymnasium_says(env_id: str) -> str:
+    """Gymnasium's own message on ``env_id`` ("Gymnasium says: ... "), or "" where it has none."""
+    try:
+        gymnasium.spec(env_id)
+    except gymnasium.error.Error as error:
+        return f"Gymnasium says: {' '.join(str(error).split())} "
+    return ""
 
 
 def host_env_id(env_id: str) -> str:
     """The Gymnasium id to step ``env_id`` on the host: Gymnasium's own where it has one (CartPole,
-    step-for-step equal to agentax's), else agentax's JAX env registered as ``agentax/ID``."""
+    step-for-step equal to agentax's), else agentax's JAX env registered as ``agentax/ID`` where
+    agentax registers that id; a ``UsageError`` (:func:`unknown_env`) for any other id."""
     if env_id in gymnasium.registry or ":" in env_id:
         return env_id
-    return f"{NAMESPACE}/{env_id}"
+    if f"{NAMESPACE}/{env_id}" in gymnasium.registry:
+        return f"{NAMESPACE}/{env_id}"
+    if env_id in JAX_ENVS:
+        raise UsageError(f"{env_id} steps only inside a compiled program: train it with --runner compiled")
+    raise unknown_env(env_id)
 
 
 def make_host_env(
