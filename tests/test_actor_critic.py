@@ -16,8 +16,9 @@ from agentax.cli import main
 from agentax.envs import JAX_ENVS, make_jax
 from agentax.envs.core import Box, Discrete
 from agentax.errors import UsageError
+from agentax.nets import sample_squashed
 from agentax.replay import ReplaySample, Transition
-from agentax.runners.compiled import RunnerConfig, compiled_program, train
+from agentax.runners.compiled import RunnerConfig, compiled_program, train_program
 
 PENDULUM = "Pendulum-v1" if "Pendulum-v1" in JAX_ENVS else "gymnax/Pendulum-v1"
 SPEC = EnvSpec((3,), Box(np.full(1, -2.0, np.float32), np.full(1, 2.0, np.float32), (1,)))
@@ -42,7 +43,7 @@ def batch(key: jax.Array, size: int = 32) -> ReplaySample:
 def test_squashed_gaussian_log_prob_is_the_change_of_variables():
     """log π(a) = log N(atanh a; μ, σ²) − log(1 − a²), summed over dimensions (float64 by hand)."""
     mean, log_std = jnp.array([[0.3, -1.0, 2.0]]), jnp.array([[-0.5, 0.0, 0.4]])
-    action, log_prob = sac.sample_squashed(mean, log_std, jax.random.key(0))
+    action, log_prob = sample_squashed(mean, log_std, jax.random.key(0))
     a, mu, sigma = (np.asarray(x, np.float64) for x in (action, mean, jnp.exp(log_std)))
     u = np.arctanh(a)
     by_hand = (
@@ -171,7 +172,7 @@ def test_learns_pendulum_on_the_compiled_runner(algo):
     cfg = presets.preset(algo, "pendulum", **SMALL[algo]).config
     runner = RunnerConfig(seed=0, num_seeds=2, updates_per_chunk=1_000, eval_episodes=10)
     env = make_jax(PENDULUM)
-    result = train(compiled_program(MODULES[algo], env, cfg, runner), env, runner)
+    result = train_program(compiled_program(MODULES[algo], env, cfg, runner), env, runner)
     assert result.rows[0]["mean_return"] < -900, result.rows[0]
     assert min(result.eval["per_seed_mean"]) > -400, result.eval
 

@@ -12,6 +12,7 @@ from agentax.agents import config_from_dict, dqn, presets
 from agentax.errors import UsageError
 from agentax.nets import QNetwork, dueling_aggregate
 from agentax.replay import ReplaySample, Transition, example_transition, host, uniform
+from agentax.returns import bootstrap_discount
 
 
 def test_td_error_by_hand():
@@ -38,10 +39,11 @@ def transitions(terminated, truncated, num_steps=(1, 1)):
 
 
 def test_terminated_stops_bootstrapping_truncated_does_not():
-    discount = dqn.bootstrap_discount(transitions([True, False], [False, True]), 0.9)
-    np.testing.assert_allclose(discount, [0.0, 0.9])
+    t = transitions([True, False], [False, True])
+    np.testing.assert_allclose(bootstrap_discount(t.terminated, t.num_steps, 0.9), [0.0, 0.9])
     # An n-step transition of 3 rewards bootstraps with γ^3 = 0.729; one of 2 that terminated: 0.
-    discount = dqn.bootstrap_discount(transitions([False, True], [False, False], (3, 2)), 0.9)
+    t = transitions([False, True], [False, False], (3, 2))
+    discount = bootstrap_discount(t.terminated, t.num_steps, 0.9)
     np.testing.assert_allclose(discount, [0.729, 0.0], rtol=1e-6)
 
 

@@ -1,10 +1,13 @@
-"""Flax modules shared by every agent: MLP torso and the heads of the lecture; DQN's Rainbow pieces
-(noisy layers, distributional heads, random-shift augmentation).
+"""Flax modules shared by every agent: MLP and convolutional torsos, the policy heads, Q-networks;
+DQN's Rainbow pieces (noisy layers, distributional heads, random-shift augmentation).
 
 Parameters are plain pytrees (``module.init`` / ``module.apply``), so they scan, vmap over seeds
-and checkpoint cleanly. Every policy network returns action *logits* ``[..., num_actions]``;
-the lecture's one-sigmoid-output network for two actions is the categorical with logits
-``[z, 0]``, since ``softmax([z, 0])[0] == sigmoid(z)``.
+and checkpoint cleanly. A policy over discrete actions returns action *logits* ``[..., num_actions]``
+(the lecture's one-sigmoid-output network for two actions is the categorical with logits ``[z, 0]``,
+since ``softmax([z, 0])[0] == sigmoid(z)``); one over continuous actions returns a diagonal
+Gaussian's ``(mean, log_std)``, each ``[..., action_dim]``, from :func:`gaussian_head` (a
+state-independent ``log_std`` for PPO and REINFORCE, a state-dependent bounded one for SAC, whose
+:class:`SquashedGaussianActor` samples through a tanh with :func:`sample_squashed`).
 """
 
 from __future__ import annotations
@@ -112,7 +115,8 @@ class PolicyNet(nn.Module):
 
 class GaussianPolicyNet(nn.Module):
     """A diagonal Gaussian over actions ``[..., action_dim]``: ``obs -> (mean, log_std)``, the mean an
-    MLP's output and ``log_std`` a learned parameter independent of the state (PPO's head)."""
+    MLP's output and ``log_std`` a learned parameter independent of the state (:func:`gaussian_head`;
+    REINFORCE's policy)."""
 
     action_dim: int
     hidden: Sequence[int] = (64, 64)
@@ -120,9 +124,53 @@ class GaussianPolicyNet(nn.Module):
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
-        mean = MLP(self.hidden, self.activation, out=self.action_dim)(obs)
-        log_std = self.param("log_std", nn.initializers.zeros, (self.action_dim,))
-        return mean, jnp.broadcast_to(log_std, mean.shape)
+        return gaussian_head(self, MLP(self.hidden, self.activation, out=self.action_dim)(obs))
+
+
+def gaussian_head(
+    module: nn.Module, out: jax.Array, log_std_range: tuple[float, float] | None = None
+) -> tuple[jax.Array, jax.Array]:
+    """A diagonal Gaussian's ``(mean, log_std)`` ``[..., d]`` from a policy's last layer ``out``,
+    inside ``module`` (its parameters are the module's own, so the tree keeps its names).
+
+    ``log_std_range`` None: ``out`` ``[..., d]`` is the mean and ``log_std`` a learned parameter
+    ``"log_std"`` ``[d]`` (zeros at first) independent of the state (PPO's and REINFORCE's head).
+    ``(low, high)``: ``out`` ``[..., 2d]`` holds the mean and a raw ``ρ`` squashed smoothly into the
+    range, ``log_std = low + (high − low)(tanh(ρ) + 1) / 2`` (SAC's head, as SB3's and CleanRL's)."""
+    if log_std_range is None:
+        log_std = module.param("log_std", nn.initializers.zeros, (out.shape[-1],))
+        return out, jnp.broadcast_to(log_std, out.shape)
+    low, high = log_std_range
+    mean, raw = jnp.split(out, 2, axis=-1)
+    return mean, low + 0.5 * (high - low) * (jnp.tanh(raw) + 1.0)
+
+
+class SquashedGaussianActor(nn.Module):
+    """SAC's actor: ``obs [..., obs_dim] -> (mean [..., d], log_std [..., d])`` of the Gaussian before
+    the tanh (:func:`sample_squashed`), ``log_std`` in ``[log_std_min, log_std_max]``."""
+
+    action_dim: int
+    hidden: tuple[int, ...]
+    activation: str
+    log_std_min: float
+    log_std_max: float
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+        x = MLP(self.hidden, self.activation)(obs.astype(jnp.float32))
+        return gaussian_head(self, nn.Dense(2 * self.action_dim)(x), (self.log_std_min, self.log_std_max))
+
+
+def sample_squashed(mean: jax.Array, log_std: jax.Array, key: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """``(a, log π(a))`` for ``a = tanh(u)``, ``u ~ N(mean, exp(log_std)²)``: ``[..., d]`` →
+    ``([..., d], [...])``. The density includes the tanh's change of variables,
+    ``log(1 − tanh(u)²) = 2(log 2 − u − softplus(−2u))`` (stable where ``tanh(u)`` rounds to ±1).
+    """
+    noise = jax.random.normal(key, mean.shape)
+    u = mean + jnp.exp(log_std) * noise
+    gaussian = (-0.5 * noise**2 - log_std - 0.5 * jnp.log(2 * jnp.pi)).sum(axis=-1)
+    jacobian = (2.0 * (jnp.log(2.0) - u - jax.nn.softplus(-2.0 * u))).sum(axis=-1)
+    return jnp.tanh(u), gaussian - jacobian
 
 
 class NatureConvTorso(nn.Module):
@@ -289,8 +337,8 @@ class ActorCritic(nn.Module):
     """Separate actor and critic MLPs (PPO): ``obs [..., obs_dim] -> (actor_out, value [...])``.
 
     Discrete actions: ``actor_out`` is the logits ``[..., action_dim]``. Continuous actions
-    (``continuous=True``): ``actor_out`` is ``(mean, log_std)``, each ``[..., action_dim]``, a
-    diagonal Gaussian whose ``log_std`` is a learned parameter independent of the state.
+    (``continuous=True``): ``actor_out`` is :func:`gaussian_head`'s ``(mean, log_std)``, each
+    ``[..., action_dim]``, ``log_std`` a learned parameter independent of the state.
     Orthogonal initialisation (gain √2 hidden, 0.01 policy head, 1 value head) as in the PPO paper's code.
     With ``cnn`` both heads sit on one shared Nature CNN; with ``image_shape`` on one shared
     :class:`MinAtarCNN` (flat observations of that image).
@@ -321,10 +369,7 @@ class ActorCritic(nn.Module):
             critic = act(nn.Dense(width, kernel_init=hidden_init)(critic))
         actor_out = nn.Dense(self.action_dim, kernel_init=nn.initializers.orthogonal(0.01))(actor)
         value = nn.Dense(1, kernel_init=nn.initializers.orthogonal(1.0))(critic)[..., 0]
-        if self.continuous:
-            log_std = self.param("log_std", nn.initializers.zeros, (self.action_dim,))
-            return (actor_out, jnp.broadcast_to(log_std, actor_out.shape)), value
-        return actor_out, value
+        return (gaussian_head(self, actor_out) if self.continuous else actor_out), value
 
 
 def gaussian_log_prob(mean: jax.Array, log_std: jax.Array, action: jax.Array) -> jax.Array:

@@ -1,4 +1,4 @@
-"""Discounting, normalisation and GAE(λ): pure functions on arrays.
+"""Discounting, normalisation, GAE(λ), Q(λ) and n-step targets: pure functions on arrays.
 
 Two families. The lecture's host forms work on one episode's rewards (or a ragged list of
 episodes): ``discount_rewards([10, 0, -50], 0.8) == [-22, -40, -50]``. The masked, time-major forms
@@ -154,6 +154,13 @@ def n_step_return(
     alive = ended_before == 0
     discount = discount_factor ** jnp.arange(reward.shape[0], dtype=jnp.float32)
     return jnp.sum(alive * discount * reward), jnp.sum(alive).astype(jnp.int32)
+
+
+def bootstrap_discount(terminated: jax.Array, num_steps: jax.Array, discount_factor: float) -> jax.Array:
+    """``γ^k · (1 − terminated)`` ``[batch]`` for transitions of ``k = num_steps`` steps (replay's
+    n-step ones): the weight of the bootstrap value in ``r + γ^k (1 − terminated) V(s′)``. A truncated
+    transition bootstraps, a terminated one does not."""
+    return (discount_factor ** num_steps.astype(jnp.float32)) * (1.0 - terminated)
 
 
 @struct.dataclass

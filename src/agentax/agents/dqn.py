@@ -58,7 +58,8 @@ from agentax.envs.core import Discrete
 from agentax.errors import UsageError
 from agentax.nets import QNetwork, is_image, random_shift, support
 from agentax.policies import Policy, epsilon_greedy, linear_schedule
-from agentax.replay import ReplaySample, Transition
+from agentax.replay import ReplaySample
+from agentax.returns import bootstrap_discount
 
 
 @dataclass(frozen=True)
@@ -381,11 +382,6 @@ def categorical_td_loss(
     return -jnp.sum(target * jax.nn.log_softmax(logits_tm1[a_tm1]))
 
 
-def bootstrap_discount(transition: Transition, discount_factor: float) -> jax.Array:
-    """``γ^k · (1 − terminated)`` ``[batch]``: truncation bootstraps, termination does not."""
-    return (discount_factor ** transition.num_steps.astype(jnp.float32)) * (1.0 - transition.terminated)
-
-
 def squared_loss(td: jax.Array) -> jax.Array:
     return td**2
 
@@ -454,7 +450,7 @@ def make_learn(cfg: DQNConfig) -> Callable[..., tuple[DQNState, dict]]:
         out_t_online = forward(network, params, next_obs, online_key)
         out_t_value = forward(network, target_params, next_obs, target_key) if use_target else out_t_online
         q_t_selector = q_values(network, out_t_online if cfg.double else out_t_value)  # (batch, num_actions)
-        discount_t = bootstrap_discount(transition, cfg.discount_factor)
+        discount_t = bootstrap_discount(transition.terminated, transition.num_steps, cfg.discount_factor)
         losses, td = batched_loss(
             out_tm1, transition.action, transition.reward, discount_t, out_t_value, q_t_selector
         )

@@ -22,17 +22,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
 
-from agentax.agents.actor_critic import ReplayConfig, warm_up
-from agentax.agents.dqn import bootstrap_discount
+from agentax.agents.off_policy import ReplayConfig, continuous_agent, twin_q_loss, warm_up
 from agentax.agents.protocol import PRIORITY, Agent, EnvSpec, Loop, continuous_action_dim, scale_action
 from agentax.errors import UsageError
-from agentax.nets import MLP, TwinQ, polyak
+from agentax.nets import SquashedGaussianActor, TwinQ, polyak, sample_squashed
 from agentax.policies import Policy
 from agentax.replay import ReplaySample
 
@@ -60,24 +58,6 @@ class SACConfig(ReplayConfig):
         return self
 
 
-class SquashedGaussianActor(nn.Module):
-    """``obs [..., obs_dim] -> (mean [..., d], log_std [..., d])`` of the Gaussian before the tanh;
-    ``log_std`` squashed smoothly into ``[log_std_min, log_std_max]``."""
-
-    action_dim: int
-    hidden: tuple[int, ...]
-    activation: str
-    log_std_min: float
-    log_std_max: float
-
-    @nn.compact
-    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
-        x = MLP(self.hidden, self.activation)(obs.astype(jnp.float32))
-        mean, raw = jnp.split(nn.Dense(2 * self.action_dim)(x), 2, axis=-1)
-        log_std = self.log_std_min + 0.5 * (self.log_std_max - self.log_std_min) * (jnp.tanh(raw) + 1.0)
-        return mean, log_std
-
-
 @struct.dataclass
 class SACState:
     """The learner: ``params`` {"actor", "critic", "log_alpha"}, the target critics, the optimizers'
@@ -87,18 +67,6 @@ class SACState:
     target_params: Any
     opt_state: Any
     step: jax.Array  # int32 []
-
-
-def sample_squashed(mean: jax.Array, log_std: jax.Array, key: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """``(a, log π(a))`` for ``a = tanh(u)``, ``u ~ N(mean, exp(log_std)²)``: ``[..., d]`` →
-    ``([..., d], [...])``. The density includes the tanh's change of variables,
-    ``log(1 − tanh(u)²) = 2(log 2 − u − softplus(−2u))`` (stable where ``tanh(u)`` rounds to ±1).
-    """
-    noise = jax.random.normal(key, mean.shape)
-    u = mean + jnp.exp(log_std) * noise
-    gaussian = (-0.5 * noise**2 - log_std - 0.5 * jnp.log(2 * jnp.pi)).sum(axis=-1)
-    jacobian = (2.0 * (jnp.log(2.0) - u - jax.nn.softplus(-2.0 * u))).sum(axis=-1)
-    return jnp.tanh(u), gaussian - jacobian
 
 
 def make_agent(spec: EnvSpec, cfg: SACConfig, *, loop: Loop = jax.lax.scan) -> Agent:
@@ -145,16 +113,13 @@ def make_agent(spec: EnvSpec, cfg: SACConfig, *, loop: Loop = jax.lax.scan) -> A
         return policy
 
     def critic_loss(critic_params, state: SACState, sample: ReplaySample, key: jax.Array):
-        t = sample.transition
+        next_obs = sample.transition.next_obs
         alpha = jnp.exp(state.params["log_alpha"])
-        next_action, next_log_prob = sample_squashed(*actor.apply(state.params["actor"], t.next_obs), key)
-        next_q = critic.apply(state.target_params, t.next_obs, next_action).min(axis=0)
-        discount = bootstrap_discount(t, cfg.discount_factor)
-        target = jax.lax.stop_gradient(t.reward + discount * (next_q - alpha * next_log_prob))
-        q = critic.apply(critic_params, t.obs, t.action)  # (2, batch)
-        td = q - target
-        loss = 0.5 * (sample.weights * td**2).mean(axis=-1).sum()
-        return loss, (q.mean(), jnp.abs(td).mean(axis=0))
+        next_action, next_log_prob = sample_squashed(*actor.apply(state.params["actor"], next_obs), key)
+        next_q = critic.apply(state.target_params, next_obs, next_action).min(axis=0)
+        next_value = next_q - alpha * next_log_prob
+        loss, aux = twin_q_loss(critic, critic_params, sample, next_value, cfg.discount_factor)
+        return 0.5 * loss, aux
 
     def actor_loss(actor_params, critic_params, log_alpha, obs: jax.Array, key: jax.Array):
         action, log_prob = sample_squashed(*actor.apply(actor_params, obs), key)
@@ -197,17 +162,7 @@ def make_agent(spec: EnvSpec, cfg: SACConfig, *, loop: Loop = jax.lax.scan) -> A
         }
         return state, metrics
 
-    return Agent(
-        name="sac",
-        init=init,
-        act=act,
-        greedy_policy=greedy_policy,
-        learn=learn,
-        experience=cfg.experience(),
-        total_steps=cfg.total_steps,
-        env_action=lambda action: scale_action(action, spec.action_space),
-        learning_steps=lambda state: state.step,
-    )
+    return continuous_agent("sac", spec, cfg, init=init, act=act, greedy_policy=greedy_policy, learn=learn)
 
 
-__all__ = ["SACConfig", "SACState", "make_agent", "sample_squashed"]
+__all__ = ["SACConfig", "SACState", "make_agent"]

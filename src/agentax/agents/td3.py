@@ -23,8 +23,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from agentax.agents.actor_critic import ReplayConfig, warm_up
-from agentax.agents.dqn import bootstrap_discount
+from agentax.agents.off_policy import ReplayConfig, continuous_agent, twin_q_loss, warm_up
 from agentax.agents.protocol import PRIORITY, Agent, EnvSpec, Loop, continuous_action_dim, scale_action
 from agentax.nets import MLP, TwinQ, polyak
 from agentax.policies import Policy
@@ -116,10 +115,7 @@ def make_agent(spec: EnvSpec, cfg: TD3Config, *, loop: Loop = jax.lax.scan) -> A
         )
         next_action = jnp.clip(greedy_next + smoothing, -1.0, 1.0)
         next_q = critic.apply(state.target_params["critic"], t.next_obs, next_action).min(axis=0)
-        target = jax.lax.stop_gradient(t.reward + bootstrap_discount(t, cfg.discount_factor) * next_q)
-        q = critic.apply(critic_params, t.obs, t.action)  # (2, batch)
-        td = q - target
-        return (sample.weights * td**2).mean(axis=-1).sum(), (q.mean(), jnp.abs(td).mean(axis=0))
+        return twin_q_loss(critic, critic_params, sample, next_q, cfg.discount_factor)
 
     def actor_loss(actor_params, critic_params, obs: jax.Array):
         return -critic.apply(critic_params, obs, mu(actor_params, obs))[0].mean()
@@ -146,17 +142,7 @@ def make_agent(spec: EnvSpec, cfg: TD3Config, *, loop: Loop = jax.lax.scan) -> A
         metrics = {"critic_loss": q_loss, "actor_loss": pi_loss, "q_mean": q_mean, PRIORITY: priority}
         return TD3State(params, target_params, opt_state, step), metrics
 
-    return Agent(
-        name="td3",
-        init=init,
-        act=act,
-        greedy_policy=greedy_policy,
-        learn=learn,
-        experience=cfg.experience(),
-        total_steps=cfg.total_steps,
-        env_action=lambda action: scale_action(action, spec.action_space),
-        learning_steps=lambda state: state.step,
-    )
+    return continuous_agent("td3", spec, cfg, init=init, act=act, greedy_policy=greedy_policy, learn=learn)
 
 
 __all__ = ["TD3Config", "TD3State", "make_agent"]

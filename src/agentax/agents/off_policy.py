@@ -1,20 +1,27 @@
 """What the off-policy actor-critics for continuous actions (SAC, TD3) share: the replay and schedule
-settings of their configs, the experience they ask runners for, and the uniform warm-up.
+settings of their configs, the experience they ask runners for, the uniform warm-up, the twin
+critics' clipped double-Q loss and the ``Agent`` they make.
 
 Both act in ``[-1, 1]^d`` (the env receives actions rescaled to its bounds by ``env_action``), learn
 one step per ``learn`` call, and take ``utd · train_frequency · num_envs`` learning steps per phase.
+A block beside the algorithms, not an algorithm: no algorithm imports another.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 
-from agentax.agents.protocol import OffPolicy, check_fields
+from agentax.agents.protocol import Agent, EnvSpec, OffPolicy, check_fields, scale_action
 from agentax.errors import UsageError
+from agentax.nets import TwinQ
 from agentax.policies import linear_schedule
+from agentax.replay import ReplaySample
+from agentax.returns import bootstrap_discount
 
 
 @dataclass(frozen=True)
@@ -106,4 +113,32 @@ def warm_up(action: jax.Array, key: jax.Array, progress: jax.Array, learning_sta
     return jnp.where(progress < learning_starts, uniform, action)
 
 
-__all__ = ["ReplayConfig", "warm_up"]
+def twin_q_loss(
+    critic: TwinQ, critic_params: Any, sample: ReplaySample, next_value: jax.Array, discount_factor: float
+) -> tuple[jax.Array, tuple[jax.Array, jax.Array]]:
+    """The twin critics' loss ``Σ_i mean(w · (Q_i(s, a) − y)²)`` towards the constant target
+    ``y = r + γ^k (1 − terminated) · next_value`` (``next_value`` ``[batch]``: the clipped double-Q
+    value of ``s′``, SAC's with its entropy bonus); with ``(mean Q, priority [batch])``, the
+    priority the mean |TD error| of the two critics."""
+    t = sample.transition
+    discount = bootstrap_discount(t.terminated, t.num_steps, discount_factor)
+    target = jax.lax.stop_gradient(t.reward + discount * next_value)
+    q = critic.apply(critic_params, t.obs, t.action)  # (2, batch)
+    td = q - target
+    return (sample.weights * td**2).mean(axis=-1).sum(), (q.mean(), jnp.abs(td).mean(axis=0))
+
+
+def continuous_agent(name: str, spec: EnvSpec, cfg: ReplayConfig, **functions: Callable) -> Agent:
+    """The ``Agent`` of off-policy actor-critic ``name`` from its ``init``, ``act``, ``greedy_policy``
+    and ``learn``: actions in ``[-1, 1]^d`` rescaled to the env's bounds, ``state.step`` learning steps."""
+    return Agent(
+        name=name,
+        experience=cfg.experience(),
+        total_steps=cfg.total_steps,
+        env_action=lambda action: scale_action(action, spec.action_space),
+        learning_steps=lambda state: state.step,
+        **functions,
+    )
+
+
+__all__ = ["ReplayConfig", "continuous_agent", "twin_q_loss", "warm_up"]
