@@ -229,7 +229,7 @@ def _figures() -> dict[str, Figure]:
     figures: dict[str, Figure] = {}
     for name in ("envs", "evaluate", "tabular", "search", "ppo", "dqn", "parallel", "ray", "atari"):
         figures[f"{name}.cpu"] = cpu(name)
-    for name in ("learner", "sweep", "workers", "sac", "mujoco"):
+    for name in ("learner", "sweep", "workers", "sac", "mujoco", "export"):
         figures[f"{name}.cpu"] = cpu(name)
 
     # CartPole env steps/s (envs.json)
@@ -566,6 +566,14 @@ def _figures() -> dict[str, Figure]:
         figures[f"learner.pqn.{key}.compile"] = bench(
             "learner", PQN_ITERATION, f"agentax, {what}", col="compile s", fmt="{:.1f}"
         )
+
+    # a trained policy exported and played from the file (export.json)
+    for key in ("onnx", "stablehlo"):
+        figures[f"export.{key}.bytes"] = bench("export", key, col="file bytes", fmt=thousands)
+        figures[f"export.{key}.seconds"] = bench("export", key, col="export s", fmt="{:.2g}")
+        mean = "file's mean return (100 episodes)"
+        figures[f"export.{key}.mean"] = bench("export", key, col=mean, fmt="{:.1f}")
+        figures[f"export.{key}.equal"] = bench("export", key, col="equal statistics")
 
     # sweeps (sweep.json), workers (workers.json)
     for key, workload in (

@@ -2,7 +2,8 @@
 exactly; a figure one off in its last digit fails the check; the bench records the CPU.
 
 The README's headline figures are bound (each marked, each also on the page its row links to), and
-every trained score on it has its evidence folder."""
+every trained score on it has its evidence folder. Nothing counts figures: the README may hold few,
+and each one that is there is checked."""
 
 from __future__ import annotations
 
@@ -45,17 +46,17 @@ def _marked(text: str) -> list[re.Match]:
 
 
 def test_every_figure_on_the_pages_is_its_sources_value():
+    """Each marked figure of every page equals what scripts/figures.py computes from its source, each
+    name is a figure, and each figure is on some page."""
     assert figures.check() == []
-    readme = (ROOT / "README.md").read_text()
-    benchmarks = (ROOT / "docs" / "benchmarks.md").read_text()
-    assert len(_marked(readme)) >= 60 and len(_marked(benchmarks)) >= 150
+    assert _marked((ROOT / "README.md").read_text()), "the README shows no marked figure"
 
 
 def test_each_figure_one_off_in_its_last_digit_fails_the_check():
     """Every marked figure of the README and the docs pages, one at a time, changed by one in its last
     digit: the check names that figure, on that page and line."""
     shown = figures.values(ROOT)
-    mutated = 0
+    mutated = set()
     for page in figures.pages(ROOT):
         text = page.read_text()
         for match in _marked(text):
@@ -68,8 +69,9 @@ def test_each_figure_one_off_in_its_last_digit_fails_the_check():
             assert found == [
                 f"{page.name}:{line}: fig:{name} shows {_off_by_one(printed)!r}, its source gives {printed!r}"
             ]
-            mutated += 1
-    assert mutated >= 250
+            mutated.add(name)
+    numeric = {name for name, value in shown.items() if any(char.isdigit() for char in value)}
+    assert mutated == numeric, f"figures never mutated: {sorted(numeric - mutated)}"
 
 
 def _copy_of_the_repository(tmp_path: Path) -> Path:
@@ -82,14 +84,14 @@ def _copy_of_the_repository(tmp_path: Path) -> Path:
 
 
 def test_the_script_fails_on_a_mutated_copy_and_write_repairs_it(tmp_path: Path):
-    """``--check`` on a copy whose README says 2.97 where dqn.json gives 2.96 exits 1 naming it;
+    """``--check`` on a copy whose benchmarks page says 2.97 where dqn.json gives 2.96 exits 1 naming it;
     ``--write`` prints the source's value back; a JSON changed under a page fails the check too."""
     root = _copy_of_the_repository(tmp_path)
-    readme = root / "README.md"
-    text = readme.read_text()
+    page = root / "docs" / "benchmarks.md"
+    text = page.read_text()
     marker = "<!-- fig:dqn.warm.seconds -->2.96<!-- /fig -->"
     assert marker in text
-    readme.write_text(text.replace(marker, marker.replace("2.96", "2.97"), 1))
+    page.write_text(text.replace(marker, marker.replace("2.96", "2.97"), 1))
     command = [sys.executable, str(SCRIPT), "--root", str(root)]
     result = subprocess.run([*command, "--check"], capture_output=True, text=True, timeout=60)
     assert result.returncode == 1
@@ -97,7 +99,7 @@ def test_the_script_fails_on_a_mutated_copy_and_write_repairs_it(tmp_path: Path)
 
     result = subprocess.run([*command, "--write"], capture_output=True, text=True, timeout=60)
     assert result.returncode == 0, result.stdout + result.stderr
-    assert readme.read_text() == text
+    assert page.read_text() == text
 
     source = root / "benchmarks" / "results" / "dqn.json"
     result_file = json.loads(source.read_text())
@@ -135,7 +137,7 @@ def test_the_readme_headline_figures_are_bound_and_on_their_pages():
     figure is also marked on the page the row links to, under the same name."""
     not_measured = {"1.6", "200", "0"}  # the parallel runner's target, SAC's bar of -200, taskset -c 0
     rows = _headline_rows()
-    assert len(rows) >= 15
+    assert rows
     for row in rows:
         cells = row.split(" | ")
         link = re.search(r"\]\(([^)#\s]+)", cells[0]).group(1)
