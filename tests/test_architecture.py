@@ -1,12 +1,15 @@
 """The layers' import direction (STYLE anti-pattern 6) and the one algorithm registry (pattern 14).
 
 Imports are read with ``ast`` from every module under ``src/agentax``, those inside functions
-included, so a lazy import that reaches up is caught as well as a top-level one.
+included, so a lazy import that reaches up is caught as well as a top-level one. The algorithm
+rules cover every module of :data:`agentax.agents.ALGORITHMS`, and each rule has a test feeding the
+checker a module that breaks it.
 """
 
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import jax
@@ -55,7 +58,9 @@ RANKS: dict[str, int] = {
 """Every module's layer, top to bottom: a module imports only from its own layer or below (its own
 layer only where the graph stays acyclic, checked apart). A module takes the rank of the longest
 prefix naming it (``agentax.agents.ppo`` is ``agentax.agents``'s 6)."""
-ALGORITHM_MODULES = ("agentax.agents.dqn", "agentax.agents.ppo", "agentax.agents.reinforce")
+ALGORITHM_MODULES = tuple(entry.module for entry in ALGORITHMS.values())
+"""Every registered algorithm's module: runners never import one, and no algorithm imports another
+(shared pieces live in the blocks: nets, returns, policies, ``agents.off_policy``)."""
 MAY_IMPORT_XLA = (
     "agentax",
     "agentax.api",
@@ -119,14 +124,25 @@ def imports_of(source: str, module: str, is_package: bool = False) -> list[tuple
     return found
 
 
+def algorithm_of(module: str) -> str | None:
+    """The registered algorithm module ``module`` is or lies in (None for any other)."""
+    return next((m for m in ALGORITHM_MODULES if within(module, m)), None)
+
+
 def rule_broken(module: str, imported: str) -> str | None:
     """Why ``module`` may not import ``imported`` (None if it may)."""
+    if algorithm_of(module) and within(imported, "tyro"):
+        return "an algorithm imports tyro (its CLI flags live in the CLI)"
     if not within(imported, "agentax"):
         return None
     if rank(imported) > rank(module):
         return f"layer {rank(module)} imports layer {rank(imported)}"
-    if within(module, "agentax.runners") and any(within(imported, m) for m in ALGORITHM_MODULES):
+    if within(module, "agentax.runners") and algorithm_of(imported):
         return "a runner imports an algorithm module (runners see agents through the protocol)"
+    if algorithm_of(module) and algorithm_of(imported) not in (None, algorithm_of(module)):
+        return "an algorithm imports another algorithm (move the shared piece into a block)"
+    if algorithm_of(module) and within(imported, "agentax.agents.presets"):
+        return "an algorithm imports the presets (which import the algorithms' configs: a cycle)"
     if (
         within(imported, "agentax._xla")
         and not any(module == m or within(module, m) for m in MAY_IMPORT_XLA if m != "agentax")
@@ -226,6 +242,11 @@ def test_the_checker_catches_violations():
     ]
     assert violations("from agentax import _xla\n", "agentax.agents.ppo", "ppo.py")
     assert violations("from agentax import _xla\n", "agentax.runs", "runs.py")
+    assert violations("import tyro\n", "agentax.agents.sac", "sac.py") == [
+        "sac.py:1: agentax.agents.sac imports tyro "
+        "(an algorithm imports tyro (its CLI flags live in the CLI))"
+    ]
+    assert violations("from agentax.agents.presets import PRESETS\n", "agentax.agents.ppo", "ppo.py")
     with pytest.raises(KeyError, match="no rank"):
         rank("elsewhere.module")
     # what is allowed stays allowed
@@ -235,6 +256,24 @@ def test_the_checker_catches_violations():
     assert violations("from agentax.envs.core import Box\n", "agentax.nets", "n.py") == []
     assert violations("from agentax import _xla\n", "agentax.runners.host", "h.py") == []
     assert violations("from agentax.api import train\n", "agentax", "__init__.py", is_package=True) == []
+    assert violations("from agentax.agents.off_policy import warm_up\n", "agentax.agents.td3", "t.py") == []
+    assert violations("from agentax.agents import presets\n", "agentax.cli.train", "t.py") == []
+
+
+@pytest.mark.parametrize("name", list(ALGORITHMS))
+def test_the_checker_catches_an_algorithm_importing_another(name):
+    """For every registered algorithm: importing any other registered algorithm (top level or inside
+    a function, by either import form) is reported; importing itself and the blocks is not."""
+    module = ALGORITHMS[name].module
+    assert module in package_sources(), f"{module} (registered as {name}) is not a module of agentax"
+    for other in (entry.module for other_name, entry in ALGORITHMS.items() if other_name != name):
+        package, leaf = other.rsplit(".", 1)
+        for source in (f"from {other} import make_agent\n", f"def f():\n    from {package} import {leaf}\n"):
+            assert [v.split(" (", 1)[1] for v in violations(source, module, "m.py")] == [
+                "an algorithm imports another algorithm (move the shared piece into a block))"
+            ], (name, source)
+    allowed = f"from {module} import make_agent\nfrom agentax.returns import bootstrap_discount\n"
+    assert violations(allowed, module, "m.py") == []
 
 
 COMPARISONS = (ast.Eq, ast.NotEq, ast.In, ast.NotIn)
@@ -366,11 +405,8 @@ def test_presets_cover_the_registry_and_no_algorithm_imports_them_or_tyro():
     algorithm module importing it back would close a cycle); CLI flags and aliases live in the CLI."""
     assert list(PRESETS) == list(ALGORITHMS) and set(DEFAULT_PRESETS) <= set(ALGORITHMS)
     assert PRESETS["reinforce"]["lecture"] is PRESETS["reinforce"]["default"]  # one config, two names
-    sources = package_sources()
-    for module in ALGORITHM_MODULES:
-        imported = {name for _, name in imports_of(sources[module][0], module)}
-        assert "agentax.agents.presets" not in imported, module
-        assert not any(within(name, "tyro") for name in imported), module
+    # the import rules (rule_broken, checked for every module above) cover every registered algorithm
+    assert set(ALGORITHM_MODULES) == {entry.module for entry in ALGORITHMS.values()} <= set(package_sources())
 
 
 def test_train_help_lists_exactly_the_registered_algorithms(capsys):
@@ -379,3 +415,55 @@ def test_train_help_lists_exactly_the_registered_algorithms(capsys):
     assert len(lines) == 1, lines
     listed = lines[0].removeprefix("algorithms:").split("(")[0]
     assert [n.strip() for n in listed.split(",")] == list(ALGORITHMS)
+
+
+def markdown_blocks(text: str) -> list[tuple[int, str]]:
+    """``(first line, text)`` of each paragraph, list item, table row or heading of ``text``
+    (a wrapped paragraph or item joined into one)."""
+    blocks: list[tuple[int, str]] = []
+    starts = re.compile(r"\s*(?:[-*|#]|\d+\.)\s")
+    for number, line in enumerate(text.splitlines(), 1):
+        if not line.strip():
+            continue
+        if blocks and blocks[-1][0] + blocks[-1][1].count("\n") == number - 1 and not starts.match(line):
+            blocks[-1] = (blocks[-1][0], blocks[-1][1] + "\n" + line)
+        else:
+            blocks.append((number, line))
+    return blocks
+
+
+def partial_algorithm_lists(text: str, filename: str) -> list[str]:
+    """``file:line: ...`` of every paragraph, item or row that lists registered algorithms, three or
+    more of their names in code font (`ppo`), without naming all of them."""
+    found = []
+    for number, block in markdown_blocks(text):
+        named = [name for name in ALGORITHMS if f"`{name}`" in block]
+        if 3 <= len(named) < len(ALGORITHMS):
+            missing = [name for name in ALGORITHMS if name not in named]
+            found.append(f"{filename}:{number}: lists {', '.join(named)} without {', '.join(missing)}")
+    return found
+
+
+def test_the_docs_list_every_registered_algorithm():
+    """A list of the algorithms in the README or docs names every one of the registry's."""
+    root = PACKAGE_ROOT.parents[1]
+    pages = [root / "README.md", *sorted((root / "docs").rglob("*.md"))]
+    assert len(pages) > 5, pages
+    found = []
+    for page in pages:
+        found += partial_algorithm_lists(page.read_text(), str(page.relative_to(root)))
+    assert not found, "algorithm lists missing registered algorithms:\n" + "\n".join(found)
+
+
+def test_the_docs_list_check_catches_a_stale_list():
+    names = [f"`{name}`" for name in ALGORITHMS]
+    stale = (
+        f"Every algorithm ({', '.join(names[:3])}) offers\n\n"
+        f"- all: {' '.join(names[:3])}\n  and {' '.join(names[3:])}, wrapped\n"
+        f"- only {' or '.join(names[:2])}\n| row | {', '.join(names[1:])} |\n"
+    )
+    assert partial_algorithm_lists(stale, "d.md") == [
+        f"d.md:1: lists {', '.join(list(ALGORITHMS)[:3])} without {', '.join(list(ALGORITHMS)[3:])}",
+        f"d.md:6: lists {', '.join(list(ALGORITHMS)[1:])} without {list(ALGORITHMS)[0]}",
+    ]
+
