@@ -451,7 +451,7 @@ def on_policy_rate(algo: str, preset: str, runner: str) -> dict:
     from agentax.agents.protocol import EnvSpec
     from agentax.api import agent_maker
     from agentax.envs import make_host_env
-    from agentax.runners import compiled_atari, host
+    from agentax.runners import compiled_pool, host
     from agentax.runners import parallel as parallel_runner
     from agentax.runners import ray as ray_runner
 
@@ -472,8 +472,8 @@ def on_policy_rate(algo: str, preset: str, runner: str) -> dict:
         config = ray_runner.RayRunnerConfig(actors=1, policy_lag=1, **options)
         result = ray_runner.train(agent, ENV_ID, config, make_agent=make_agent)
     elif runner.startswith("compiled"):
-        config = compiled_atari.PoolRunnerConfig(policy_lag=int(runner == "compiled-lag1"), **options)
-        result = compiled_atari.train(agent, ENV_ID, config)
+        config = compiled_pool.Config(policy_lag=int(runner == "compiled-lag1"), **options)
+        result = compiled_pool.train(agent, ENV_ID, config)
     else:
         result = host.train(agent, ENV_ID, host.HostRunnerConfig(**options))
     total = time.perf_counter() - start

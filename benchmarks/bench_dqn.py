@@ -58,7 +58,7 @@ def compiled_row(num_seeds: int) -> list:
     from agentax.agents import dqn, presets
     from agentax.api import compiled_program
     from agentax.envs import make_jax
-    from agentax.runners.compiled import RunnerConfig, train
+    from agentax.runners.compiled import RunnerConfig, train_program
 
     preset = presets.preset("dqn", "default")
     env = make_jax("CartPole-v1")
@@ -71,7 +71,7 @@ def compiled_row(num_seeds: int) -> list:
         freeze_at_return=preset.freeze_at_return,
     )
     with pinned_to_one_cpu():
-        result = train(compiled_program(dqn, env, preset.config, runner), env, runner)
+        result = train_program(compiled_program(dqn, env, preset.config, runner), env, runner)
     learning_steps = float(np.sum(np.asarray(result.state.agent.step)))
     per_seed = np.asarray(result.eval["per_seed_mean"])
     solved_wall = result.solved_seconds if result.solved_seconds is not None else float("nan")

@@ -401,13 +401,13 @@ def compiled_overhead() -> dict:
         with tempfile.TemporaryDirectory() as folder:
             run = Run.create(Path(folder) / "run", {"algo": "ppo", "env": ENV_ID, "preset": "default"})
             start = time.perf_counter()
-            result = compiled.train(algorithm, env, runner, run=run)
+            result = compiled.train_program(algorithm, env, runner, run=run)
             whole = time.perf_counter() - start
             figures["runner"].append(result.train_seconds)
             figures["runner_whole"].append(whole - result.compile_seconds)
             figures["runner_compile"] = result.compile_seconds
             figures["rows"] = len(result.rows)
-        figures["runner_no_folder"].append(compiled.train(algorithm, env, runner).train_seconds)
+        figures["runner_no_folder"].append(compiled.train_program(algorithm, env, runner).train_seconds)
     figures["bare_compile"] = bare_compile
     figures["evaluations"] = len(points)
     figures["num_updates"] = total

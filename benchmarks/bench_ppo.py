@@ -101,12 +101,12 @@ def throughput(seeds: int) -> tuple[float, float]:
     from agentax.agents import ppo, presets
     from agentax.api import compiled_program
     from agentax.envs import make_jax
-    from agentax.runners.compiled import RunnerConfig, train
+    from agentax.runners.compiled import RunnerConfig, train_program
 
     env, preset = make_jax("CartPole-v1"), presets.preset("ppo", "cartpole-fast")
     runner = RunnerConfig(num_seeds=seeds, updates_per_chunk=preset.updates_per_chunk, eval_every_chunks=1000)
     with pinned_to_one_cpu():
-        result = train(compiled_program(ppo, env, preset.config), env, runner)
+        result = train_program(compiled_program(ppo, env, preset.config), env, runner)
     return result.env_steps * seeds / result.train_seconds, result.compile_seconds
 
 

@@ -39,9 +39,9 @@ def timed(algo: str) -> dict:
     many = compiled.RunnerConfig(num_seeds=SEEDS, num_settings=len(rates), **runner)
     alone, swept = [], []
     for _ in range(REPEATS):
-        result = compiled.train(make(cfg), env, one)
+        result = compiled.train_program(make(cfg), env, one)
         alone.append(result.train_seconds)
-        result = compiled.train(sweep_program(make, cfg, table), env, many)
+        result = compiled.train_program(sweep_program(make, cfg, table), env, many)
         swept.append(result.train_seconds)
     per_rate = np.asarray(result.eval["per_seed_mean"]).reshape(len(rates), SEEDS).mean(axis=1)
     return {

@@ -467,3 +467,81 @@ def test_the_docs_list_check_catches_a_stale_list():
         f"d.md:6: lists {', '.join(list(ALGORITHMS)[1:])} without {list(ALGORITHMS)[0]}",
     ]
 
+
+# ---------------------------------------------------------------- the runner module contract
+
+RUNNER_CONTRACT: dict[str, tuple[str, ...]] = {
+    "configure": ("run_args", "agent", "preset"),
+    "train": ("agent", "env_id", "runner", "run"),
+    "restore": ("run_dir", "config", "agent"),
+}
+"""The functions every runner module (a row of :data:`agentax.runners.RUNNERS`) exports, by their
+positional parameters (:mod:`agentax.runners.launch` calls them so); ``train`` also takes the
+keywords ``resume`` and ``progress``, and any further parameter of it is keyword-only."""
+
+
+def runner_contract_violations(module) -> list[str]:
+    """What ``module`` lacks of the runner contract: a ``Config`` dataclass and the functions of
+    :data:`RUNNER_CONTRACT` with their parameters."""
+    import dataclasses
+    import inspect
+
+    name = module.__name__
+    found = []
+    config = getattr(module, "Config", None)
+    if not (isinstance(config, type) and dataclasses.is_dataclass(config)):
+        found.append(f"{name}: no Config dataclass")
+    for function, wanted in RUNNER_CONTRACT.items():
+        fn = getattr(module, function, None)
+        if not callable(fn):
+            found.append(f"{name}: no {function}()")
+            continue
+        parameters = inspect.signature(fn).parameters.values()
+        positional = [p.name for p in parameters if p.kind is inspect.Parameter.POSITIONAL_OR_KEYWORD]
+        if positional != list(wanted):
+            found.append(f"{name}.{function} takes ({', '.join(positional)}), not ({', '.join(wanted)})")
+        if function == "train":
+            keywords = {p.name: p for p in parameters if p.kind is inspect.Parameter.KEYWORD_ONLY}
+            for flag in ("resume", "progress"):
+                if keywords.get(flag) is None or keywords[flag].default is not False:
+                    found.append(f"{name}.train has no keyword {flag}=False")
+            if positional[-1:] == ["run"] and fn.__defaults__ != (None,):
+                found.append(f"{name}.train's run is not optional (None)")
+    return found
+
+
+@pytest.mark.parametrize("kind", list(RUNNERS))
+def test_every_runner_row_names_a_module_that_keeps_the_contract(kind):
+    module = RUNNERS[kind].load()
+    assert runner_contract_violations(module) == []
+    assert RUNNERS[kind].chosen_as in ("compiled", "host", "parallel", "ray")
+
+
+def test_the_runner_contract_check_catches_a_module_that_breaks_it():
+    import dataclasses
+    import types
+
+    fake = types.ModuleType("fake_runner")
+    fake.Config = type("Config", (), {})  # not a dataclass
+    fake.configure = lambda run_args, agent: None  # no preset
+    fake.train = lambda agent, env_id, runner, run=None, resume=False, progress=False: (
+        None
+    )  # flags positional
+    assert runner_contract_violations(fake) == [
+        "fake_runner: no Config dataclass",
+        "fake_runner.configure takes (run_args, agent), not (run_args, agent, preset)",
+        "fake_runner.train takes (agent, env_id, runner, run, resume, progress), "
+        "not (agent, env_id, runner, run)",
+        "fake_runner.train has no keyword resume=False",
+        "fake_runner.train has no keyword progress=False",
+        "fake_runner: no restore()",
+    ]
+    fake.Config = dataclasses.make_dataclass("Config", [("seed", int, 0)])
+    fake.configure = lambda run_args, agent, preset: None
+    fake.restore = lambda run_dir, config, agent: None
+
+    def train(agent, env_id, runner, run=None, *, resume=False, progress=False):
+        return None
+
+    fake.train = train
+    assert runner_contract_violations(fake) == []

@@ -130,12 +130,12 @@ def test_rollout_on_a_real_pool_masks_reset_steps_after_done_steps():
     after one carried in), pays nothing, starts from the observation the done step reached, and
     finishes no game; every pool step counts as progress, and the actor's key chain is the host
     actor's (one ``split(key)`` a step)."""
-    from agentax.runners.compiled_atari import AtariEnvs, start
+    from agentax.runners.compiled_pool import PoolEnvs, start
     from agentax.runners.rollout import on_policy_rollout
 
     env = XlaAtari(BREAKOUT, 8, seed=3, sticky_actions=0.25)
     agent = _ppo_agent(env)
-    rollout = jax.jit(on_policy_rollout(agent, AtariEnvs(env)))
+    rollout = jax.jit(on_policy_rollout(agent, PoolEnvs(env)))
     carry = start(agent.init(jax.random.key(0)), env, jax.random.key(1), 0)
     masked = ends = 0
     for i in range(2):  # the second rollout starts with the resets the first one's last steps left
@@ -224,17 +224,17 @@ def _step_and_track(env, handle, tracker, action):
 
 @pytest.mark.timeout(30)
 def test_refuses_what_it_cannot_run():
-    from agentax.runners.compiled_atari import PoolRunnerConfig, check
+    from agentax.runners.compiled_pool import Config, check
 
     agent = agent_maker(
         ppo, EnvSpec((4, 84, 84), Discrete(4), jnp.uint8), presets.preset("ppo", "atari").config
     )()
     with pytest.raises(UsageError, match="cannot be vmapped over seeds"):
-        check(agent, BREAKOUT, PoolRunnerConfig(), num_seeds=2)
+        check(agent, BREAKOUT, Config(), num_seeds=2)
     with pytest.raises(UsageError, match="--env-backend ale"):
-        check(agent, BREAKOUT, PoolRunnerConfig(env_backend="ale"))
+        check(agent, BREAKOUT, Config(env_backend="ale"))
     with pytest.raises(UsageError, match="Atari games"):
-        check(agent, "CartPole-v1", PoolRunnerConfig())
+        check(agent, "CartPole-v1", Config())
 
 
 @pytest.mark.timeout(150)
@@ -242,16 +242,16 @@ def test_short_run_writes_the_run_folder_loads_and_resumes(tmp_path):
     """Two iterations of 2 envs x 32 steps: metrics rows, a checkpoint that the host runner's
     ``restore_policy`` loads into the trained greedy policy, eval.json and curve.png; resumed with a
     longer budget it continues from iteration 2."""
-    from agentax.runners import compiled_atari, host
+    from agentax.runners import compiled_pool, host
 
     probe = XlaAtari(BREAKOUT, 1, sticky_actions=0.0)
     overrides = dict(num_envs=2, num_steps=32, num_minibatches=2, update_epochs=1)
     agent = _ppo_agent(probe, total_steps=128, **overrides)
     probe.close()
-    runner = compiled_atari.PoolRunnerConfig(log_every_steps=64, eval_episodes=1, sticky_actions=0.0)
-    config = run_config("ppo", BREAKOUT, "atari", compiled_atari.RUNNER_KIND, runner, {})
+    runner = compiled_pool.Config(log_every_steps=64, eval_episodes=1, sticky_actions=0.0)
+    config = run_config("ppo", BREAKOUT, "atari", compiled_pool.RUNNER_KIND, runner, {})
     run = Run.create(tmp_path / "run", config)
-    result = compiled_atari.train(agent, BREAKOUT, runner, run)
+    result = compiled_pool.train(agent, BREAKOUT, runner, run)
     assert result.updates == 2 and result.env_steps == 128
     rows = read_metrics(tmp_path / "run")
     assert [r["env_steps"] for r in rows] == [64, 128] and [r["frames"] for r in rows] == [256, 512]
@@ -268,7 +268,7 @@ def test_short_run_writes_the_run_folder_loads_and_resumes(tmp_path):
     )
 
     longer = _ppo_agent(probe, total_steps=256, **overrides)
-    resumed = compiled_atari.train(longer, BREAKOUT, runner, Run.open(tmp_path / "run"), resume=True)
+    resumed = compiled_pool.train(longer, BREAKOUT, runner, Run.open(tmp_path / "run"), resume=True)
     assert resumed.updates == 4
     assert [r["env_steps"] for r in read_metrics(tmp_path / "run")] == [64, 128, 192, 256]
 
@@ -280,7 +280,7 @@ def _versioned_steps(lag: int, count: int):
     if the two ran one after the other)."""
     import threading
 
-    from agentax.runners.compiled_atari import in_one_program, side_by_side
+    from agentax.runners.compiled_pool import in_one_program, side_by_side
     from agentax.runners.rollout import OnPolicyCarry
 
     began = [threading.Event() for _ in range(count + 1)]
@@ -326,8 +326,8 @@ def test_policy_lag_1_on_a_real_pool_learns_the_first_update_as_lag_0_and_then_g
     step size so that one update changes how the policy acts): the first rollouts act with the same
     parameters, so the first rows agree; the second acts with older ones at lag 1, so the second
     rows do not. A bad lag is refused."""
-    from agentax.runners import compiled_atari
-    from agentax.runners.compiled_atari import PoolRunnerConfig
+    from agentax.runners import compiled_pool
+    from agentax.runners.compiled_pool import Config
 
     probe = XlaAtari(BREAKOUT, 1, sticky_actions=0.0)
     overrides = dict(num_envs=2, num_steps=32, num_minibatches=2, update_epochs=1, learning_rate=0.05)
@@ -335,9 +335,9 @@ def test_policy_lag_1_on_a_real_pool_learns_the_first_update_as_lag_0_and_then_g
     probe.close()
     losses = {}
     for lag in (0, 1):
-        runner = PoolRunnerConfig(log_every_steps=64, eval_episodes=1, sticky_actions=0.0, policy_lag=lag)
-        config = run_config("ppo", BREAKOUT, "atari", compiled_atari.RUNNER_KIND, runner, {})
-        result = compiled_atari.train(agent, BREAKOUT, runner, Run.create(tmp_path / f"lag{lag}", config))
+        runner = Config(log_every_steps=64, eval_episodes=1, sticky_actions=0.0, policy_lag=lag)
+        config = run_config("ppo", BREAKOUT, "atari", compiled_pool.RUNNER_KIND, runner, {})
+        result = compiled_pool.train(agent, BREAKOUT, runner, Run.create(tmp_path / f"lag{lag}", config))
         assert result.updates == 2 and result.env_steps == 128
         losses[lag] = np.array(
             [[r["policy_loss"], r["value_loss"]] for r in read_metrics(tmp_path / f"lag{lag}")]
@@ -345,7 +345,7 @@ def test_policy_lag_1_on_a_real_pool_learns_the_first_update_as_lag_0_and_then_g
     np.testing.assert_allclose(losses[1][0], losses[0][0], rtol=1e-4)
     assert not np.allclose(losses[1][1], losses[0][1], rtol=1e-3)
     with pytest.raises(UsageError, match="policy lag 0 or 1"):
-        compiled_atari.check(agent, BREAKOUT, PoolRunnerConfig(policy_lag=2))
+        compiled_pool.check(agent, BREAKOUT, Config(policy_lag=2))
 
 
 @pytest.mark.long  # ~40 s: make test-long (2,400 iterations in 6 processes ran clean on 2026-12-06)
@@ -365,14 +365,14 @@ def test_policy_lag_1_runs_400_iterations_without_hanging():
         from agentax.agents import ppo, presets
         from agentax.agents.protocol import EnvSpec
         from agentax.envs.envpool_xla import XlaAtari
-        from agentax.runners import compiled_atari as ca
+        from agentax.runners import compiled_pool as ca
         from agentax.runners.launch import agent_maker
         probe = XlaAtari("ALE/Breakout-v5", 1, sticky_actions=0.0)
         cfg = dataclasses.replace(presets.preset("ppo", "atari").config, num_envs=4, num_steps=16,
                                   num_minibatches=2, update_epochs=1).validate()
         agent = agent_maker(ppo, EnvSpec.of(probe), cfg)()
         probe.close()
-        env = ca.make_pool("ALE/Breakout-v5", 4, 0, ca.PoolRunnerConfig())
+        env = ca.make_pool("ALE/Breakout-v5", 4, 0, ca.Config())
         carry = ca.start(agent.init(jax.random.key(0)), env, jax.random.key(1), 0)
         collect, learn = jax.jit(ca.make_collect(agent, env)), jax.jit(ca.make_learn(agent))
         steps = ca.side_by_side(collect, learn, carry, jax.random.key(2), 400)

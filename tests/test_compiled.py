@@ -16,7 +16,7 @@ from agentax import _xla
 from agentax.agents import ppo
 from agentax.envs import make_jax
 from agentax.errors import UsageError
-from agentax.runners.compiled import RunnerConfig, compiled_program, train
+from agentax.runners.compiled import RunnerConfig, compiled_program, train_program
 from agentax.runs import Run, checkpoints, read_metrics
 from benchmarks import _pin  # benchmarks/_pin.py (tests/conftest.py puts the repo root on sys.path)
 
@@ -28,13 +28,13 @@ HANG_PROGRAM = textwrap.dedent(
     from agentax.agents import ppo, presets
     from agentax.runners.compiled import compiled_program
     from agentax.envs import make_jax
-    from agentax.runners.compiled import RunnerConfig, train
+    from agentax.runners.compiled import RunnerConfig, train_program
 
     jax.numpy.ones(3).block_until_ready()  # the client, and its threads, exist before the runner
     env = make_jax("CartPole-v1")
     cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=12 * 256)
     runner = RunnerConfig(num_seeds=8, updates_per_chunk=2, eval_episodes=4)
-    result = train(compiled_program(ppo, env, cfg), env, runner)
+    result = train_program(compiled_program(ppo, env, cfg), env, runner)
     masks, pool = set(), 0
     for task in os.listdir("/proc/self/task"):
         try:
@@ -172,7 +172,7 @@ ENV = make_jax("CartPole-v1")
 
 
 def _train(runner, run=None, **kwargs):
-    return train(compiled_program(ppo, ENV, TINY), ENV, runner, run, **kwargs)
+    return train_program(compiled_program(ppo, ENV, TINY), ENV, runner, run, **kwargs)
 
 
 def _params(result, seed_index):

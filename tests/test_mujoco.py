@@ -197,16 +197,16 @@ def test_compiled_ppo_on_hopper_two_updates(tmp_path):
     Hopper falls within ~20-80 steps, so episodes finish (a mean return in each row) and EnvPool's
     reset steps are masked (``masked_fraction`` > 0); the checkpoint loads as the host runner's.
     Policy lag 1: the second rollout runs beside the first update."""
-    from agentax.runners import compiled_atari, host
+    from agentax.runners import compiled_pool, host
 
     pool = XlaMujoco("Hopper-v5", 1)
     spec = EnvSpec.of(pool)
     pool.close()
     agent = _ppo_agent(spec, total_steps=512, num_envs=4, num_steps=64)
-    runner = compiled_atari.PoolRunnerConfig(log_every_steps=256, eval_episodes=1, policy_lag=1)
-    kind = compiled_atari.MUJOCO_RUNNER_KIND
+    runner = compiled_pool.Config(log_every_steps=256, eval_episodes=1, policy_lag=1)
+    kind = compiled_pool.MUJOCO_RUNNER_KIND
     run = Run.create(tmp_path / "run", run_config("ppo", "Hopper-v5", "default", kind, runner, {}))
-    result = compiled_atari.train(agent, "Hopper-v5", runner, run)
+    result = compiled_pool.train(agent, "Hopper-v5", runner, run)
     assert result.updates == 2 and result.env_steps == 512
     rows = read_metrics(tmp_path / "run")
     assert [r["env_steps"] for r in rows] == [256, 512] and "frames" not in rows[0]
@@ -221,15 +221,15 @@ def test_compiled_ppo_on_hopper_two_updates(tmp_path):
 
 
 def test_compiled_runner_refuses_an_off_policy_agent_and_other_envs():
-    from agentax.runners.compiled_atari import PoolRunnerConfig, check
+    from agentax.runners.compiled_pool import Config, check
 
     spec = EnvSpec((11,), XlaMujoco("Hopper-v5", 1).action_space())
     agent = _ppo_agent(spec, total_steps=512, num_envs=4, num_steps=64)
-    check(agent, "Hopper-v5", PoolRunnerConfig())
+    check(agent, "Hopper-v5", Config())
     with pytest.raises(UsageError, match="MuJoCo tasks"):
-        check(agent, "Pendulum-v1", PoolRunnerConfig())
+        check(agent, "Pendulum-v1", Config())
     with pytest.raises(UsageError, match="--env-backend ale"):
-        check(agent, "Hopper-v5", PoolRunnerConfig(env_backend="ale"))
+        check(agent, "Hopper-v5", Config(env_backend="ale"))
 
 
 @pytest.mark.timeout(60)

@@ -11,7 +11,7 @@ from agentax import _xla
 from agentax.agents import config_to_dict, ppo, presets
 from agentax.envs import make_jax
 from agentax.runners import programs
-from agentax.runners.compiled import RunnerConfig, compiled_program, train
+from agentax.runners.compiled import RunnerConfig, compiled_program, train_program
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -86,10 +86,10 @@ def test_runner_gives_the_same_training_from_stored_programs(cache):
     cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=4 * 256)
     runner = RunnerConfig(seed=3, num_seeds=2, updates_per_chunk=2, eval_episodes=3)
     description = {"algo": "ppo", "env": "CartPole-v1", "config": config_to_dict(cfg)}
-    traced = train(compiled_program(ppo, env, cfg), env, runner)
-    exported = train(compiled_program(ppo, env, cfg), env, runner, program_description=description)
+    traced = train_program(compiled_program(ppo, env, cfg), env, runner)
+    exported = train_program(compiled_program(ppo, env, cfg), env, runner, program_description=description)
     assert sorted(p.name.split("-")[0] for p in cache.glob("*.jaxexport")) == ["chunk", "init"]
-    loaded = train(compiled_program(ppo, env, cfg), env, runner, program_description=description)
+    loaded = train_program(compiled_program(ppo, env, cfg), env, runner, program_description=description)
     for other in (exported, loaded):
         assert [row["mean_return"] for row in other.rows] == [row["mean_return"] for row in traced.rows]
         assert [row["policy_loss"] for row in other.rows] == [row["policy_loss"] for row in traced.rows]

@@ -11,7 +11,7 @@ from agentax.agents.protocol import EnvSpec
 from agentax.envs import make_jax
 from agentax.envs.core import Discrete
 from agentax.errors import UsageError
-from agentax.runners.compiled import RunnerConfig, compiled_program, train
+from agentax.runners.compiled import RunnerConfig, compiled_program, train_program
 
 
 def test_loss_is_minus_mean_log_prob_times_normalized_return():
@@ -51,7 +51,7 @@ def test_reinforce_learns_cartpole_v0(preset):
     cfg = dataclasses.replace(
         presets.preset("reinforce", preset).config, total_steps=75 * 2000
     )  # 75 iterations
-    result = train(
+    result = train_program(
         compiled_program(reinforce, env, cfg),
         env,
         RunnerConfig(seed=1, updates_per_chunk=15, eval_episodes=10),
@@ -90,7 +90,7 @@ def test_reinforce_with_the_gaussian_head_learns_pendulum():
     better than -700 (AMD EPYC, 2026-12-04: -1,296 first row at the full preset's settings)."""
     env = make_jax("Pendulum-v1")
     cfg = dataclasses.replace(presets.preset("reinforce", "pendulum").config, total_steps=1_000_000)
-    result = train(
+    result = train_program(
         compiled_program(reinforce, env, cfg),
         env,
         RunnerConfig(seed=0, updates_per_chunk=39, eval_episodes=10),

@@ -32,11 +32,10 @@ from agentax.errors import UsageError
 from agentax.evaluate import EvalStats
 from agentax.policies import Policy
 from agentax.runfile import RunArgs, choose_preset
-from agentax.runners import RUNNERS, algorithm_of, kind_for, kind_of, resumes, runner_settings, upgraded
+from agentax.runners import algorithm_of, kind_for, kind_of, launch, resumes, runner_settings, upgraded
 
 if TYPE_CHECKING:
     from agentax.agents.presets import Preset
-    from agentax.runners.launch import Launch
 
 
 class Run:
@@ -178,7 +177,7 @@ def _restore_learned(run_dir: Path, config: dict[str, Any], stochastic: bool = F
         from agentax.export import SamplingAlgorithm
 
         module = SamplingAlgorithm(module)
-    return RUNNERS[kind_of(config)].launch().restore(Path(run_dir), config, module, cfg)
+    return launch.restore(Path(run_dir), config, module, cfg)
 
 
 def _announce(message: str, quiet: bool) -> None:
@@ -200,10 +199,10 @@ def _create(out: Path, algo: str, run_args: RunArgs, cfg: Any, kind: str, runner
     return run
 
 
-def _trained(launch: Launch, run: Any, *, resume: bool, progress: bool) -> Run:
+def _trained(ready: launch.Launch, run: Any, *, resume: bool, progress: bool) -> Run:
     start_time = time.perf_counter()
-    result, greedy = launch.train(run, resume, progress)
-    return Run(run.path, run.config, result, time.perf_counter() - start_time, greedy=greedy)
+    result = ready.train(run, resume, progress)
+    return Run(run.path, run.config, result, time.perf_counter() - start_time, greedy=result.policy)
 
 
 def start(algo: str, run_args: RunArgs, cfg: Any, preset: Preset, *, quiet: bool = False) -> Run:
@@ -213,10 +212,10 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Preset, *, quiet: bool
     _xla.enable_compilation_cache()
     out = Path(run_args.out) if run_args.out else runs.default_run_dir(algo, run_args.env)
     kind = kind_for(run_args.runner, run_args.env)
-    launch = RUNNERS[kind].launch().prepare(algo, algorithm(algo), run_args, cfg, preset, kind)
-    run = _create(out, algo, run_args, cfg, kind, launch.runner)
-    _announce(f"training {algo} on {run_args.env} ({launch.where}) into {out}", quiet)
-    return _trained(launch, run, resume=False, progress=run_args.progress)
+    ready = launch.prepare(algo, algorithm(algo), run_args, cfg, preset, kind)
+    run = _create(out, algo, run_args, cfg, kind, ready.runner)
+    _announce(f"training {algo} on {run_args.env} ({ready.where}) into {out}", quiet)
+    return _trained(ready, run, resume=False, progress=run_args.progress)
 
 
 def resume(run_dir: str | Path, progress: bool = True, *, quiet: bool = False) -> Run:
@@ -235,8 +234,8 @@ def resume(run_dir: str | Path, progress: bool = True, *, quiet: bool = False) -
         _announce(f"{run_dir} has no checkpoint yet: training it from its config.json", quiet)
         runs.Run.open(run_dir).truncate_metrics(0)
     runner = runner_settings(config, f"{run_dir}/config.json")
-    launch = RUNNERS[kind].launch().reopen(config, module, cfg, runner)
-    return _trained(launch, runs.Run.open(run_dir), resume=resume, progress=progress)
+    ready = launch.reopen(config, module, cfg, runner)
+    return _trained(ready, runs.Run.open(run_dir), resume=resume, progress=progress)
 
 
 def train(

@@ -40,7 +40,6 @@ from typing import TYPE_CHECKING, Any
 
 from agentax.agents import ALGORITHMS, algorithm_config, presets_of
 from agentax.errors import UsageError
-from agentax.runners import RUNNERS
 
 if TYPE_CHECKING:
     from agentax.agents.presets import Preset
@@ -116,20 +115,6 @@ class RunArgs:
                     f"--freeze-at-return must be a number, 'none' or 'auto', got {self.freeze_at_return!r}"
                 ) from None
         return self
-
-    def freeze(self, preset: Preset, kind: str) -> float | None:
-        """The per-seed early stop's return for a ``kind`` runner: the compiled runner's option
-        (the preset's under 'auto'); a number for another runner is refused."""
-        if self.freeze_at_return == "none":
-            return None
-        if self.freeze_at_return == "auto":
-            return None if RUNNERS[kind].host_loop else preset.freeze_at_return
-        if RUNNERS[kind].host_loop:
-            raise UsageError(
-                f"--freeze-at-return stops seeds inside the compiled runner's program; the {kind} "
-                "runner cannot (train a JAX env with --runner compiled, or drop the flag)"
-            )
-        return float(self.freeze_at_return)
 
 
 NOT_WRITTEN = ("out", "progress")

@@ -25,7 +25,6 @@ import itertools
 import json
 import math
 import shlex
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -343,26 +342,20 @@ def _train_program(folder: Path, request, cfg, runner, table, progress: bool = F
     arguments are data, so a worker process can run it."""
     from agentax.agents import algorithm, config_to_dict
     from agentax.envs import make_jax
-    from agentax.runners import compiled
-    from agentax.runners.compiled import compiled_program
+    from agentax.runners.compiled import compiled_program, train_program
     from agentax.runners.sweep import sweep_program
-    from agentax.runs import Run, checkpoints, run_config
+    from agentax.runners.workers import resume_or_restart
+    from agentax.runs import run_config
 
     done = folder / "eval.json"
     if done.exists():
         return np.asarray([s["mean_return"] for s in json.loads(done.read_text())["per_seed"]])
     module, env = algorithm(request["algo"]), make_jax(request["env"])
     program = sweep_program(lambda config: compiled_program(module, env, config), cfg, table)
-    resume = folder.exists() and bool(checkpoints(folder))
-    if resume:
-        run = Run.open(folder)
-    else:
-        if folder.exists():  # made but never checkpointed: start it again
-            shutil.rmtree(folder)
-        settings = config_to_dict(cfg)
-        config = run_config(request["algo"], request["env"], request["preset"], "sweep", runner, settings)
-        run = Run.create(folder, {**config, "table": {n: c.tolist() for n, c in table.items()}})
-    result = compiled.train(program, env, runner, run, resume=resume, progress=progress)
+    settings = config_to_dict(cfg)
+    config = run_config(request["algo"], request["env"], request["preset"], "sweep", runner, settings)
+    run, resume = resume_or_restart(folder, {**config, "table": {n: c.tolist() for n, c in table.items()}})
+    result = train_program(program, env, runner, run, resume=resume, progress=progress)
     return np.asarray([s["mean_return"] for s in result.eval["per_seed"]])
 
 

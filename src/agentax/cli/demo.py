@@ -44,7 +44,7 @@ def main(argv: list[str]) -> int:
     from agentax.evaluate import evaluate
     from agentax.policies import basic_policy
     from agentax.render import check_video_path, save_episode
-    from agentax.runners.compiled import RunnerConfig, compiled_program, restore_policy, train
+    from agentax.runners.compiled import RunnerConfig, compiled_program, restore_policy, train_program
     from agentax.runs import Run, default_run_dir, run_config
 
     _xla.enable_compilation_cache()
@@ -72,7 +72,9 @@ def main(argv: list[str]) -> int:
     description = {key: config[key] for key in ("algo", "env", "config")}  # names the stored programs
     description["freeze"] = [None, runner.freeze_episodes]  # as agentax train's, so they share programs
     run = Run.create(out, config)
-    result = train(algorithm, env, runner, run, progress=args.progress, program_description=description)
+    result = train_program(
+        algorithm, env, runner, run, progress=args.progress, program_description=description
+    )
     seconds = time.perf_counter() - start
     solved = (
         f"solved after {result.solved_env_steps:,.0f} env steps"

@@ -30,7 +30,6 @@ from agentax import api, runfile
 from agentax.agents import ALGORITHMS, presets_of
 from agentax.api import RunArgs
 from agentax.errors import UsageError
-from agentax.runners import RUNNERS
 
 
 def _option(argv: list[str], name: str, default: str) -> str:
@@ -179,7 +178,7 @@ def resume(run_dir: Path, progress: bool = True) -> int:
 
 
 def _print(run: api.Run) -> int:
-    compiled = not RUNNERS[run.runner_kind].host_loop  # its timings: compile and training
+    compiled = run.result.compile_seconds > 0  # a runner that compiles one program: its timings
     report(run.result.eval, run.path, run.seconds, run.result if compiled else None)
     return 0
 

@@ -1,14 +1,14 @@
 """Runners: where and when an algorithm's pure functions run.
 
-``compiled`` trains JAX envs inside one jitted, vmapped-over-seeds program (and PPO on Atari and
-on EnvPool's MuJoCo tasks with EnvPool's step inside the program, ``compiled-atari`` and
-``compiled-mujoco``); ``host`` steps any env on the host with a
-Driver, one step after the other; ``parallel`` runs the host runner's actors in threads beside a
-learner, ``ray`` in Ray actor processes on any node of a cluster. :data:`RUNNERS` is the one
-table the API reads: :func:`kind_for` chooses a kind for ``--runner`` and an env id, the kind's
-launcher (:mod:`agentax.runners.compiled_launch`, :mod:`agentax.runners.host_launch`) configures,
-trains, resumes and restores it, so :mod:`agentax.api` names no runner. The modules are imported
-only when a kind is used.
+``compiled`` trains JAX envs inside one jitted, vmapped-over-seeds program; ``compiled_pool`` runs
+PPO with EnvPool's step inside the program (Atari, kind ``compiled-atari``, and EnvPool's MuJoCo
+tasks, ``compiled-mujoco``); ``host`` steps any env on the host with a Driver, one step after the
+other; ``parallel`` runs the host runner's actors in threads beside a learner, ``ray`` in Ray actor
+processes on any node of a cluster. :data:`RUNNERS` is the one table the API reads: a row names one
+runner module (``Config``, ``configure``, ``train``, ``restore``: :mod:`agentax.runners.launch`)
+and the envs it takes; :func:`kind_for` chooses a kind for ``--runner`` and an env id. A module is
+imported when its kind is used (:meth:`Runner.load`, the one lazy step), so :mod:`agentax.api`
+names no runner.
 """
 
 from __future__ import annotations
@@ -21,115 +21,32 @@ from typing import Any
 
 
 @dataclass(frozen=True)
-class RunnerSpec:
-    """What the API needs to know of a kind of runner."""
+class Runner:
+    """A kind of runner: its module, the envs it takes and the ``--runner`` choice that picks it."""
 
     module: str
-    """the module with its ``train`` function"""
-    config: str
-    """the dotted name of its config class (saved in config.json under "runner")"""
+    """the runner module (``Config``, ``configure``, ``train``, ``restore``)"""
     envs: str
     """the env family it takes (a key of :data:`ENV_FAMILIES`): "jax" (agentax's JAX envs), "any"
     (any Gymnasium id or Atari), "atari", "mujoco" (EnvPool's MuJoCo v5 tasks)"""
-    many_seeds: bool
-    """whether ``--seeds N`` trains N agents in one program (else one seed per process)"""
-    launcher: str
-    """the module that configures a run of it from a run description and starts, resumes and
-    restores it: ``prepare``, ``reopen``, ``restore`` (see :mod:`agentax.runners.launch`)"""
     chosen_as: str
     """the ``--runner`` choice (a name in :data:`CHOICES`) that picks it for an env of its family"""
-    host_loop: bool = True
-    """whether it steps envs outside one compiled program (its checkpoints hold the agent state and
-    the learner key; ``compiled`` holds whole vmapped carries)"""
-    remakes_agent: bool = False
-    """whether its actors run in other processes and build the agent again (``train(...,
-    make_agent=...)``)"""
-    configure: str = ""
-    """host family: the dotted name of its ``configure(run_args, agent, common) -> (runner config,
-    where)``, which adds its own settings to the family's ``common`` ones"""
-    actors: bool = False
-    """whether it splits the agent's envs between actors (``--actors``, ``--envs-per-actor``)"""
 
     def load(self) -> ModuleType:
         return importlib.import_module(self.module)
 
-    def config_type(self) -> type:
-        return _dotted(self.config)
 
-    def launch(self) -> ModuleType:
-        return importlib.import_module(self.launcher)
-
-    def configurer(self) -> Callable[..., tuple[Any, str]]:
-        return _dotted(self.configure)
-
-
-def _dotted(name: str) -> Any:
-    module, attribute = name.rsplit(".", 1)
-    return getattr(importlib.import_module(module), attribute)
-
-
-_HOST = "agentax.runners.host_launch"
-RUNNERS: dict[str, RunnerSpec] = {
-    "compiled": RunnerSpec(
-        "agentax.runners.compiled",
-        "agentax.runners.compiled.RunnerConfig",
-        "jax",
-        True,
-        "agentax.runners.compiled_launch",
-        "compiled",
-        host_loop=False,
-    ),
-    "host": RunnerSpec(
-        "agentax.runners.host",
-        "agentax.runners.host.HostRunnerConfig",
-        "any",
-        False,
-        _HOST,
-        "host",
-        configure="agentax.runners.host.configure",
-    ),
-    "parallel": RunnerSpec(
-        "agentax.runners.parallel",
-        "agentax.runners.parallel.ParallelRunnerConfig",
-        "any",
-        False,
-        _HOST,
-        "parallel",
-        configure="agentax.runners.parallel.configure",
-        actors=True,
-    ),
-    "ray": RunnerSpec(
-        "agentax.runners.ray",
-        "agentax.runners.ray.RayRunnerConfig",
-        "any",
-        False,
-        _HOST,
-        "ray",
-        remakes_agent=True,
-        configure="agentax.runners.ray.configure",
-        actors=True,
-    ),
-    "compiled-atari": RunnerSpec(
-        "agentax.runners.compiled_atari",
-        "agentax.runners.compiled_atari.PoolRunnerConfig",
-        "atari",
-        False,
-        _HOST,
-        "compiled",
-        configure="agentax.runners.host_launch.configure_in_program",
-    ),
-    "compiled-mujoco": RunnerSpec(
-        "agentax.runners.compiled_atari",
-        "agentax.runners.compiled_atari.PoolRunnerConfig",
-        "mujoco",
-        False,
-        _HOST,
-        "compiled",
-        configure="agentax.runners.host_launch.configure_in_program",
-    ),
+RUNNERS: dict[str, Runner] = {
+    "compiled": Runner("agentax.runners.compiled", "jax", "compiled"),
+    "host": Runner("agentax.runners.host", "any", "host"),
+    "parallel": Runner("agentax.runners.parallel", "any", "parallel"),
+    "ray": Runner("agentax.runners.ray", "any", "ray"),
+    "compiled-atari": Runner("agentax.runners.compiled_pool", "atari", "compiled"),
+    "compiled-mujoco": Runner("agentax.runners.compiled_pool", "mujoco", "compiled"),
 }
-"""Every kind of runner by its name in config.json's ``runner_kind`` (``--runner compiled`` on an
-Atari id is ``compiled-atari``, on EnvPool's MuJoCo ids ``compiled-mujoco``)."""
+"""Every kind of runner by its name in config.json's ``runner_kind``, which old run folders keep
+(``--runner compiled`` on an Atari id is ``compiled-atari``, on EnvPool's MuJoCo ids
+``compiled-mujoco``: one module, :mod:`agentax.runners.compiled_pool`, for both)."""
 CHOICES = ("compiled", "host", "parallel", "ray")
 """The kinds ``--runner`` names."""
 AUTO = ("compiled", "host")
@@ -204,7 +121,7 @@ def runner_settings(config: dict[str, Any], where: str) -> Any:
     if kind not in RUNNERS:
         raise UsageError(f"{where} names an unknown runner {kind!r}; known: {', '.join(RUNNERS)}")
     try:
-        return RUNNERS[kind].config_type()(**config["runner"])
+        return RUNNERS[kind].load().Config(**config["runner"])
     except (KeyError, TypeError) as error:
         raise UsageError(f"{where} has no valid 'runner' settings ({error})") from None
 
@@ -221,7 +138,7 @@ def upgraded(config: dict[str, Any]) -> dict[str, Any]:
         return config
     settings = {k: v for k, v in config["config"].items() if k not in moved}
     runner = dict(config.get("runner", {}))
-    if not RUNNERS[kind_of(config)].host_loop:
+    if RUNNERS[kind_of(config)].envs == "jax":  # the compiled runner's, where they now live
         runner.update(moved)
     return {**config, "config": settings, "runner": runner}
 

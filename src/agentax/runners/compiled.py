@@ -40,14 +40,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from agentax.agents.protocol import Agent, EnvSpec
 from agentax.curves import preload_plotting
+from agentax.envs import make_jax
 from agentax.envs.core import Environment, episode_returns
 from agentax.errors import UsageError
 from agentax.policies import Policy
 from agentax.replay.frames import available_memory
-from agentax.runners import programs
+from agentax.runners import algorithm_of, programs, workers
+from agentax.runners.launch import agent_maker
 from agentax.runners.logger import RunLogger
-from agentax.runners.rollout import SEED_AXIS, Freeze, Program
+from agentax.runners.rollout import SEED_AXIS, Freeze, Program, program
 from agentax.runners.session import TrainResult
 from agentax.runs import Run, load_checkpoint
 
@@ -267,7 +270,7 @@ def _programs(
     return shapes, init, programs.jit(flat_chunk, example, {**shaping, "name": "chunk"}, donate_argnums=0)
 
 
-def train(
+def train_program(
     algorithm: Program,
     env: Environment,
     runner: RunnerConfig,
@@ -457,31 +460,117 @@ def best_seed(run_dir: str | Path) -> int:
     return best_of(json.loads(path.read_text()).get("per_seed", []) if path.is_file() else [])
 
 
-def compiled_program(module: Any, env: Environment, cfg: Any, runner: RunnerConfig | None = None) -> Program:
-    """The program of ``module``'s agent (an algorithm module, ``cfg`` its config) on the JAX env
-    ``env``, with the per-seed early stop of ``runner`` if given."""
-    from agentax.agents.protocol import EnvSpec
-    from agentax.runners.launch import agent_maker
-    from agentax.runners.rollout import program
-
-    agent = agent_maker(module, EnvSpec.of(env), cfg)()
+def program_of(agent: Agent, env: Environment, runner: RunnerConfig | None = None) -> Program:
+    """The program of ``agent`` on the JAX env ``env``, with ``runner``'s per-seed early stop if given."""
     try:
         return program(agent, env, freeze=None if runner is None else freeze_of(runner))
     except ValueError as error:
         raise UsageError(f"--freeze-at-return: {error}") from None
 
 
-def train_module(
-    module: Any, env: Environment, cfg: Any, runner: RunnerConfig, run: Run, *, resume: bool, progress: bool
-) -> tuple[TrainResult, Policy]:
-    """Train ``module``'s agent on ``env`` into ``run`` (:func:`train`); the result and the greedy
-    policy of its best seed by the final evaluation."""
-    # algo, env id, config and the freeze determine the program (agentax's own envs take no params)
-    description = {key: run.config[key] for key in ("algo", "env", "config")}
-    description["freeze"] = [runner.freeze_at_return, runner.freeze_episodes]
-    algorithm = compiled_program(module, env, cfg, runner)
-    result = train(
+def compiled_program(module: Any, env: Environment, cfg: Any, runner: RunnerConfig | None = None) -> Program:
+    """The program of ``module``'s agent (an algorithm module, ``cfg`` its config) on the JAX env
+    ``env``, with the per-seed early stop of ``runner`` if given."""
+    return program_of(agent_maker(module, EnvSpec.of(env), cfg)(), env, runner)
+
+
+# ---------------------------------------------------------------- the runner module's four names
+
+Config = RunnerConfig
+
+
+def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[RunnerConfig, str]:
+    """The compiled run ``run_args`` describe (:mod:`agentax.runners.launch`), refused before
+    anything is written where the program cannot run it (or more seeds than memory holds)."""
+    stop = run_args.stop_at_return
+    runner = RunnerConfig(
+        seed=run_args.seed,
+        num_seeds=run_args.seeds,
+        updates_per_chunk=preset.updates_per_chunk,
+        eval_every_chunks=preset.eval_every_chunks,
+        eval_episodes=preset.eval_episodes,
+        stop_at_return=stop,
+        freeze_at_return=_freeze(run_args.freeze_at_return, preset),
+        freeze_episodes=run_args.freeze_episodes,
+        workers=run_args.workers or _default_workers(run_args.seeds, agent.total_steps, stop),
+        ray_address=run_args.ray_address,
+    )
+    check_fits(program_of(agent, make_jax(run_args.env), runner), runner)
+    if runner.ray_address is not None and runner.workers == 1:
+        raise UsageError(
+            "--ray-address sends the compiled runner's --workers to a Ray cluster: give --workers N "
+            "(or --runner ray for the Ray runner's actors)"
+        )
+    return runner, _where(runner, chosen=run_args.workers is None)
+
+
+def _freeze(value: str, preset: Any) -> float | None:
+    """``--freeze-at-return``: a number, 'none', or 'auto' (the preset's)."""
+    if value == "none":
+        return None
+    return preset.freeze_at_return if value == "auto" else float(value)
+
+
+def _default_workers(seeds: int, total_steps: int, stop_at_return: float | None) -> int:
+    """Without ``--workers``: every core for a run of all its steps long enough to gain; one process
+    for a run that stops at a return (how long it runs is not known, and a split would stop each
+    worker on its own seeds' return)."""
+    return 1 if stop_at_return is not None else workers.default_count(seeds, seeds * total_steps)
+
+
+def _where(runner: RunnerConfig, chosen: bool) -> str:
+    """The line's words on the seeds and the processes; ``chosen``: by default, not by --workers."""
+    seeds = f"{runner.num_seeds} seed{'s' if runner.num_seeds > 1 else ''}"
+    if runner.workers == 1:
+        return seeds
+    count = len(workers.split(runner))
+    by_default = ", one per core; --workers 1 keeps one process" if chosen else ""
+    return f"{seeds} over {count} worker processes{by_default}"
+
+
+def train(
+    agent: Agent,
+    env_id: str,
+    runner: RunnerConfig,
+    run: Run | None = None,
+    *,
+    resume: bool = False,
+    progress: bool = False,
+) -> TrainResult:
+    """Train ``runner.num_seeds`` seeds of ``agent`` on the JAX env ``env_id`` into ``run``: in this
+    process (:func:`train_program`; ``result.policy`` is the best seed's greedy policy by the final
+    evaluation), or split over ``runner.workers`` processes (:func:`agentax.runners.workers.train`)."""
+    if runner.workers > 1:
+        return workers.train(run, runner, train_worker, resume=resume, progress=progress)
+    env = make_jax(env_id)
+    algorithm = program_of(agent, env, runner)
+    description = None
+    if run is not None:  # algo, env id, config and the freeze determine the program (our envs take no params)
+        description = {key: run.config[key] for key in ("algo", "env", "config")}
+        description["freeze"] = [runner.freeze_at_return, runner.freeze_episodes]
+    result = train_program(
         algorithm, env, runner, run, resume=resume, progress=progress, program_description=description
     )
     best = best_of(result.eval.get("per_seed", []))
-    return result, algorithm.greedy_policy(jax.tree.map(lambda x: x[best], result.state))
+    result.policy = algorithm.greedy_policy(jax.tree.map(lambda x: x[best], result.state))
+    return result
+
+
+def train_worker(
+    config: dict[str, Any], run: Run, runner: RunnerConfig, *, resume: bool, progress: bool
+) -> TrainResult:
+    """One worker's seeds (``runner``) of the run ``config`` describes, in this process, into ``run``."""
+    module, cfg = algorithm_of(config)
+    env = make_jax(config["env"])
+    agent = agent_maker(module, EnvSpec.of(env), cfg)()
+    return train(agent, config["env"], runner, run, resume=resume, progress=progress)
+
+
+def restore(run_dir: Path, config: dict[str, Any], agent: Agent) -> Policy:
+    """The greedy policy of the run's best seed (by eval.json), from its (worker's) newest checkpoint."""
+    env, runner = make_jax(config["env"]), RunnerConfig(**config["runner"])
+    if runner.workers == 1:
+        return restore_policy(run_dir, program_of(agent, env, runner), runner)
+    w, local = workers.worker_of(runner, best_seed(run_dir))
+    part = workers.split(runner)[w]
+    return restore_policy(workers.worker_dir(run_dir, w), program_of(agent, env, part), part, local)

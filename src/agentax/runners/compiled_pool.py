@@ -8,7 +8,7 @@ Which backend steps a MuJoCo id: ``--runner compiled`` is EnvPool inside the pro
 
 Each iteration is one jitted call, :func:`make_update`: the compiled runner's on-policy rollout
 (:func:`agentax.runners.rollout.on_policy_rollout`, a ``lax.scan`` of ``num_steps`` steps of the
-agent's collect policy) on :class:`AtariEnvs`, EnvPool's step of the pool
+agent's collect policy) on :class:`PoolEnvs`, EnvPool's step of the pool
 (:mod:`agentax.envs.envpool_xla`, the host adapter's preprocessing and settings), then
 ``agent.learn`` on the rollout — no Python between the env and the network (CleanRL's
 ``ppo_atari_envpool_xla_jax.py`` does the same). One seed per process: EnvPool's pool handle cannot
@@ -24,7 +24,7 @@ progress bar, ``total_steps``) are the pool's steps, reset steps included; ``mas
 in metrics.csv is their share.
 
 **The rest is the host runner's** (:mod:`agentax.runners.host`), so the two compare number for
-number where they can: the same :class:`~agentax.runners.host.HostRunnerConfig`, the same keys (the
+number where they can: the same settings (:class:`Config` has the host runner's fields), the same keys (the
 agent from ``agent_keys(seed)``'s first key, the learner's chain from the second, the actor's from
 the third, its envs seeded ``actor_seed(seed, 0, updates)``, an act key per step as the host
 actor's), the same rows
@@ -40,6 +40,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -59,6 +60,7 @@ from agentax.envs.envpool_xla import (
     track,
 )
 from agentax.errors import UsageError
+from agentax.policies import Policy
 from agentax.returns import EpisodeStats
 from agentax.runners import host
 from agentax.runners.rollout import OnPolicyCarry, on_policy_rollout
@@ -66,7 +68,7 @@ from agentax.runners.session import Session, TrainResult
 from agentax.runs import Run
 
 RUNNER_KIND = "compiled-atari"
-"""config.json's ``runner_kind`` of these runs on Atari; their ``runner`` is a :class:`PoolRunnerConfig`."""
+"""config.json's ``runner_kind`` of these runs on Atari; their ``runner`` is a :class:`Config`."""
 MUJOCO_RUNNER_KIND = "compiled-mujoco"
 """config.json's ``runner_kind`` of these runs on EnvPool's MuJoCo tasks."""
 
@@ -74,14 +76,52 @@ XlaPool = XlaAtari | XlaMujoco
 
 
 @dataclass(frozen=True)
-class PoolRunnerConfig(host.HostRunnerConfig):
-    """The compiled EnvPool runner's settings (the host runner's and this); saved in config.json
-    under "runner" (a run written before it existed resumes with ``policy_lag`` 0, as it ran)."""
+class Config:
+    """The compiled EnvPool runner's settings; saved in config.json under "runner" (a run written
+    before ``policy_lag`` existed resumes with 0, as it ran). The fields it shares with
+    :class:`~agentax.runners.host.HostRunnerConfig` mean the same, so the two compare number for number."""
 
+    seed: int = 0
+    """seed of the agent and of the pool"""
+    log_every_steps: int = 2_048
+    """write a metrics row every this many env steps (the pool's, reset steps included)"""
+    eval_episodes: int = 10
+    """games of the final evaluation (and of the stop-at-return checks), on the host adapter"""
+    stop_at_return: float | None = None
+    """stop once an evaluation (run at each row) reaches this mean return (None: train to the end)"""
+    checkpoint_every_seconds: float = 30.0
+    """write a checkpoint at most this often (and at the end)"""
+    env_backend: str = "auto"
+    """envpool (auto); the evaluation's host adapter follows it"""
+    sticky_actions: float = 0.25
+    """Atari: the probability that the emulator repeats the last action (Gymnasium's v5: 0.25)"""
+    checkpoint_replay: bool = True
+    """kept as older runs' config.json hold it (the on-policy agents it trains keep no replay)"""
+    replay_checkpoint_every_seconds: float = 600.0
+    """kept as older runs' config.json hold it (unused: no replay)"""
     policy_lag: int = 0
     """parameter versions between collecting a rollout and learning from it: 0 runs rollout and
     learning one after the other in one program; 1 collects rollout k+1 in a thread beside the
     learning on rollout k, with the parameters that learning starts from"""
+
+
+def kind_of_env(env_id: str) -> str:
+    """config.json's ``runner_kind`` of a run of ``env_id`` on this runner."""
+    return RUNNER_KIND if is_atari_id(env_id) else MUJOCO_RUNNER_KIND
+
+
+def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[Config, str]:
+    """The runner's settings for a run (:mod:`agentax.runners.launch`), refused where the program
+    cannot step the env or train the agent."""
+    common = host.one_seed_settings(run_args, preset, kind_of_env(run_args.env))
+    runner = Config(**common, policy_lag=run_args.policy_lag)
+    check(agent, run_args.env, runner, run_args.seeds)
+    return runner, f"compiled, EnvPool inside the program, policy lag {runner.policy_lag}"
+
+
+def restore(run_dir: Path, config: dict[str, Any], agent: Agent) -> Policy:
+    """The greedy policy of the run's newest checkpoint (the host runner's ``(agent state, learner key)``)."""
+    return host.restore_policy(run_dir, agent)
 
 
 @struct.dataclass
@@ -101,7 +141,7 @@ class Pool:
     tracker: EpisodeTracker  # the pending reset steps, the running games' scores
 
 
-class AtariEnvs:
+class PoolEnvs:
     """``env``'s pool (Atari or MuJoCo) as a :class:`~agentax.runners.rollout.BatchedEnv` of the
     on-policy rollout."""
 
@@ -121,7 +161,7 @@ class AtariEnvs:
         return time_step, Pool(handle, tracker), {"valid": tracked.valid, "games": games}
 
 
-def check(agent: Agent, env_id: str, runner: PoolRunnerConfig, num_seeds: int = 1) -> None:
+def check(agent: Agent, env_id: str, runner: Config, num_seeds: int = 1) -> None:
     """A ``UsageError`` for what this runner cannot train, before anything is made or written."""
     if runner.policy_lag not in (0, 1):
         raise UsageError(
@@ -149,7 +189,7 @@ def check(agent: Agent, env_id: str, runner: PoolRunnerConfig, num_seeds: int = 
         )
 
 
-def make_pool(env_id: str, num_envs: int, seed: int, runner: PoolRunnerConfig) -> XlaPool:
+def make_pool(env_id: str, num_envs: int, seed: int, runner: Config) -> XlaPool:
     """The pool of ``env_id`` stepped inside the program: Atari with the runner's sticky actions,
     or a MuJoCo task with its v5 settings."""
     if is_atari_id(env_id):
@@ -168,7 +208,7 @@ def start(agent_state: Any, env: XlaPool, key: jax.Array, env_steps: int) -> OnP
 def make_collect(agent: Agent, env: XlaPool) -> Callable:
     """``collect(carry) -> (carry, trajectory, games [T, E])`` (jittable): the on-policy rollout on
     ``env`` with ``carry.agent``'s parameters, the games it finished taken out of the trajectory."""
-    rollout = on_policy_rollout(agent, AtariEnvs(env), kernels.learning_loop(env.observation_space().shape))
+    rollout = on_policy_rollout(agent, PoolEnvs(env), kernels.learning_loop(env.observation_space().shape))
 
     def collect(carry: OnPolicyCarry):
         carry, trajectory = rollout(carry)
@@ -248,7 +288,7 @@ def finished_games(games: Games) -> list[tuple[float, int]]:
 def train(
     agent: Agent,
     env_id: str,
-    runner: PoolRunnerConfig,
+    runner: Config,
     run: Run | None = None,
     *,
     resume: bool = False,

@@ -31,7 +31,7 @@ import numpy as np
 from agentax import _xla, kernels
 from agentax.agents.protocol import PRIORITY, Agent, Episodes, Loop, OffPolicy, OnPolicy
 from agentax.envs import make_host_env
-from agentax.errors import StorageFull
+from agentax.errors import StorageFull, UsageError
 from agentax.evaluate import host_episode_returns
 from agentax.nets import is_image
 from agentax.policies import Policy, with_random_actions
@@ -76,10 +76,45 @@ class HostRunnerConfig:
     """off-policy: save the replay at most this often (it can hold gigabytes), and at the end"""
 
 
-def configure(run_args: Any, agent: Agent, common: dict[str, Any]) -> tuple[HostRunnerConfig, str]:
-    """The host runner's settings for a run: the family's ``common`` ones
-    (:func:`agentax.runners.host_launch.prepare`) and nothing more."""
-    return HostRunnerConfig(**common), "host"
+Config = HostRunnerConfig
+
+
+def one_seed_settings(run_args: Any, preset: Any, kind: str) -> dict[str, Any]:
+    """The settings of ``run_args`` that every runner training one seed per process reads (a
+    ``stop_at_return`` already resolved, :func:`agentax.runners.launch.prepare`); the compiled
+    runner's own flags refused for the ``kind`` runner."""
+    if (run_args.workers or 1) > 1:
+        raise UsageError(
+            f"--workers splits the compiled runner's seeds over processes; the {kind} runner trains one "
+            "seed (train a JAX env with --runner compiled, or drop the flag)"
+        )
+    if run_args.freeze_at_return not in ("auto", "none"):
+        raise UsageError(
+            f"--freeze-at-return stops seeds inside the compiled runner's program; the {kind} "
+            "runner cannot (train a JAX env with --runner compiled, or drop the flag)"
+        )
+    return {
+        "seed": run_args.seed,
+        "eval_episodes": preset.eval_episodes,
+        "stop_at_return": run_args.stop_at_return,
+        "checkpoint_replay": run_args.checkpoint_replay,
+        "env_backend": run_args.env_backend,
+        "sticky_actions": run_args.sticky_actions,
+    }
+
+
+def refuse_seeds(run_args: Any, kind: str) -> None:
+    """``--seeds N`` is the compiled runner's: the ``kind`` runner trains one seed per process."""
+    if run_args.seeds != 1:
+        raise UsageError(
+            f"the {kind} runner trains one seed per process (--seeds 1); --seeds N is compiled-only"
+        )
+
+
+def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[HostRunnerConfig, str]:
+    """The host runner's settings for a run (:mod:`agentax.runners.launch`)."""
+    refuse_seeds(run_args, "host")
+    return HostRunnerConfig(**one_seed_settings(run_args, preset, "host")), "host"
 
 
 def env_factory(env_id: str, runner: Any) -> Callable[..., Any]:
@@ -461,3 +496,8 @@ def restore_policy(run_dir: Path, agent: Agent) -> Policy:
     """The greedy policy of a host or parallel run's newest loadable checkpoint."""
     (state, _), _, _ = load_checkpoint(run_dir, checkpoint_target(agent))
     return agent.greedy_policy(state)
+
+
+def restore(run_dir: Path, config: dict[str, Any], agent: Agent) -> Policy:
+    """The greedy policy of a run of the runners that checkpoint ``(agent state, learner key)``."""
+    return restore_policy(run_dir, agent)

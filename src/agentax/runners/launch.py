@@ -1,14 +1,17 @@
-"""What every runner's launcher shares: the :class:`Launch` it hands the API, and the pieces both
-families build a run from (the agent's maker, the stop-at-return setting).
+"""From a run's description to its runner, in plain calls: what the API asks of a kind of runner.
 
-A launcher (the module a :class:`~agentax.runners.RunnerSpec` names in ``launcher``) provides
+Every runner module (a row of :data:`agentax.runners.RUNNERS`) exports the same four names:
 
-- ``prepare(algo, module, run_args, cfg, preset, kind) -> Launch``: the run a description asks for
-  (``run_args``, duck-typed like :class:`agentax.runfile.RunArgs`; the algorithm's ``module``, its
-  ``cfg`` and ``preset``), every bad input refused with a ``UsageError`` before anything is written;
-- ``reopen(config, module, cfg, runner) -> Launch``: the run of a config.json (``runner``: its
-  settings, already parsed), to resume;
-- ``restore(run_dir, config, module, cfg) -> Policy``: the greedy policy of a run's best seed.
+- ``Config``: its settings, a frozen dataclass saved in config.json under "runner";
+- ``configure(run_args, agent, preset) -> (Config, where)``: the settings a run description asks
+  for (``run_args``: :class:`agentax.runfile.RunArgs`, the only reader of the fields that are the
+  runner's own), every bad input refused with a ``UsageError`` before anything is written, and the
+  words announcing the run ("host", "4 seeds", "2 actors, policy lag 1", ...);
+- ``train(agent, env_id, runner, run=None, *, resume=False, progress=False) -> TrainResult``;
+- ``restore(run_dir, config, agent) -> Policy``: the greedy policy of a run's best seed.
+
+:func:`prepare` (a new run), :func:`reopen` (a run to resume) and :func:`restore` make the agent
+(on the env spec of the runner's env family) and call them; :mod:`agentax.api` calls these three.
 """
 
 from __future__ import annotations
@@ -16,10 +19,12 @@ from __future__ import annotations
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from agentax.errors import UsageError
 from agentax.policies import Policy
+from agentax.runners import RUNNERS, kind_of
 from agentax.runners.session import TrainResult
 from agentax.runs import Run
 
@@ -32,9 +37,9 @@ class Launch:
     """the runner's config (saved in config.json under "runner")"""
     where: str
     """how the run is trained, for the line announcing it ("host", "4 seed(s)", "2 actors", ...)"""
-    train: Callable[[Run, bool, bool], tuple[TrainResult, Policy | None]]
-    """``train(run, resume, progress) -> (result, greedy policy of the best seed, or None where the
-    state stayed in other processes)``"""
+    train: Callable[[Run, bool, bool], TrainResult]
+    """``train(run, resume, progress) -> result`` (``result.policy``: the greedy policy of its best
+    seed, or None where the state stayed in other processes)"""
 
 
 def agent_maker(module: Any, spec: Any, cfg: Any) -> Callable[[], Any]:
@@ -57,3 +62,78 @@ def parse_stop(value: str, preset: Any, env: Any) -> float | None:
         return float(value)
     except ValueError:
         raise UsageError(f"--stop-at-return must be a number, 'none' or 'auto', got {value!r}") from None
+
+
+def host_env_spec(env_id: str, backend: str, sticky_actions: float) -> tuple[Any, Any]:
+    """``(EnvSpec, Gymnasium's EnvSpec or None)`` of ``env_id`` as the host runners make it."""
+    from agentax.agents.protocol import EnvSpec
+    from agentax.envs import make_host_env
+
+    probe = make_host_env(env_id, 1, backend=backend, sticky_actions=sticky_actions)
+    specs = EnvSpec.of(probe), getattr(getattr(probe, "vector_env", None), "spec", None)
+    probe.close()
+    return specs
+
+
+def env_specs(kind: str, env_id: str, backend: str = "auto", sticky_actions: float = 0.25) -> tuple[Any, Any]:
+    """``(EnvSpec, what --stop-at-return auto reads the solved threshold of)`` of ``env_id`` as the
+    ``kind`` runner makes it: agentax's JAX env, else the host adapter."""
+    if RUNNERS[kind].envs == "jax":
+        from agentax.agents.protocol import EnvSpec
+        from agentax.envs import make_jax
+
+        env = make_jax(env_id)
+        return EnvSpec.of(env), env
+    return host_env_spec(env_id, backend, sticky_actions)
+
+
+def prepare(algo: str, module: Any, run_args: Any, cfg: Any, preset: Any, kind: str) -> Launch:
+    """The ``kind`` run ``run_args`` describe (``module``: the algorithm's, ``cfg`` its config); what
+    the runner or the agent cannot train is refused here, before anything is written."""
+    runner_module = RUNNERS[kind].load()
+    if hasattr(runner_module, "algorithm_config"):  # a runner with actors splits the envs between them
+        cfg = runner_module.algorithm_config(cfg, run_args)
+    spec, solved_by = env_specs(kind, run_args.env, run_args.env_backend, run_args.sticky_actions)
+    remake = agent_maker(module, spec, cfg)
+    agent = remake()  # refuses what the agent cannot train before anything is written
+    run_args = _with_stop(run_args, parse_stop(run_args.stop_at_return, preset, solved_by))
+    runner, where = runner_module.configure(run_args, agent, preset)
+    return _launch(runner_module, agent, remake, run_args.env, runner, where)
+
+
+def _with_stop(run_args: Any, stop: float | None) -> Any:
+    """``run_args`` with ``stop_at_return`` resolved to a number or None (what every ``configure`` reads)."""
+    import dataclasses
+
+    return dataclasses.replace(run_args, stop_at_return=stop)
+
+
+def reopen(config: dict[str, Any], module: Any, cfg: Any, runner: Any) -> Launch:
+    """The run of ``config`` (a config.json; ``runner``: its settings, parsed), to resume."""
+    kind = kind_of(config)
+    spec, _ = env_specs(kind, config["env"], *_host_options(runner))
+    remake = agent_maker(module, spec, cfg)
+    return _launch(RUNNERS[kind].load(), remake(), remake, config["env"], runner, "")
+
+
+def _host_options(runner: Any) -> tuple[str, float]:
+    """The host adapter's options a runner's settings (a Config or config.json's dict) hold."""
+    get = runner.get if isinstance(runner, dict) else functools.partial(getattr, runner)
+    return get("env_backend", "auto"), get("sticky_actions", 0.25)
+
+
+def _launch(runner_module: Any, agent: Any, remake: Any, env_id: str, runner: Any, where: str) -> Launch:
+    """``remake()`` builds ``agent`` again (in the actor processes of a runner whose actors do)."""
+    options = {"make_agent": remake} if getattr(runner_module, "REMAKES_AGENT", False) else {}
+
+    def train(run: Run, resume: bool, progress: bool) -> TrainResult:
+        return runner_module.train(agent, env_id, runner, run, resume=resume, progress=progress, **options)
+
+    return Launch(runner, where, train)
+
+
+def restore(run_dir: Path, config: dict[str, Any], module: Any, cfg: Any) -> Policy:
+    """The greedy policy of the run's best seed, from its newest good checkpoint."""
+    kind = kind_of(config)
+    spec, _ = env_specs(kind, config["env"], *_host_options(config.get("runner", {})))
+    return RUNNERS[kind].load().restore(Path(run_dir), config, agent_maker(module, spec, cfg)())

@@ -40,6 +40,7 @@ import numpy as np
 from agentax import _xla, kernels
 from agentax.agents.protocol import Agent, Episodes, OffPolicy
 from agentax.errors import UsageError
+from agentax.runners import host
 from agentax.runners.driver import FinishedReturns, ReplayObserver
 from agentax.runners.host import (
     Actor,
@@ -52,7 +53,9 @@ from agentax.runners.host import (
     env_factory,
     fold_actor_key,
     num_updates,
+    one_seed_settings,
     record_returns,
+    refuse_seeds,
     replay_for,
 )
 from agentax.runners.session import Session, TrainResult
@@ -86,31 +89,39 @@ class ParallelRunnerConfig(HostRunnerConfig):
             raise UsageError("the episode schedule (--schedule-unit episodes) runs on the host runner only")
 
 
+Config = ParallelRunnerConfig
+restore = host.restore
+"""the host runner's: its checkpoints hold ``(agent state, learner key)`` too"""
+
 DEFAULT_ACTORS = 2
 """Actors of the parallel and Ray runners when ``--actors`` is not given (and the envs split in two)."""
 
 
-def envs_per_actor(cfg: Any, run_args: Any) -> Any:
+def algorithm_config(cfg: Any, run_args: Any) -> Any:
     """The algorithm's ``cfg`` with ``--actors × --envs-per-actor`` envs (episodes per update, for
-    an episodic agent)."""
+    an episodic agent) where ``--envs-per-actor`` is given (read before the agent is made)."""
+    if run_args.envs_per_actor is None:
+        return cfg
     envs = "num_envs" if hasattr(cfg, "num_envs") else "episodes_per_update"
     actors = run_args.actors or DEFAULT_ACTORS
     return dataclasses.replace(cfg, **{envs: actors * run_args.envs_per_actor}).validate()
 
 
-def configure(
-    run_args: Any,
-    agent: Agent,
-    common: dict[str, Any],
-    config_type: type[ParallelRunnerConfig] = ParallelRunnerConfig,
-    actor: str = "actor",
-    **settings: Any,
-) -> tuple[ParallelRunnerConfig, str]:
-    """The parallel runner's settings for a run (the family's ``common`` ones, ``--actors``,
-    ``--policy-lag``, and a subclass's further ``settings``), checked against the agent, and the
-    announcement's "2 actors, policy lag 1"."""
+def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[ParallelRunnerConfig, str]:
+    """The parallel runner's settings for a run (:mod:`agentax.runners.launch`)."""
+    return configure_actors(run_args, agent, preset, "parallel", ParallelRunnerConfig, "actor")
+
+
+def configure_actors(
+    run_args: Any, agent: Agent, preset: Any, kind: str, config_type: type, actor: str, **settings: Any
+) -> tuple[Any, str]:
+    """The settings of a runner with actors: the one-seed ones, ``--actors``, ``--policy-lag`` and
+    the ``kind`` runner's further ``settings``, checked against the agent; and the announcement's
+    "2 actors, policy lag 1"."""
+    refuse_seeds(run_args, kind)
     num_envs = agent.experience.num_envs
     actors = run_args.actors or (DEFAULT_ACTORS if num_envs % DEFAULT_ACTORS == 0 else 1)
+    common = one_seed_settings(run_args, preset, kind)
     runner = config_type(**common, actors=actors, policy_lag=run_args.policy_lag, **settings)
     runner.check(agent)
     where = f"{runner.actors} {actor}{'s' if runner.actors > 1 else ''}"

@@ -55,10 +55,11 @@ from agentax.agents.protocol import Agent, acting_view
 from agentax.envs import make_host_env
 from agentax.errors import NodeLost, UsageError
 from agentax.replay import Transition
+from agentax.runners import parallel
 from agentax.runners.driver import EnvironmentSteps, TrajectoryObserver
 from agentax.runners.host import Actor, actor_seed, fold_actor_key
-from agentax.runners.parallel import POLL_SECONDS, Coordinator, Fleet, ParallelRunnerConfig
-from agentax.runners.parallel import configure as configure_parallel
+from agentax.runners.parallel import POLL_SECONDS, Coordinator, Fleet, ParallelRunnerConfig, configure_actors
+from agentax.runners.parallel import algorithm_config as actors_algorithm_config
 from agentax.runners.parallel import train as train_parallel
 from agentax.runners.session import TrainResult
 from agentax.runs import Run
@@ -81,12 +82,21 @@ class RayRunnerConfig(ParallelRunnerConfig):
     """collector processes replaced over the whole run before it gives up"""
 
 
-def configure(run_args: Any, agent: Agent, common: dict[str, Any]) -> tuple[RayRunnerConfig, str]:
+Config = RayRunnerConfig
+REMAKES_AGENT = True
+"""its actors build the agent again in their processes: :func:`train` takes ``make_agent``"""
+algorithm_config = actors_algorithm_config
+restore = parallel.restore
+"""the parallel runner's: ``--envs-per-actor`` sets the algorithm's envs"""
+
+
+def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[RayRunnerConfig, str]:
     """The Ray runner's settings for a run: the parallel runner's and where its actors run."""
-    return configure_parallel(
+    return configure_actors(
         run_args,
         agent,
-        common,
+        preset,
+        "ray",
         RayRunnerConfig,
         "Ray actor",
         ray_address=run_args.ray_address,

@@ -87,7 +87,7 @@ class Freeze:
 
 class BatchedEnv(Protocol):
     """``num_envs`` envs stepped together inside ``jit``: a :class:`VectorEnv`, or the compiled Atari
-    runner's EnvPool pool (:class:`agentax.runners.compiled_atari.AtariEnvs`).
+    runner's EnvPool pool (:class:`agentax.runners.compiled_pool.PoolEnvs`).
 
     ``step(key, state, action [num_envs]) -> (time_step, state, info)``: the :class:`TimeStep`
     ``[num_envs]`` of the learning view, the envs' new state, and the envs' own entries for each

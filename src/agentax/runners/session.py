@@ -21,6 +21,7 @@ import jax
 import numpy as np
 
 from agentax.agents.protocol import Agent
+from agentax.policies import Policy
 from agentax.runners.logger import RunLogger
 from agentax.runs import Run, load_checkpoint
 
@@ -47,6 +48,8 @@ class TrainResult:
     train_seconds: float = 0.0
     final_returns: tuple[Any, Any] | None = None
     """the compiled runner's final evaluation: returns and lengths ``[seeds, episodes]``"""
+    policy: Policy | None = None
+    """the greedy policy of the best seed (None where the agents stayed in other processes)"""
 
 
 def agent_keys(seed: int) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -208,5 +211,12 @@ class Session:
             returns[None], lengths[None], env_steps=env_steps, updates=updates, **solved
         )
         return TrainResult(
-            state, updates, env_steps, evaluation, self.logger.rows, train_seconds=train_seconds, **solved
+            state,
+            updates,
+            env_steps,
+            evaluation,
+            self.logger.rows,
+            train_seconds=train_seconds,
+            policy=self.agent.greedy_policy(state),
+            **solved,
         )

@@ -13,7 +13,7 @@ Seed ``k`` starts from the keys it has in one process and runs the same chunks. 
 one process's at first, not for good: XLA's program for a slice of 1 or 2 seeds rounds differently
 from the one for all of them, and over a few hundred updates a seed's episodes part (seen with 3
 seeds as 2 + 1 over 300 PPO updates). The same split gives the same numbers, interrupted and
-resumed or not (tested). And ``stop_at_return`` ``stop_at_return`` stops each worker once its own
+resumed or not (tested). And ``stop_at_return`` stops each worker once its own
 seeds all reach the return, not once every seed of the run does.
 """
 
@@ -236,9 +236,6 @@ def _ordered(row: dict[str, float], like: dict[str, float]) -> dict[str, float]:
     return {**{k: row[k] for k in order if k in row}, **row}
 
 
-__all__ = ["FINAL_RETURNS", "map_processes", "map_ray", "merge_rows", "node", "split", "worker_dir"]
-
-
 def worker_of(runner: Any, seed_index: int) -> tuple[int, int]:
     """``(w, k)``: seed ``seed_index`` of the run is seed ``k`` of worker ``w`` (:func:`split`)."""
     parts = split(runner)
@@ -246,10 +243,11 @@ def worker_of(runner: Any, seed_index: int) -> tuple[int, int]:
     return w, seed_index - (parts[w].seed - runner.seed)
 
 
-def train(run: Any, runner: Any, *, resume: bool, progress: bool) -> Any:
+def train(run: Any, runner: Any, train_one: Callable[..., Any], *, resume: bool, progress: bool) -> Any:
     """Train the seeds of ``runner`` split over ``runner.workers`` processes, each in
-    ``worker-<w>/`` (resumed, or read back where it finished), then write the run's merged
-    metrics, eval.json and curve.png; the run's :class:`~agentax.runners.session.TrainResult`
+    ``worker-<w>/`` (resumed, or read back where it finished) by ``train_one`` (importable by name:
+    :func:`train_worker` says what it is called with), then write the run's merged metrics,
+    eval.json and curve.png; the run's :class:`~agentax.runners.session.TrainResult`
     (``state=None``: the agents stayed in the workers)."""
     import shutil
 
@@ -259,7 +257,10 @@ def train(run: Any, runner: Any, *, resume: bool, progress: bool) -> Any:
     from agentax.runs import Run, read_json, read_metrics
 
     parts = split(runner)
-    jobs = [(str(run.path.resolve()), w, part, resume, progress and w == 0) for w, part in enumerate(parts)]
+    jobs = [
+        (str(run.path.resolve()), w, part, resume, progress and w == 0, train_one)
+        for w, part in enumerate(parts)
+    ]
     try:
         timings = map_processes(train_worker, jobs, runner.ray_address)
     except KeyboardInterrupt:  # each worker stopped at its safe point: the run resumes as a whole
@@ -305,33 +306,22 @@ def train(run: Any, runner: Any, *, resume: bool, progress: bool) -> Any:
     return result
 
 
-def train_worker(run_dir: str, w: int, runner: Any, resume: bool, progress: bool) -> dict[str, Any]:
-    """Worker ``w`` of a run (in a process of its own): its seeds (``runner``) as a compiled run in
-    ``worker-<w>/``, resumed from its checkpoint if there is one; its timings. A worker that had
-    finished is only read back."""
-    import shutil
-
-    from agentax.envs import make_jax
-    from agentax.runners import algorithm_of
-    from agentax.runners.compiled import train_module
-    from agentax.runs import Run, checkpoints, read_config, read_json, write_json
+def train_worker(
+    run_dir: str, w: int, runner: Any, resume: bool, progress: bool, train_one: Callable[..., Any]
+) -> dict[str, Any]:
+    """Worker ``w`` of a run (in a process of its own): its seeds (``runner``) as a run in
+    ``worker-<w>/``, resumed from its checkpoint if there is one, trained by ``train_one(config, run,
+    runner, resume=, progress=) -> TrainResult`` (``config``: the run's config.json); its timings. A
+    worker that had finished is only read back."""
+    from agentax.runs import read_config, read_json, write_json
 
     folder = worker_dir(run_dir, w)
     done = folder / FINAL_RETURNS
     if done.is_file():
         return read_json(done)["timings"]
     config = read_config(run_dir)
-    module, cfg = algorithm_of(config)
-    resumed = resume and (folder / "config.json").is_file() and bool(checkpoints(folder))
-    if resumed:
-        run = Run.open(folder)
-    else:
-        if folder.exists():  # made but never checkpointed: start it again
-            shutil.rmtree(folder)
-        run = Run.create(folder, {**config, "runner": dataclasses.asdict(runner)})
-    result, _ = train_module(
-        module, make_jax(config["env"]), cfg, runner, run, resume=resumed, progress=progress
-    )
+    run, resumed = resume_or_restart(folder, {**config, "runner": dataclasses.asdict(runner)}, resume)
+    result = train_one(config, run, runner, resume=resumed, progress=progress)
     timings = {
         name: getattr(result, name)
         for name in ("solved_env_steps", "solved_seconds", "compile_seconds", "train_seconds")
@@ -340,3 +330,32 @@ def train_worker(run_dir: str, w: int, runner: Any, resume: bool, progress: bool
     finals = {"returns": returns.tolist(), "lengths": lengths.tolist(), "timings": timings, "node": node()}
     write_json(done, finals)
     return timings
+
+
+def resume_or_restart(folder: Path, config: dict[str, Any], resume: bool = True) -> tuple[Any, bool]:
+    """``(run, resumed)``: the run in ``folder`` to resume from its checkpoint (``resume`` and it has
+    one), else a new run of ``config`` there (a folder made but never checkpointed starts again)."""
+    import shutil
+
+    from agentax.runs import Run, checkpoints
+
+    if resume and (folder / "config.json").is_file() and bool(checkpoints(folder)):
+        return Run.open(folder), True
+    if folder.exists():
+        shutil.rmtree(folder)
+    return Run.create(folder, config), False
+
+
+__all__ = [
+    "FINAL_RETURNS",
+    "map_processes",
+    "map_ray",
+    "merge_rows",
+    "node",
+    "resume_or_restart",
+    "split",
+    "train",
+    "train_worker",
+    "worker_dir",
+    "worker_of",
+]
