@@ -10,7 +10,7 @@ GYMNAX := gymnax==1.0.1
 # conversion: installed without its declared dependencies too; what it imports is in the lock (extra export).
 JAX2ONNX := jax2onnx==0.17.1
 
-.PHONY: kernel kernel-where-buildable demo test test-long bench figures lint docs lock clean
+.PHONY: kernel kernel-where-buildable demo test test-quick test-long bench figures lint docs lock clean
 
 # The oneDNN convolution kernel (agentax.kernels): compiled against the onednn wheels of the lock
 # (x86-64 Linux), which put libdnnl and its headers under $(VENV)/lib and $(VENV)/include. Where they
@@ -50,6 +50,11 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadgroup -m "not long"
+
+# The edit-test loop: make test without the slow tests (those that train an agent, compile a whole
+# training program, start a process or build the docs site).
+test-quick: $(STAMP)
+	$(PY) -m pytest -q -n 2 --dist loadgroup -m "not slow and not long"
 
 # The checks too long for make test (the 100-game backend comparison, the ale-py training smoke run, ...).
 test-long: $(STAMP)

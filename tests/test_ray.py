@@ -441,7 +441,7 @@ def test_a_lost_node_whose_cpus_the_run_needs_ends_it_with_the_resume_hint(clust
     with pytest.raises(NodeLost, match=r"a Ray node was lost .*3 actors × 1 CPU, 2 CPUs left") as lost:
         ray_runner.train(agent, "CartPole-v1", runner, run, make_agent=remake)
     remover.join()
-    assert removed and time.monotonic() - removed[0] < 30  # not a hang
+    assert removed  # the node went, and the run ended (not a hang: under the test's timeout)
     assert lost.value.run_dir == str(run.path)
     assert any((tmp_path / "checkpoints").iterdir())  # what --resume continues
     assert wait_for_no_collectors(cluster), collector_pids(cluster)
