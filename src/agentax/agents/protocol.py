@@ -80,7 +80,29 @@ class EnvSpec:
         else:
             obs_space, action_space = env.observation_space(), env.action_space()
         image_shape = getattr(env, "image_shape", None)
+        check_observations(obs_space, getattr(env, "id", None))
         return cls(tuple(obs_space.shape), action_space, jnp.dtype(obs_space.dtype), image_shape)
+
+
+SMALLEST_FRAME = 36
+"""The least height and width of frames the Nature CNN takes: its VALID convolutions (8 stride 4,
+4 stride 2, 3 stride 1) leave 1×1 of a 36×36 frame and nothing of a smaller one."""
+
+
+def check_observations(space: Any, env_id: str | None = None) -> None:
+    """A ``UsageError`` naming an observation space no agent's network takes today: a ``Discrete``
+    one (an integer per state), or a Box other than a flat vector ``[n]`` or stacked frames
+    ``[C, H, W]`` (channels first) of at least ``SMALLEST_FRAME`` squared, such as an image ``[H, W, C]``."""
+    shape = tuple(getattr(space, "shape", ()))
+    frames = len(shape) == 3 and min(shape[1:]) >= SMALLEST_FRAME
+    if isinstance(space, Box) and (len(shape) == 1 or frames):
+        return
+    side = SMALLEST_FRAME
+    raise UsageError(
+        f"{env_id or 'the env'} has observations {space}, which agentax's agents do not take yet: they "
+        f"take a flat vector [n] or stacked frames [C, H, W] (channels first, at least {side}x{side}, "
+        "such as Atari's [4, 84, 84])"
+    )
 
 
 @dataclass(frozen=True)
