@@ -452,7 +452,7 @@ def test_a_lost_node_whose_cpus_the_run_needs_ends_it_with_the_resume_hint(clust
 def test_a_join_that_ray_gave_up_for_a_refused_token_says_what_to_do(monkeypatch):
     """``ray.init``'s "Failed to connect" after its retries, its cause naming InvalidAuthToken (the
     path where the token could not be asked about first, e.g. ``auto``)."""
-    from agentax.runners.ray import join_failure
+    from agentax.runners.ray_cluster import join_failure
 
     monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
     try:

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from agentax.errors import UsageError
+from agentax.runners.ray_cluster import ray_session
 
 FINAL_RETURNS = "final-returns.json"
 """What a finished worker leaves beside its eval.json: the final evaluation's returns and lengths
@@ -151,8 +152,6 @@ def map_ray(fn: Callable[..., Any], jobs: Sequence[tuple], address: str) -> list
     ``address`` (joined as the Ray runner joins it). Each job's first element is the folder it
     writes in, so every node must see that folder (one machine, or a shared filesystem): a task
     that cannot says so. Ctrl-C cancels the tasks (each stops at its safe point) and raises."""
-    from agentax.runners.ray import ray_session
-
     with ray_session(address) as ray:
         task = ray.remote(num_cpus=1, max_retries=0)(_ray_job)
         refs = [task.remote(fn, job) for job in jobs]
