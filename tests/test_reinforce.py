@@ -8,10 +8,12 @@ import pytest
 
 from agentax.agents import presets, reinforce
 from agentax.agents.protocol import EnvSpec
+from agentax.cli import main
 from agentax.envs import make_jax
 from agentax.envs.core import Discrete
 from agentax.errors import UsageError
 from agentax.runners.compiled import RunnerConfig, compiled_program, train_program
+from agentax.runs import read_metrics
 
 
 def test_loss_is_minus_mean_log_prob_times_normalized_return():
@@ -36,7 +38,7 @@ def test_loss_is_minus_mean_log_prob_times_normalized_return():
     assert float(grads["policy"]["params"]["Dense_0"]["bias"][0]) < 0
 
 
-def test_validation_and_sigmoid_head_needs_two_actions():
+def test_validation():
     with pytest.raises(UsageError, match="learning_rate"):
         reinforce.ReinforceConfig(learning_rate=-0.01).validate()
     with pytest.raises(UsageError, match="discount_factor"):
@@ -80,8 +82,27 @@ def test_a_gaussian_heads_log_prob_is_the_normal_density_and_the_env_gets_clippe
     )
     greedy = agent.greedy_policy(state)(obs, jax.random.key(1))
     assert jnp.allclose(greedy, jnp.clip(mean, -2, 2))
-    with pytest.raises(UsageError, match="sigmoid head"):
-        reinforce.make_agent(EnvSpec((6,), Discrete(3)), reinforce.ReinforceConfig())
+
+
+def test_the_default_head_fits_the_number_of_actions():
+    """The lecture's sigmoid head [z, 0] on two actions (CartPole's golden rows); a softmax over one
+    logit per action on three (Acrobot), where it used to be refused."""
+    cfg = presets.preset("reinforce", "default").config
+    obs = jnp.ones((2, 6))
+    for n, sigmoid in ((2, True), (3, False)):
+        agent = reinforce.make_agent(EnvSpec((6,), Discrete(n)), cfg)
+        logits = reinforce.policy_network(cfg, n).apply(agent.init(jax.random.key(0)).params["policy"], obs)
+        assert logits.shape == (2, n) and bool(jnp.all(logits[:, 1:] == 0.0)) == sigmoid, logits
+
+
+@pytest.mark.timeout(240)
+def test_reinforce_trains_acrobot_from_the_cli(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["train", "reinforce", "--env", "Acrobot-v1", "--total-steps", "4000", "--out", str(out)]
+    assert main([*argv, "--no-progress"]) == 0, capsys.readouterr().err
+    rows = read_metrics(out)
+    assert rows[-1]["updates"] == 2 and 0 < rows[-1]["env_steps"] <= 4000, rows  # 10 episodes each
+    assert (out / "eval.json").exists()
 
 
 @pytest.mark.timeout(240)

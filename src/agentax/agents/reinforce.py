@@ -15,7 +15,8 @@ one sigmoid output giving P(left). Its per-step loss, the cross-entropy between 
 and P weighted by the advantage, is exactly ``−log π(a|s) · advantage``. On a Box action space the
 policy is PPO's diagonal Gaussian head (:class:`~agentax.nets.GaussianPolicyNet`: a mean network and
 a state-independent ``log_std``; ``sigmoid_head`` does not apply); the env gets the sampled action
-clipped to its bounds, the greedy policy the mean.
+clipped to its bounds, the greedy policy the mean. With other than two discrete actions the head is a
+softmax over one logit per action, whatever ``sigmoid_head`` says (Acrobot's three).
 
 On the compiled runner the episodes of an iteration run side by side for ``max_steps`` steps;
 steps after an episode's end are masked out.
@@ -59,8 +60,8 @@ class ReinforceConfig:
     activation: str = "elu"
     """activation of the hidden layers: elu, relu, tanh, gelu or swish"""
     sigmoid_head: bool = True
-    """the lecture's single sigmoid output (two actions only); else one logit per action (discrete
-    actions only)"""
+    """the lecture's single sigmoid output where the env has two actions; else (and on any other
+    number of discrete actions) a softmax over one logit per action"""
     baseline: bool = False
     """learn a value network V(s) and use G_t − V(s_t) as the advantage"""
     baseline_hidden: tuple[int, ...] = (32,)
@@ -94,7 +95,7 @@ Actions = int | Box
 def policy_network(cfg: ReinforceConfig, actions: Actions) -> PolicyNet | GaussianPolicyNet:
     if isinstance(actions, Box):
         return GaussianPolicyNet(actions.shape[0], tuple(cfg.hidden), cfg.activation)
-    return PolicyNet(actions, tuple(cfg.hidden), cfg.activation, cfg.sigmoid_head)
+    return PolicyNet(actions, tuple(cfg.hidden), cfg.activation, cfg.sigmoid_head and actions == 2)
 
 
 def action_log_prob(out: Any, action: jax.Array, actions: Actions) -> jax.Array:
@@ -169,7 +170,7 @@ def greedy_policy(params: Any, actions: Actions, cfg: ReinforceConfig) -> Policy
     return policy
 
 
-def actions_of(spec: EnvSpec, cfg: ReinforceConfig) -> Actions:
+def actions_of(spec: EnvSpec) -> Actions:
     """The number of discrete actions, or the flat Box; a ``UsageError`` for what this REINFORCE
     cannot take."""
     space = spec.action_space
@@ -179,8 +180,6 @@ def actions_of(spec: EnvSpec, cfg: ReinforceConfig) -> Actions:
         return space
     if not isinstance(space, Discrete):
         raise UsageError(f"REINFORCE needs discrete or Box actions, not {space}")
-    if cfg.sigmoid_head and space.n != 2:
-        raise UsageError(f"the sigmoid head needs exactly 2 actions, not {space.n} (--no-sigmoid-head)")
     return space.n
 
 
@@ -197,7 +196,7 @@ def make_agent(spec: EnvSpec, cfg: ReinforceConfig, *, loop: Loop = jax.lax.scan
     episode's end masked out by ``info["valid"]``. ``learn`` is one gradient step (``loop`` unused).
     """
     cfg.validate()
-    actions = actions_of(spec, cfg)
+    actions = actions_of(spec)
     net = policy_network(cfg, actions)
 
     def act(state: ReinforceAgent, obs: jax.Array, key: jax.Array, progress: jax.Array):
