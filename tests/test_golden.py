@@ -13,7 +13,8 @@ again with exactly the same settings and compares:
   digit written (1e-6, inside ``atol``). A real change of behaviour moves the numbers far more;
 * not the columns that measure time or speed (:data:`TIME_COLUMNS`).
 
-Recording (only when a change of the numbers is intended, and say why in the commit)::
+Recording (only when a change of the numbers is intended, and say why in the commit; or for a new
+case: its row in :data:`CASES`, then ``--write`` with its name)::
 
     PYTHONPATH=src python tests/test_golden.py --write            # every case
     PYTHONPATH=src python tests/test_golden.py --write ppo_host   # some cases
@@ -53,6 +54,19 @@ GOLDEN = Path(__file__).resolve().parent / "golden"
 # The settings of each case: agentax.train's arguments (algo and env apart), shared by the writer and
 # the test. The host runners log a row every 2,048 env steps, the compiled ones every chunk of updates
 # (updates_per_chunk of the preset); each case logs at least 3 rows and learns (nonzero losses).
+OFF_POLICY: dict[str, Any] = {
+    "env": "Pendulum-v1",
+    "preset": "default",
+    "hidden": (64, 64),
+    "batch_size": 64,
+    "num_envs": 4,
+    "train_frequency": 8,
+    "utd": 0.25,
+    "learning_starts": 256,
+    "buffer_size": 8_192,
+}
+"""SAC's and TD3's cases: Pendulum, small networks, 4 envs x 8 steps a phase of 8 learning steps."""
+
 CASES: dict[str, dict[str, Any]] = {
     # cartpole-fast: 8 envs x 32 steps an update, a row every 10 updates (2,560 steps)
     "ppo_compiled": {"algo": "ppo", "runner": "compiled", "seeds": 2, "total_steps": 7_680},
@@ -69,6 +83,23 @@ CASES: dict[str, dict[str, Any]] = {
     "ppo_host": {"algo": "ppo", "runner": "host", "total_steps": 6_144},
     "dqn_host": {"algo": "dqn", "runner": "host", "total_steps": 6_144},
     "ppo_parallel": {"algo": "ppo", "runner": "parallel", "actors": 2, "policy_lag": 1, "total_steps": 6_144},
+    # 4 envs x 16 steps an update, a row (and an evaluation) every 20 updates (1,280 steps)
+    "pqn_compiled": {
+        "algo": "pqn",
+        "runner": "compiled",
+        "total_steps": 3_840,
+        "num_envs": 4,
+        "num_steps": 16,
+    },
+    "pqn_host": {"algo": "pqn", "runner": "host", "total_steps": 6_144, "num_envs": 4, "num_steps": 16},
+    # the default preset's 10 phases a row (320 steps) on the compiled runner. The host cases replay
+    # with priorities, so each batch is drawn when it is learned from: uniform replay's batches are
+    # drawn ahead by a thread (as_dataset) while the runner adds transitions, so what they may hold
+    # depends on the threads' timing (their rows vary from run to run)
+    "sac_compiled": {"algo": "sac", "runner": "compiled", **OFF_POLICY, "total_steps": 1_280},
+    "sac_host": {"algo": "sac", "runner": "host", **OFF_POLICY, "total_steps": 6_144, "prioritized": True},
+    "td3_compiled": {"algo": "td3", "runner": "compiled", **OFF_POLICY, "total_steps": 1_280},
+    "td3_host": {"algo": "td3", "runner": "host", **OFF_POLICY, "total_steps": 6_144, "prioritized": True},
     # EnvPool's step inside the program: 2 envs x 32 steps an iteration, 96 iterations
     "ppo_atari_compiled": {
         "algo": "ppo",
