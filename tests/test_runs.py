@@ -14,6 +14,7 @@ from agentax.api import restore_policy
 from agentax.cli import main
 from agentax.curves import plot_curves
 from agentax.errors import UsageError
+from agentax.formats import FORMAT
 from agentax.runs import (
     Run,
     checkpoints,
@@ -36,7 +37,8 @@ def test_default_run_dir_names_algo_env_and_time(tmp_path):
 
 def test_create_writes_config_and_refuses_an_existing_run(tmp_path):
     run = Run.create(tmp_path / "r", {"algo": "ppo", "env": "CartPole-v1", "config": {"hidden": (64, 64)}})
-    assert read_config(run.path) == {"algo": "ppo", "env": "CartPole-v1", "config": {"hidden": [64, 64]}}
+    written = {"format": FORMAT, "algo": "ppo", "env": "CartPole-v1", "config": {"hidden": [64, 64]}}
+    assert read_config(run.path) == written
     with pytest.raises(UsageError, match="already holds a run"):
         Run.create(tmp_path / "r", {"algo": "ppo", "env": "CartPole-v1"})
     with pytest.raises(UsageError, match="holds no run"):

@@ -39,6 +39,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from agentax import formats
 from agentax.errors import StorageFull, UsageError
 from agentax.evaluate import EvalStats
 from agentax.report import aggregate
@@ -136,7 +137,8 @@ def run_config(algo: str, env_id: str, preset: str, runner_kind: str, runner: An
 
 
 def read_config(run_dir: str | Path) -> dict[str, Any]:
-    """The run's ``config.json``; a clear error for a folder that holds no run."""
+    """The run's ``config.json`` in today's format (:func:`agentax.formats.config_of`: an older one
+    migrated, a newer one refused); a clear error for a folder that holds no run."""
     path = Path(run_dir) / "config.json"
     if not path.is_file():
         raise UsageError(f"{run_dir} holds no run (no config.json); give a folder written by agentax train")
@@ -146,7 +148,7 @@ def read_config(run_dir: str | Path) -> dict[str, Any]:
         raise UsageError(f"{path} is not valid JSON ({error})") from None
     if not isinstance(config, dict) or "algo" not in config or "env" not in config:
         raise UsageError(f"{path} lacks the 'algo' and 'env' keys of a run's config")
-    return config
+    return formats.config_of(config, run_dir)
 
 
 def read_metrics(run_dir: str | Path) -> list[dict[str, float]]:
@@ -179,11 +181,13 @@ def save_tree(path: str | Path, tree: Any, meta: dict[str, Any] | None = None) -
     return path
 
 
-def load_tree(path: str | Path, target: Any) -> tuple[Any, dict[str, Any]]:
+def load_tree(path: str | Path, target: Any, algo: str = "") -> tuple[Any, dict[str, Any]]:
     """Read a tree saved by :func:`save_tree` into the structure of ``target``; returns ``(tree, meta)``.
 
     ``target`` may hold arrays or ``jax.ShapeDtypeStruct`` leaves (from ``jax.eval_shape``). A
-    truncated, corrupt or mismatched file raises a :class:`UsageError` naming the file.
+    checkpoint of an older format is migrated first (:func:`agentax.formats.state_of`; ``algo``
+    names the algorithm whose state it holds), one of a newer format is refused. A truncated,
+    corrupt or mismatched file raises a :class:`UsageError` naming the file.
     """
     from flax import serialization
 
@@ -191,9 +195,14 @@ def load_tree(path: str | Path, target: Any) -> tuple[Any, dict[str, Any]]:
     try:
         payload = serialization.msgpack_restore(path.read_bytes())
         meta = json.loads(payload["meta"])
+    except Exception as error:  # OSError, msgpack's own (ExtraData, FormatError, ...), a bad meta
+        raise UsageError(f"checkpoint {path} is corrupt ({type(error).__name__}: {error})") from None
+    formats.check_readable(formats.version_of(meta), path)
+    try:
         key_leaves = jax.tree.map(_is_key_like, target)
         plain_target = jax.tree.map(_plain_struct, target)
-        restored = serialization.from_state_dict(plain_target, payload["state"])
+        state = formats.state_of(payload["state"], meta, algo, path)
+        restored = serialization.from_state_dict(plain_target, state)
         expected, actual = jax.tree.leaves(plain_target), jax.tree.leaves(restored)
         if len(expected) != len(actual):
             raise ValueError(f"{len(actual)} arrays where {len(expected)} were expected")
@@ -203,18 +212,16 @@ def load_tree(path: str | Path, target: Any) -> tuple[Any, dict[str, Any]]:
                     f"an array {np.asarray(got).dtype}{list(np.shape(got))} where {want.dtype}"
                     f"{list(want.shape)} was expected"
                 )
-    except (OSError, ValueError, KeyError, TypeError, AttributeError, IndexError) as error:
+    except (ValueError, KeyError, TypeError, AttributeError, IndexError) as error:
         raise UsageError(
             f"checkpoint {path} is corrupt or belongs to another configuration ({error})"
         ) from None
-    except Exception as error:  # msgpack's own errors (ExtraData, FormatError, StackError, ...)
-        raise UsageError(f"checkpoint {path} is corrupt ({type(error).__name__}: {error})") from None
     tree = jax.tree.map(
         lambda is_key, x: jax.random.wrap_key_data(np.asarray(x)) if is_key else np.asarray(x),
         key_leaves,
         restored,
     )
-    return tree, meta
+    return tree, {k: v for k, v in meta.items() if k != "format"}
 
 
 def _is_key_like(x: Any) -> bool:
@@ -286,9 +293,12 @@ def load_checkpoint(
             print("note: no checkpoint was saved with its replay buffer yet; it refills", file=sys.stderr)
         found = paired or found
     reason = ""
+    algo = read_config(run_dir)["algo"] if (Path(run_dir) / "config.json").is_file() else ""
     for i, path in enumerate(reversed(found)):
         try:
-            tree, meta = load_tree(path, target)
+            tree, meta = load_tree(path, target, algo)
+        except formats.NewerFormat:
+            raise
         except UsageError as error:  # load_tree turns every read/decode/shape failure into this
             cause = error.__context__  # the original error (raised ``from None``, so kept as context)
             if cause is None:
@@ -342,12 +352,18 @@ class Run:
             blocker = next((p for p in (path, *path.parents) if p.exists() and not p.is_dir()), None)
             why = f"{blocker} is a file, not a folder" if blocker else error.strerror.lower()
             raise UsageError(f"--out {path}: cannot make the run folder there ({why})") from None
+        config = {"format": formats.FORMAT, **config}
         write_json(path / "config.json", config)
         return cls(path, config)
 
     @classmethod
     def open(cls, path: str | Path) -> Run:
-        return cls(Path(path), read_config(path))
+        """The run in ``path``, to continue: a config.json of an older format is rewritten in
+        today's (its new checkpoints are written in today's format too)."""
+        config = read_config(path)
+        if formats.version_of(read_json(Path(path) / "config.json")) < formats.FORMAT:
+            write_json(Path(path) / "config.json", config)
+        return cls(Path(path), config)
 
     def log(self, row: dict[str, float]) -> None:
         """Append a row to metrics.csv and to TensorBoard. A metric first seen in a later row (a loss
@@ -392,6 +408,8 @@ class Run:
 
         More than one is kept so that :func:`load_checkpoint` has an older one to fall back on.
         """
+        meta = {**meta, "format": formats.FORMAT}
+        (self.path / "checkpoints").mkdir(exist_ok=True)  # deleted by hand since, say
         try:
             path = save_tree(self.path / "checkpoints" / f"{CHECKPOINT_PREFIX}{updates}.msgpack", tree, meta)
         except StorageFull as full:

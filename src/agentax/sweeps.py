@@ -324,16 +324,18 @@ def _asked(path: Path) -> dict[str, Any]:
 
 def _open_folder(path: Path, request: dict[str, Any]) -> None:
     """Make the sweep folder, or check that the one there is this sweep's (then it resumes)."""
+    from agentax import formats
     from agentax.runs import write_json
 
     if asked := _asked(path):
-        if asked != json.loads(json.dumps(request)):
+        formats.check_readable(formats.version_of(asked), path / "sweep.json")
+        if {k: v for k, v in asked.items() if k != "format"} != json.loads(json.dumps(request)):
             raise UsageError(f"{path} holds another sweep (its sweep.json differs); choose another --out")
         return
     if path.exists() and (not path.is_dir() or any(path.iterdir())):
         raise UsageError(f"--out {path}: not an empty folder nor a sweep's")
     path.mkdir(parents=True, exist_ok=True)
-    write_json(path / "sweep.json", request)
+    write_json(path / "sweep.json", {"format": formats.FORMAT, **request})
 
 
 def _train_program(folder: Path, request, cfg, runner, table, progress: bool = False) -> np.ndarray:
