@@ -49,12 +49,18 @@ from agentax.policies import Policy
 from agentax.replay.frames import available_memory
 from agentax.runners import algorithm_of, programs, workers
 from agentax.runners.launch import agent_maker
-from agentax.runners.logger import RunLogger
 from agentax.runners.rollout import SEED_AXIS, Freeze, Program, program
-from agentax.runners.session import TrainResult
+from agentax.runners.session import (
+    EVAL_KEY_OFFSET,
+    SOLVED,
+    TIMINGS,
+    TrainResult,
+    conclude,
+    open_logger,
+    row_of,
+)
 from agentax.runs import Run, load_checkpoint
 
-EVAL_KEY_OFFSET = 1_000_003  # evaluation keys are fold_in(seed key, offset + evaluation number)
 INIT_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
 CHUNK_COMPILER_OPTIONS = {"xla_backend_optimization_level": 1}
 """LLVM optimisation levels of the two programs (XLA's default is 3). The initialisation runs once:
@@ -270,6 +276,46 @@ def _programs(
     return shapes, init, programs.jit(flat_chunk, example, {**shaping, "name": "chunk"}, donate_argnums=0)
 
 
+class ChunkSchedule(NamedTuple):
+    """Which chunk comes after which: ``updates_per_chunk`` updates each, an evaluation every
+    ``eval_every`` chunks and after the last, at most ``max_chunks`` of them in one call (None: all)."""
+
+    num_updates: int
+    updates_per_chunk: int
+    eval_every: int
+    max_chunks: int | None = None
+
+    def after(self, updates: int, chunks: int, evaluations: int) -> Chunk | None:
+        """The chunk after ``updates`` updates, ``chunks`` of them in this call (None: no more)."""
+        if updates >= self.num_updates or (self.max_chunks is not None and chunks >= self.max_chunks):
+            return None
+        num_active = min(self.updates_per_chunk, self.num_updates - updates)
+        number = updates // self.updates_per_chunk + 1
+        last = updates + num_active >= self.num_updates
+        return Chunk(num_active, number, last or number % self.eval_every == 0, evaluations)
+
+
+@dataclass
+class Counts:
+    """Where a compiled training stands: what its checkpoints' meta holds."""
+
+    updates: int
+    evaluations: int
+    env_steps: float
+    solved_env_steps: float | None = None
+    solved_seconds: float | None = None
+
+    def meta(self, elapsed: float) -> dict[str, Any]:
+        return {
+            "updates": self.updates,
+            "evaluations": self.evaluations,
+            "env_steps": self.env_steps,
+            "elapsed": elapsed,
+            "solved_env_steps": self.solved_env_steps,
+            "solved_seconds": self.solved_seconds,
+        }
+
+
 def train_program(
     algorithm: Program,
     env: Environment,
@@ -293,7 +339,6 @@ def train_program(
     seeds = seeds_of(runner)
     shapes, init_program, chunk_program = _programs(algorithm, env, runner, seeds, program_description)
     state_tree = jax.tree.structure(shapes)
-
     meta: dict[str, Any] = {"updates": 0, "evaluations": 0, "elapsed": 0.0}
     if resume:
         if run is None:
@@ -302,7 +347,6 @@ def train_program(
         run.truncate_metrics(meta["env_steps"])
     else:
         state = jax.tree.unflatten(state_tree, init_program(seeds))
-
     if run is not None:
         preload_plotting()  # for curve.png, while XLA (which lets go of the GIL) loads or compiles
     compile_start = time.perf_counter()
@@ -315,128 +359,92 @@ def train_program(
         )
         return jax.tree.unflatten(state_tree, leaves), metrics, returns, lengths
 
-    updates, evaluations = int(meta["updates"]), int(meta["evaluations"])
-    eval_every = eval_every_chunks(runner, algorithm.num_updates)
-
-    def chunk_after(updates: int, chunks: int, evaluations: int) -> Chunk | None:
-        """The chunk after ``updates`` updates, ``chunks`` of them in this call (None: no more)."""
-        if updates >= algorithm.num_updates or (max_chunks is not None and chunks >= max_chunks):
-            return None
-        num_active = min(runner.updates_per_chunk, algorithm.num_updates - updates)
-        number = updates // runner.updates_per_chunk + 1
-        last = updates + num_active >= algorithm.num_updates
-        return Chunk(num_active, number, last or number % eval_every == 0, evaluations)
-
     stats = jax.device_get(state.episodes)
-    env_steps = float(np.mean(stats.env_steps))
-    logger = RunLogger(
-        run,
-        algorithm.num_updates * algorithm.steps_per_update,
-        done_steps=env_steps,
-        progress=progress,
-        checkpoint_every_seconds=runner.checkpoint_every_seconds,
-        elapsed_before=float(meta["elapsed"]),
+    counts = Counts(int(meta["updates"]), int(meta["evaluations"]), float(np.mean(stats.env_steps)))
+    counts.solved_env_steps, counts.solved_seconds = meta.get("solved_env_steps"), meta.get("solved_seconds")
+    schedule = ChunkSchedule(
+        algorithm.num_updates,
+        runner.updates_per_chunk,
+        eval_every_chunks(runner, algorithm.num_updates),
+        max_chunks,
     )
-    solved_env_steps, solved_seconds = meta.get("solved_env_steps"), meta.get("solved_seconds")
-    final_eval = None
-    chunks_this_call = 0
-    every = runner.checkpoint_every_chunks
+    total_steps = algorithm.num_updates * algorithm.steps_per_update
+    logger = open_logger(run, total_steps, counts.env_steps, runner, float(meta["elapsed"]), progress)
     with logger:
-        chunk = chunk_after(updates, 0, evaluations) if solved_env_steps is None else None
-        in_flight = call(state, chunk) if chunk is not None else None
-        row_time = time.perf_counter()
-        while chunk is not None:
-            state, metrics, eval_returns, _ = in_flight
-            updates += chunk.num_active
-            evaluations += int(chunk.do_eval)
-            chunks_this_call += 1
-            following = chunk_after(updates, chunks_this_call, evaluations)
-            checkpoint = following is None or bool(every and chunk.number % every == 0)
-            # Look ahead: chunk k + 1 runs while chunk k's row is written, unless chunk k's state is
-            # still needed (a checkpoint, a stop at this evaluation): the next chunk takes its
-            # buffers (donated). The row's episode counters are copied out first.
-            ahead = following is not None and not (
-                checkpoint or logger.checkpoint_due() or (chunk.do_eval and runner.stop_at_return is not None)
-            )
-            episodes = state.episodes
-            if ahead:
-                episodes = jax.device_put(episodes, may_alias=False)
-                in_flight = call(state, following)
-            new_stats, metrics, eval_returns = jax.device_get((episodes, metrics, eval_returns))
-            now = time.perf_counter()
-            seconds, row_time = now - row_time, now
-            steps_before, env_steps = env_steps, float(np.mean(new_stats.env_steps))
-            per_seed = _episode_means(stats, new_stats)
-            stats = new_stats
-            do_eval = chunk.do_eval
-            row = {
-                "env_steps": env_steps,
-                "updates": updates,
-                "mean_return": float(np.nanmean(per_seed)) if np.isfinite(per_seed).any() else math.nan,
-                **{f"return_seed{k}": float(r) for k, r in enumerate(per_seed)},
-                "eval_return": float(np.mean(eval_returns)) if do_eval else math.nan,
-                **{
-                    f"eval_seed{k}": float(np.mean(r)) if do_eval else math.nan
-                    for k, r in enumerate(eval_returns)
-                },
-                "steps_per_second": (env_steps - steps_before) / max(seconds, 1e-9),
-            }
-            row = logger.log(row, metrics)
-            target = runner.stop_at_return
-            if do_eval and target is not None and min(map(np.mean, eval_returns)) >= target:  # every seed
-                # solved once the final evaluation (fresh keys) agrees, which then is the final one
-                state, _, *final_eval = call(state, Chunk(0, 0, True, evaluations))
-                if min(map(np.mean, np.asarray(final_eval[0]))) >= target:
-                    solved_env_steps, solved_seconds = env_steps, time.perf_counter() - start
-                    following = None
-                else:
-                    following = chunk_after(updates, chunks_this_call, evaluations + 1)
-                    if following is not None:  # it trains on; its keys spent, evaluations take the next
-                        evaluations, final_eval = evaluations + 1, None
-            if not ahead:
-                meta = {
-                    "updates": updates,
-                    "evaluations": evaluations,
-                    "env_steps": env_steps,
-                    "elapsed": row["wall_seconds"],
-                    "solved_env_steps": solved_env_steps,
-                    "solved_seconds": solved_seconds,
-                }
-                logger.checkpoint(updates, state, meta, force=checkpoint or solved_env_steps is not None)
-                if following is not None:
-                    in_flight = call(state, following)
-            chunk = following
+        state, final_eval = _chunks(call, state, stats, schedule, runner, logger, counts, start)
     train_seconds = time.perf_counter() - logger.start
-
+    solved = (counts.solved_env_steps, counts.solved_seconds)
     result = TrainResult(
-        state=state,
-        updates=updates,
-        env_steps=env_steps,
-        eval={},
-        rows=logger.rows,
-        solved_env_steps=solved_env_steps,
-        solved_seconds=solved_seconds,
-        compile_seconds=compile_seconds,
-        train_seconds=train_seconds,
+        state, counts.updates, counts.env_steps, {}, logger.rows, *solved, compile_seconds, train_seconds
     )
-    if updates < algorithm.num_updates and solved_env_steps is None:
+    if counts.updates < algorithm.num_updates and counts.solved_env_steps is None:
         return result  # stopped early by max_chunks: resumable, not finished
-
     if final_eval is None:
-        state, _, *final_eval = call(state, Chunk(0, 0, True, evaluations))
-    returns, lengths = final_eval
-    result.state, result.final_returns = state, (np.asarray(returns), np.asarray(lengths))
-    result.eval = logger.finish(
-        np.asarray(returns),
-        np.asarray(lengths),
-        env_steps=env_steps,
-        updates=updates,
-        solved_env_steps=solved_env_steps,
-        solved_seconds=solved_seconds,
-        compile_seconds=compile_seconds,
-        train_seconds=train_seconds,
-    )
-    return result
+        state, _, *final_eval = call(state, Chunk(0, 0, True, counts.evaluations))
+    returns, lengths = np.asarray(final_eval[0]), np.asarray(final_eval[1])
+    result.state, result.final_returns = state, (returns, lengths)
+    return conclude(run, result, returns, lengths, *SOLVED, *TIMINGS)
+
+
+def _chunks(call, state, stats, schedule: ChunkSchedule, runner: RunnerConfig, logger, counts: Counts, start):
+    """Call the schedule's chunks, a row and, when due, a checkpoint after each; ``(state, the final
+    evaluation where the run stopped solved, else None)``.
+
+    Look-ahead: chunk k + 1 runs while chunk k's row is written, unless chunk k's state is still
+    needed (a checkpoint, a stop at this evaluation): the next chunk takes its buffers (donated).
+    The row's episode counters are copied out first."""
+    final_eval, chunks, every = None, 0, runner.checkpoint_every_chunks
+    chunk = schedule.after(counts.updates, 0, counts.evaluations) if counts.solved_env_steps is None else None
+    in_flight = call(state, chunk) if chunk is not None else None
+    row_time = time.perf_counter()
+    while chunk is not None:
+        state, metrics, eval_returns, _ = in_flight
+        counts.updates += chunk.num_active
+        counts.evaluations += int(chunk.do_eval)
+        chunks += 1
+        following = schedule.after(counts.updates, chunks, counts.evaluations)
+        checkpoint = following is None or bool(every and chunk.number % every == 0)
+        may_stop = chunk.do_eval and runner.stop_at_return is not None
+        ahead = following is not None and not (checkpoint or logger.checkpoint_due() or may_stop)
+        episodes = state.episodes
+        if ahead:
+            episodes = jax.device_put(episodes, may_alias=False)
+            in_flight = call(state, following)
+        new_stats, metrics, eval_returns = jax.device_get((episodes, metrics, eval_returns))
+        now = time.perf_counter()
+        seconds, row_time = now - row_time, now
+        steps_before, counts.env_steps = counts.env_steps, float(np.mean(new_stats.env_steps))
+        evals = [float(np.mean(r)) if chunk.do_eval else math.nan for r in eval_returns]
+        speed = (counts.env_steps - steps_before) / max(seconds, 1e-9)
+        row = row_of(counts.env_steps, counts.updates, _episode_means(stats, new_stats), speed, evals)
+        stats, row = new_stats, logger.log(row, metrics)
+        if may_stop and min(map(np.mean, eval_returns)) >= runner.stop_at_return:
+            state, final_eval, following = _confirmed(call, state, schedule, counts, chunks, runner, start)
+        if not ahead:
+            solved = counts.solved_env_steps is not None
+            logger.checkpoint(
+                counts.updates, state, counts.meta(row["wall_seconds"]), force=checkpoint or solved
+            )
+            if following is not None:
+                in_flight = call(state, following)
+        chunk = following
+    return state, final_eval
+
+
+def _confirmed(
+    call, state, schedule: ChunkSchedule, counts: Counts, chunks: int, runner: RunnerConfig, start
+):
+    """Every seed reached ``stop_at_return`` at this evaluation: the run is solved once the final
+    evaluation (fresh keys) agrees, which then is the final one; else it trains on, and with a chunk
+    to come its evaluations take the next keys. ``(state, final evaluation or None, next chunk)``."""
+    state, _, *final_eval = call(state, Chunk(0, 0, True, counts.evaluations))
+    if min(map(np.mean, np.asarray(final_eval[0]))) >= runner.stop_at_return:
+        counts.solved_env_steps, counts.solved_seconds = counts.env_steps, time.perf_counter() - start
+        return state, final_eval, None
+    following = schedule.after(counts.updates, chunks, counts.evaluations + 1)
+    if following is not None:
+        counts.evaluations, final_eval = counts.evaluations + 1, None
+    return state, final_eval, following
 
 
 def restore_policy(

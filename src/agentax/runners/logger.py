@@ -218,13 +218,18 @@ class RunLogger:
         return True
 
     def finish(self, returns: np.ndarray, lengths: np.ndarray, **extra: Any) -> dict[str, Any]:
-        """The final evaluation (returns ``[num_seeds, episodes]``): eval.json and curve.png if there
-        is a run folder; the statistics either way."""
-        returns, lengths = np.atleast_2d(returns), np.atleast_2d(lengths)
-        if self.run is None:
-            stats = vars(EvalStats.from_returns(returns.ravel(), lengths.ravel()))
-            return {**stats, "per_seed_mean": returns.mean(axis=1).tolist(), **extra}
-        evaluation = self.run.write_eval(returns, lengths, **extra)
-        plot_curves([self.run.path], self.run.path / "curve.png")
-        self.run.close()
-        return evaluation
+        """The final evaluation into the logger's run (:func:`finish_run`)."""
+        return finish_run(self.run, returns, lengths, **extra)
+
+
+def finish_run(run: Run | None, returns: np.ndarray, lengths: np.ndarray, **extra: Any) -> dict[str, Any]:
+    """The final evaluation (returns ``[num_seeds, episodes]``): eval.json and curve.png if there is
+    a run folder (then closed); the statistics either way."""
+    returns, lengths = np.atleast_2d(returns), np.atleast_2d(lengths)
+    if run is None:
+        stats = vars(EvalStats.from_returns(returns.ravel(), lengths.ravel()))
+        return {**stats, "per_seed_mean": returns.mean(axis=1).tolist(), **extra}
+    evaluation = run.write_eval(returns, lengths, **extra)
+    plot_curves([run.path], run.path / "curve.png")
+    run.close()
+    return evaluation

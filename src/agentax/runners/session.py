@@ -1,13 +1,13 @@
-"""One training's shell, written once for the runners that step their envs outside one program.
+"""One training's shell, written once for every runner.
 
-The host, parallel, Ray and compiled Atari runners differ in how they collect and learn; what is
-around that is the same and lives here: the keys of a run (:func:`agent_keys`), a fresh agent or
-the state of the newest usable checkpoint, the run logger (rows, TensorBoard, the progress bar),
-the row schedule (a row every ``log_every_steps`` env steps, so the same seed gives the same rows),
-the stop-at-return check, checkpoints by time (with the replay buffer committed by them) and the
-final evaluation, with one seed rule, into one :class:`TrainResult`. The compiled runner keeps its
-own loop around its one program, but logs through the same :class:`~agentax.runners.logger.RunLogger`
-and returns the same result.
+The runners differ in how they collect and learn; what is around that is the same and lives here:
+the keys of a run (:func:`agent_keys`), a fresh agent or the state of the newest usable checkpoint,
+the run logger (:func:`open_logger`: rows, TensorBoard, the progress bar), the rows
+(:func:`row_of`, per seed), the stop-at-return check, checkpoints by time (with the replay buffer
+committed by them), one evaluation-seed rule, and the final evaluation into one
+:class:`TrainResult` (:func:`conclude`). :class:`Session` holds them for the runners that step
+their envs outside one program; the compiled runner's chunk loop and the workers' merge call the
+same pieces.
 """
 
 from __future__ import annotations
@@ -22,14 +22,20 @@ import numpy as np
 
 from agentax.agents.protocol import Agent
 from agentax.policies import Policy
-from agentax.runners.logger import RunLogger
+from agentax.runners.logger import RunLogger, finish_run
 from agentax.runs import Run, load_checkpoint
 
 EVAL_SEED_OFFSET = 123_457
-"""The final evaluation of a run with seed ``s`` plays its episodes from seed ``s + 123,457``, far
-from the seeds of its own envs (``s + 1000 i``), so no evaluation episode repeats a training one.
-(The compiled runner evaluates inside its program on keys folded from each seed's key with
-``compiled.EVAL_KEY_OFFSET``: the same separation in the key space.)"""
+EVAL_KEY_OFFSET = 1_000_003
+"""The evaluation-seed rule, one for every runner: evaluation episodes never repeat training ones.
+On the host (Gymnasium's seeds) the final evaluation of a run with seed ``s`` plays from seed
+``s + EVAL_SEED_OFFSET``, far from the seeds of its own envs (``s + 1000 i``); inside the compiled
+program (JAX keys) evaluation ``i`` of a seed plays from ``fold_in(key(seed), EVAL_KEY_OFFSET + i)``,
+the same separation in the key space."""
+SOLVED = ("solved_env_steps", "solved_seconds")
+"""What a run that stopped at ``stop_at_return`` records of it (eval.json, :class:`TrainResult`)."""
+TIMINGS = ("compile_seconds", "train_seconds")
+"""The compiled runner's timings, in its eval.json too."""
 
 
 @dataclass
@@ -87,18 +93,59 @@ def final_evaluation(evaluator: Any, state: Any, seed: int) -> tuple[np.ndarray,
 
 
 def row_of(
-    env_steps: int, updates: int, finished_returns: list[float], steps_per_second: float
+    env_steps: float,
+    updates: int,
+    per_seed_returns: Any,
+    steps_per_second: float,
+    per_seed_evals: Any = None,
 ) -> dict[str, float]:
-    """A runner's bookkeeping for one metrics row (the agent's metrics join it in the logger)."""
-    mean_return = float(np.mean(finished_returns)) if finished_returns else math.nan
-    return {
+    """A runner's bookkeeping for one metrics row (the agent's metrics join it in the logger): the
+    mean return of the episodes finished since the last row per seed (NaN: none) and, where the row
+    evaluated (compiled runner), each seed's evaluation mean."""
+    per_seed = np.asarray(per_seed_returns, dtype=np.float64)
+    row = {
         "env_steps": env_steps,
         "updates": updates,
-        "mean_return": mean_return,
-        "return_seed0": mean_return,
+        "mean_return": float(np.nanmean(per_seed)) if np.isfinite(per_seed).any() else math.nan,
+        **{f"return_seed{k}": float(r) for k, r in enumerate(per_seed)},
         "eval_return": math.nan,
-        "steps_per_second": steps_per_second,
     }
+    if per_seed_evals is not None:
+        row["eval_return"] = float(np.mean(per_seed_evals))
+        row.update({f"eval_seed{k}": float(e) for k, e in enumerate(per_seed_evals)})
+    return {**row, "steps_per_second": steps_per_second}
+
+
+def open_logger(
+    run: Run | None,
+    total_steps: float,
+    done_steps: float,
+    runner: Any,
+    elapsed_before: float,
+    progress: bool,
+    description: str = "training",
+) -> RunLogger:
+    """The run logger of a training (a context manager: Ctrl-C becomes ``TrainingInterrupted``)."""
+    return RunLogger(
+        run,
+        total_steps,
+        done_steps=done_steps,
+        progress=progress,
+        description=description,
+        checkpoint_every_seconds=runner.checkpoint_every_seconds,
+        elapsed_before=elapsed_before,
+    )
+
+
+def conclude(run: Run | None, result: TrainResult, returns: Any, lengths: Any, *written: str, **extra: Any):
+    """``result`` with its final evaluation (``returns``, ``lengths``: ``[seeds, episodes]``) in
+    ``result.eval``: eval.json (with the counts, ``result``'s ``written`` fields and ``extra``) and
+    curve.png in ``run``, if any. Every runner's result ends here."""
+    fields = {name: getattr(result, name) for name in written}
+    result.eval = finish_run(
+        run, returns, lengths, env_steps=result.env_steps, updates=result.updates, **fields, **extra
+    )
+    return result
 
 
 class Session:
@@ -134,14 +181,9 @@ class Session:
     def begin(self, description: str, progress: bool = False) -> RunLogger:
         """The run logger (a context manager: Ctrl-C becomes ``TrainingInterrupted``), its progress
         bar named ``description``; the first row's speed counts from here."""
-        self.logger = RunLogger(
-            self.run,
-            self.agent.total_steps,
-            done_steps=self.env_steps,
-            progress=progress,
-            description=description,
-            checkpoint_every_seconds=self.runner.checkpoint_every_seconds,
-            elapsed_before=float(self.meta["elapsed"]),
+        elapsed = float(self.meta["elapsed"])
+        self.logger = open_logger(
+            self.run, self.agent.total_steps, self.env_steps, self.runner, elapsed, progress, description
         )
         self.steps_at_log, self.time_at_log = self.env_steps, time.perf_counter()
         return self.logger
@@ -171,7 +213,8 @@ class Session:
         metrics = jax.device_get(metrics)  # waits for the last learning step: speeds count it
         now = time.perf_counter()
         speed = (env_steps - self.steps_at_log) / max(now - self.time_at_log, 1e-9)
-        row = {**row_of(env_steps, updates, returns, speed), **(extra or {})}
+        finished = [float(np.mean(returns)) if returns else math.nan]
+        row = {**row_of(env_steps, updates, finished, speed), **(extra or {})}
         solved = evaluated_if_stopping(row, self.runner, self.evaluator, state) and self.confirmed(
             state, env_steps
         )
@@ -207,16 +250,8 @@ class Session:
         else:
             solved["solved_env_steps"], solved["solved_seconds"], (returns, lengths) = self.solved
         self.evaluator.close()
-        evaluation = self.logger.finish(
-            returns[None], lengths[None], env_steps=env_steps, updates=updates, **solved
+        result = TrainResult(
+            state, updates, env_steps, {}, self.logger.rows, train_seconds=train_seconds, **solved
         )
-        return TrainResult(
-            state,
-            updates,
-            env_steps,
-            evaluation,
-            self.logger.rows,
-            train_seconds=train_seconds,
-            policy=self.agent.greedy_policy(state),
-            **solved,
-        )
+        result.policy = self.agent.greedy_policy(state)
+        return conclude(self.run, result, returns[None], lengths[None], *solved)

@@ -33,6 +33,7 @@ import numpy as np
 
 from agentax.errors import UsageError
 from agentax.runners.ray_cluster import ray_session
+from agentax.runners.session import SOLVED, TIMINGS, TrainResult, conclude
 
 FINAL_RETURNS = "final-returns.json"
 """What a finished worker leaves beside its eval.json: the final evaluation's returns and lengths
@@ -250,9 +251,7 @@ def train(run: Any, runner: Any, train_one: Callable[..., Any], *, resume: bool,
     (``state=None``: the agents stayed in the workers)."""
     import shutil
 
-    from agentax.curves import plot_curves
     from agentax.errors import TrainingInterrupted
-    from agentax.runners.session import TrainResult
     from agentax.runs import Run, read_json, read_metrics
 
     parts = split(runner)
@@ -289,20 +288,9 @@ def train(run: Any, runner: Any, train_one: Callable[..., Any], *, resume: bool,
         compile_seconds=max(t["compile_seconds"] for t in timings),
         train_seconds=max(t["train_seconds"] for t in timings),
     )
-    result.eval = merged.write_eval(
-        np.concatenate([np.asarray(f["returns"]) for f in finals]),
-        np.concatenate([np.asarray(f["lengths"]) for f in finals]),
-        env_steps=result.env_steps,
-        updates=result.updates,
-        solved_env_steps=result.solved_env_steps,
-        solved_seconds=result.solved_seconds,
-        compile_seconds=result.compile_seconds,
-        train_seconds=result.train_seconds,
-        workers=len(parts),
-    )
-    merged.close()
-    plot_curves([run.path], run.path / "curve.png")
-    return result
+    returns = np.concatenate([np.asarray(f["returns"]) for f in finals])
+    lengths = np.concatenate([np.asarray(f["lengths"]) for f in finals])
+    return conclude(merged, result, returns, lengths, *SOLVED, *TIMINGS, workers=len(parts))
 
 
 def train_worker(
@@ -321,10 +309,7 @@ def train_worker(
     config = read_config(run_dir)
     run, resumed = resume_or_restart(folder, {**config, "runner": dataclasses.asdict(runner)}, resume)
     result = train_one(config, run, runner, resume=resumed, progress=progress)
-    timings = {
-        name: getattr(result, name)
-        for name in ("solved_env_steps", "solved_seconds", "compile_seconds", "train_seconds")
-    }
+    timings = {name: getattr(result, name) for name in (*SOLVED, *TIMINGS)}
     returns, lengths = result.final_returns
     finals = {"returns": returns.tolist(), "lengths": lengths.tolist(), "timings": timings, "node": node()}
     write_json(done, finals)
