@@ -7,10 +7,11 @@ import gymnasium
 import numpy as np
 import pytest
 
+from agentax.agents import algorithm, algorithm_config
 from agentax.agents.protocol import EnvSpec, check_observations
 from agentax.cli import main
 from agentax.envs import make_host_env, make_jax
-from agentax.envs.core import Box
+from agentax.envs.core import Box, Discrete
 from agentax.errors import UsageError
 
 
@@ -68,3 +69,14 @@ def test_the_spaces_agentax_takes_still_make_a_spec():
             EnvSpec.of(env)
     finally:
         env.close()
+
+
+@pytest.mark.parametrize("algo", ["sac", "td3", "reinforce"])
+def test_frames_given_to_an_agent_without_a_conv_torso_are_one_line(algo):
+    """Stacked frames [3, 48, 48] make a spec (ppo, dqn and pqn train on them), but the agents whose
+    networks are MLPs refuse them by name instead of a shape error deep in a trace."""
+    frames = EnvSpec((3, 48, 48), Box(np.full(1, -1.0, np.float32), np.ones(1, np.float32), (1,)), np.uint8)
+    if algo == "reinforce":
+        frames = EnvSpec((3, 48, 48), Discrete(3), np.uint8)
+    with pytest.raises(UsageError, match=rf"{algo} takes flat observations \[n\], not frames \[3, 48, 48\]"):
+        algorithm(algo).make_agent(frames, algorithm_config(algo)())

@@ -231,6 +231,17 @@ def continuous_action_dim(spec: EnvSpec, algorithm: str) -> int:
     return int(space.shape[0])
 
 
+def flat_observations(spec: EnvSpec, algorithm: str) -> int:
+    """The length of a flat observation; a ``UsageError`` for frames, which only the agents with a
+    convolutional torso take."""
+    if len(spec.obs_shape) != 1:
+        raise UsageError(
+            f"{algorithm} takes flat observations [n], not frames {list(spec.obs_shape)}; ppo, dqn and pqn "
+            "take stacked frames"
+        )
+    return spec.obs_shape[0]
+
+
 def scale_action(action: jax.Array, space: Box) -> jax.Array:
     """An action in ``[-1, 1]^d`` mapped affinely onto the space's bounds ``[low, high]``."""
     low, high = jnp.asarray(space.low, jnp.float32), jnp.asarray(space.high, jnp.float32)

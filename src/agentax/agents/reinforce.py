@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from agentax.agents.protocol import Agent, EnvSpec, Episodes, Loop, check_fields
+from agentax.agents.protocol import Agent, EnvSpec, Episodes, Loop, check_fields, flat_observations
 from agentax.envs.core import Box, Discrete
 from agentax.errors import UsageError
 from agentax.nets import MLP, GaussianPolicyNet, PolicyNet, gaussian_log_prob, log_prob
@@ -197,6 +197,7 @@ def make_agent(spec: EnvSpec, cfg: ReinforceConfig, *, loop: Loop = jax.lax.scan
     """
     cfg.validate()
     actions = actions_of(spec)
+    flat_observations(spec, "reinforce")
     net = policy_network(cfg, actions)
 
     def act(state: ReinforceAgent, obs: jax.Array, key: jax.Array, progress: jax.Array):

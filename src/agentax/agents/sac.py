@@ -28,7 +28,15 @@ import optax
 from flax import struct
 
 from agentax.agents.off_policy import ReplayConfig, continuous_agent, twin_q_loss, warm_up
-from agentax.agents.protocol import PRIORITY, Agent, EnvSpec, Loop, continuous_action_dim, scale_action
+from agentax.agents.protocol import (
+    PRIORITY,
+    Agent,
+    EnvSpec,
+    Loop,
+    continuous_action_dim,
+    flat_observations,
+    scale_action,
+)
 from agentax.errors import UsageError
 from agentax.nets import SquashedGaussianActor, TwinQ, polyak, sample_squashed
 from agentax.policies import Policy
@@ -78,6 +86,7 @@ def make_agent(spec: EnvSpec, cfg: SACConfig, *, loop: Loop = jax.lax.scan) -> A
     """
     cfg.validate()
     action_dim = continuous_action_dim(spec, "sac")
+    flat_observations(spec, "sac")
     actor = SquashedGaussianActor(
         action_dim, tuple(cfg.hidden), cfg.activation, cfg.log_std_min, cfg.log_std_max
     )

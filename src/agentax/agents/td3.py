@@ -24,7 +24,15 @@ import optax
 from flax import struct
 
 from agentax.agents.off_policy import ReplayConfig, continuous_agent, twin_q_loss, warm_up
-from agentax.agents.protocol import PRIORITY, Agent, EnvSpec, Loop, continuous_action_dim, scale_action
+from agentax.agents.protocol import (
+    PRIORITY,
+    Agent,
+    EnvSpec,
+    Loop,
+    continuous_action_dim,
+    flat_observations,
+    scale_action,
+)
 from agentax.nets import MLP, TwinQ, polyak
 from agentax.policies import Policy
 from agentax.replay import ReplaySample
@@ -76,6 +84,7 @@ def make_agent(spec: EnvSpec, cfg: TD3Config, *, loop: Loop = jax.lax.scan) -> A
     """
     cfg.validate()
     action_dim = continuous_action_dim(spec, "td3")
+    flat_observations(spec, "td3")
     actor = MLP(tuple(cfg.hidden), cfg.activation, out=action_dim)
     critic = TwinQ(tuple(cfg.hidden), cfg.activation)
     tx = optax.adam(cfg.learning_rate)
