@@ -3,6 +3,8 @@ rollout of the on-policy ones, refused up front in one line with the bytes neede
 instead of XLA's RESOURCE_EXHAUSTED traceback mid-run; the estimate checked against XLA's own."""
 
 import dataclasses
+import subprocess
+import sys
 
 import jax
 import pytest
@@ -80,3 +82,22 @@ def test_the_estimate_is_within_a_factor_of_two_or_so_of_xlas_own(algo, env_id, 
     xla = analysis.temp_size_in_bytes + analysis.argument_size_in_bytes
     estimate = memory.learning_bytes(agent, spec)
     assert 0.5 * xla < estimate < 2.5 * xla, (estimate, xla)
+
+
+@pytest.mark.timeout(120)
+def test_the_check_leaves_jax_without_a_cpu_client():
+    """The check runs before the runner chooses how jax makes its CPU client (every CPU for the host
+    and parallel runners): it traces on abstract values only, so no client exists after it."""
+    script = (
+        "import agentax\n"
+        "from jax._src import xla_bridge\n"
+        "from agentax.agents import algorithm, algorithm_config\n"
+        "from agentax.runners.launch import env_specs\n"
+        "from agentax.runners.memory import check_learning_fits\n"
+        "for algo in ('dqn', 'ppo', 'reinforce'):\n"
+        "    spec, _ = env_specs('host', 'Acrobot-v1')\n"
+        "    check_learning_fits(algorithm(algo).make_agent(spec, algorithm_config(algo)()), spec)\n"
+        "print('cpu' in xla_bridge._backends)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=100)
+    assert done.returncode == 0 and done.stdout.strip() == "False", done.stderr[-2000:]

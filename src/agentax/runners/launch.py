@@ -97,7 +97,7 @@ def prepare(algo: str, module: Any, run_args: Any, cfg: Any, preset: Any, kind: 
     spec, solved_by = env_specs(kind, run_args.env, run_args.env_backend, run_args.sticky_actions)
     remake = agent_maker(module, spec, cfg)
     agent = remake()  # refuses what the agent cannot train before anything is written
-    check_learning_fits(agent, spec, run_args.seeds)
+    check_learning_fits(module.make_agent(spec, cfg), spec, run_args.seeds)  # (plain: see its docstring)
     run_args = _with_stop(run_args, parse_stop(run_args.stop_at_return, preset, solved_by))
     runner, where = runner_module.configure(run_args, agent, preset)
     return _launch(runner_module, agent, remake, run_args.env, runner, where)

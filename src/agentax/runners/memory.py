@@ -48,12 +48,17 @@ def transition_shaped(lead: tuple[int, ...], spec: EnvSpec, action: Any, info: A
     )
 
 
+def a_key() -> jax.ShapeDtypeStruct:
+    """A random key, abstract (a concrete one would make jax's CPU client before the runner chose how)."""
+    return jax.eval_shape(lambda: jax.random.key(0))
+
+
 def learn_input(agent: Agent, spec: EnvSpec) -> tuple[Any, Any]:
     """``(state, experience)``, abstract: what one ``agent.learn`` call receives for its settings."""
-    state = jax.eval_shape(agent.init, jax.random.key(0))
+    state = jax.eval_shape(agent.init, a_key())
     experience = agent.experience
     obs = abstract((experience.num_envs, *spec.obs_shape), spec.obs_dtype)
-    action, info = jax.eval_shape(agent.act, state, obs, jax.random.key(0), jnp.int32(0))
+    action, info = jax.eval_shape(agent.act, state, obs, a_key(), abstract((), jnp.int32))
     one_action = abstract(
         action.shape[1:], jnp.float32 if jnp.issubdtype(action.dtype, jnp.floating) else jnp.int32
     )
@@ -95,7 +100,7 @@ def learning_bytes(agent: Agent, spec: EnvSpec) -> int:
     state, experience = learn_input(agent, spec)
     held = sum(nbytes(x) for x in jax.tree.leaves(experience))
     try:
-        closed = jax.make_jaxpr(agent.learn)(state, experience, jax.random.key(0))
+        closed = jax.make_jaxpr(agent.learn)(state, experience, a_key())
     except OverflowError:
         return held
     return held + activation_bytes(closed.jaxpr)
@@ -116,7 +121,11 @@ def sized_by(agent: Agent) -> tuple[str, int, str]:
 def check_learning_fits(agent: Agent, spec: EnvSpec, seeds: int = 1) -> None:
     """A ``UsageError`` naming the setting, the bytes and the memory available when one learning step
     needs more memory than this machine has: the setting that sizes it (one seed's step already too
-    big), else ``--seeds`` (the step of every seed vmapped side by side)."""
+    big), else ``--seeds`` (the step of every seed vmapped side by side).
+
+    ``agent`` as ``make_agent(spec, cfg)`` makes it, not with the runner's loop: that loop asks jax
+    for its backend while it traces, which would make jax's CPU client before the runner chose how
+    (:func:`agentax._xla.let_xla_use_every_cpu`); the memory is the same."""
     have = available_memory()
     if have is None:
         return
