@@ -338,6 +338,7 @@ def compiled_overhead() -> dict:
     from agentax.envs.core import episode_returns
     from agentax.runners import compiled
     from agentax.runners.rollout import SEED_AXIS
+    from agentax.runners.session import EVAL_KEY_OFFSET
     from agentax.runs import Run
 
     env, preset = make_jax(ENV_ID), presets.preset("ppo", "default")
@@ -364,7 +365,7 @@ def compiled_overhead() -> dict:
 
     def evaluate(state, evaluation):
         def one(state, seed):
-            key = jax.random.fold_in(jax.random.key(seed), compiled.EVAL_KEY_OFFSET + evaluation)
+            key = jax.random.fold_in(jax.random.key(seed), EVAL_KEY_OFFSET + evaluation)
             return episode_returns(env, algorithm.greedy_policy(state), key, runner.eval_episodes)
 
         return jax.vmap(one)(state, seeds)

@@ -42,6 +42,7 @@ RANKS: dict[str, int] = {
     "agentax.agents.protocol": 5,
     "agentax.replay": 5,
     "agentax.runs": 5,
+    "agentax.formats": 4,
     "agentax.curves": 5,
     "agentax.evaluate": 5,
     "agentax.render": 5,
@@ -52,6 +53,7 @@ RANKS: dict[str, int] = {
     "agentax.policies": 4,
     "agentax.envs": 3,
     "agentax.kernels": 3,
+    "agentax.kernel_choice": 3,
     "agentax.errors": 2,
     "agentax._xla": 2,
 }
@@ -68,6 +70,7 @@ MAY_IMPORT_XLA = (
     "agentax.runners",
     "agentax.cli",
     "agentax.kernels",
+    "agentax.kernel_choice",
 )
 """The platform's workarounds (the CPU hang's cure, the compilation cache, the written-out loop for
 XLA's convolutions) stay in the entry points, the runners and the kernels: no algorithm, env or

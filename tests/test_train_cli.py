@@ -19,7 +19,7 @@ from agentax.cli import main
 from agentax.envs import make_host_env, make_jax
 from agentax.envs.core import episode_returns
 from agentax.evaluate import host_episode_returns
-from agentax.runners.compiled import EVAL_KEY_OFFSET
+from agentax.runners.session import EVAL_KEY_OFFSET
 from agentax.runs import read_metrics
 
 

@@ -69,11 +69,11 @@ class NewerFormat(UsageError):
 def check_readable(version: int, where: Any) -> None:
     """One line, exit 2, for a folder or file of a newer format than this agentax reads."""
     if version > FORMAT:
-        from agentax import __version__
+        from importlib.metadata import version as installed
 
         raise NewerFormat(
             f"{where} was written in run-folder format {version}, by a newer agentax; this agentax "
-            f"({__version__}) reads formats 1 to {FORMAT}: upgrade agentax to load it"
+            f"({installed('agentax')}) reads formats 1 to {FORMAT}: upgrade agentax to load it"
         )
 
 

@@ -31,27 +31,25 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from agentax.agents.protocol import Agent, EnvSpec
 from agentax.curves import preload_plotting
 from agentax.envs import make_jax
-from agentax.envs.core import Environment, episode_returns
+from agentax.envs.core import Environment
 from agentax.errors import UsageError
 from agentax.policies import Policy
 from agentax.replay.frames import available_memory
 from agentax.runners import algorithm_of, programs, workers
 from agentax.runners.launch import agent_maker
-from agentax.runners.rollout import SEED_AXIS, Freeze, Program, program
+from agentax.runners.programs import CHUNK_COMPILER_OPTIONS, init_from_seeds
+from agentax.runners.rollout import Freeze, Program, program
 from agentax.runners.session import (
-    EVAL_KEY_OFFSET,
     SOLVED,
     TIMINGS,
     TrainResult,
@@ -60,13 +58,6 @@ from agentax.runners.session import (
     row_of,
 )
 from agentax.runs import Run, load_checkpoint
-
-INIT_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
-CHUNK_COMPILER_OPTIONS = {"xla_backend_optimization_level": 1}
-"""LLVM optimisation levels of the two programs (XLA's default is 3). The initialisation runs once:
-at level 0 PPO's compiles ~3x faster. The chunk runs over and over: at level 1 PPO's compiled in
-5.0 s instead of 6.3 s (8 seeds: 5.8 s instead of 7.8 s) and ran as fast (30 ms against 37 ms per
-chunk); at level 0 it ran 4x slower. Results can differ from level 3's in the last bits."""
 
 
 @dataclass(frozen=True)
@@ -179,45 +170,6 @@ def seeds_of(runner: RunnerConfig) -> np.ndarray:
     )
 
 
-def init_from_seeds(algorithm: Program) -> Callable[[jax.Array], Any]:
-    """``seeds [S] -> carry`` with a leading seed axis: ``algorithm.init(jax.random.key(seed))`` each."""
-    return jax.vmap(lambda seed: algorithm.init(jax.random.key(seed)), axis_name=SEED_AXIS)
-
-
-def make_chunk(algorithm: Program, env: Environment, updates_per_chunk: int, eval_episodes: int):
-    """``chunk(state, num_active, do_eval, seed_key, evaluation) -> (state, metrics, returns, lengths)``.
-
-    One seed's chunk: keeps ``num_active`` (≤ ``updates_per_chunk``) updates; ``metrics`` are their means; the
-    evaluation runs only if ``do_eval`` (else zeros), on episodes keyed by ``fold_in(seed_key,
-    EVAL_KEY_OFFSET + evaluation)``. Vmap it over seeds with ``in_axes=(0, None, None, 0, None)``
-    so the flags stay unbatched and the ``cond`` stays real.
-    """
-
-    def chunk(state, num_active, do_eval, seed_key, evaluation):
-        eval_key = jax.random.fold_in(seed_key, EVAL_KEY_OFFSET + evaluation)
-
-        def body(state, i):
-            new_state, metrics = algorithm.update(state)
-            keep = i < num_active  # unbatched: a select of whole arrays, no per-seed branching
-            return jax.tree.map(lambda new, old: jnp.where(keep, new, old), new_state, state), metrics
-
-        state, metrics = jax.lax.scan(body, state, jnp.arange(updates_per_chunk))
-        weight = (jnp.arange(updates_per_chunk) < num_active).astype(jnp.float32)
-        metrics = jax.tree.map(lambda m: (m * weight).sum() / jnp.maximum(weight.sum(), 1.0), metrics)
-
-        def evaluate(state):
-            returns, lengths = episode_returns(env, algorithm.greedy_policy(state), eval_key, eval_episodes)
-            return returns, lengths
-
-        def skip(state):
-            return jnp.zeros(eval_episodes, jnp.float32), jnp.zeros(eval_episodes, jnp.int32)
-
-        returns, lengths = jax.lax.cond(do_eval, evaluate, skip, state)
-        return state, metrics, returns, lengths
-
-    return chunk
-
-
 def _episode_means(stats_before, stats_after) -> np.ndarray:
     """Per seed: mean return of the episodes finished between two EpisodeStats (else their last returns)."""
     completed = np.asarray(stats_after.completed) - np.asarray(stats_before.completed)
@@ -226,54 +178,6 @@ def _episode_means(stats_before, stats_after) -> np.ndarray:
     ever = np.asarray(stats_after.completed) > 0
     fallback = np.where(ever, last, np.nan)
     return np.where(completed > 0, return_sum / np.maximum(completed, 1), fallback)
-
-
-def _programs(
-    algorithm: Program,
-    env: Environment,
-    runner: RunnerConfig,
-    seeds: np.ndarray,
-    description: dict[str, Any] | None,
-) -> tuple[Any, Callable, Callable]:
-    """``(shapes, init, chunk)``: the carry's shapes and the runner's two programs, vmapped over seeds.
-
-    Both take and give the Any as the flat list of its arrays (plain lists export, custom
-    pytree nodes do not): ``init(seeds) -> leaves`` and ``chunk(leaves, num_active, do_eval, seeds,
-    evaluation) -> (leaves, metrics, returns, lengths)``. With a ``description`` they come from
-    :mod:`agentax.runners.programs`, so a repeated run neither traces nor lowers them.
-    """
-    traced_init = jax.jit(init_from_seeds(algorithm)).trace(seeds)
-    shapes = traced_init.out_info
-    state_tree = jax.tree.structure(shapes)
-    chunk = jax.vmap(
-        make_chunk(algorithm, env, runner.updates_per_chunk, runner.eval_episodes),
-        in_axes=(0, None, None, 0, None),
-        axis_name=SEED_AXIS,
-    )
-
-    def flat_init(seeds):
-        return jax.tree.leaves(init_from_seeds(algorithm)(seeds))
-
-    def flat_chunk(leaves, num_active, do_eval, seeds, evaluation):
-        keys = jax.vmap(jax.random.key)(seeds)
-        state, metrics, returns, lengths = chunk(
-            jax.tree.unflatten(state_tree, leaves), num_active, do_eval, keys, evaluation
-        )
-        return jax.tree.leaves(state), metrics, returns, lengths
-
-    if description is None:
-        init = traced_init.lower().compile(INIT_COMPILER_OPTIONS)
-        return shapes, lambda seeds: jax.tree.leaves(init(seeds)), jax.jit(flat_chunk, donate_argnums=0)
-    shaping = {
-        **description,
-        "num_seeds": runner.num_seeds,
-        "updates_per_chunk": runner.updates_per_chunk,
-        "eval_episodes": runner.eval_episodes,
-    }
-    init = programs.jit(flat_init, (seeds,), {**shaping, "name": "init"})
-    init = init.lower(seeds).compile(INIT_COMPILER_OPTIONS)
-    example = (jax.tree.leaves(shapes), 0, True, seeds, 0)
-    return shapes, init, programs.jit(flat_chunk, example, {**shaping, "name": "chunk"}, donate_argnums=0)
 
 
 class ChunkSchedule(NamedTuple):
@@ -297,23 +201,13 @@ class ChunkSchedule(NamedTuple):
 
 @dataclass
 class Counts:
-    """Where a compiled training stands: what its checkpoints' meta holds."""
+    """Where a compiled training stands: what its checkpoints' meta holds (and ``elapsed``)."""
 
     updates: int
     evaluations: int
     env_steps: float
     solved_env_steps: float | None = None
     solved_seconds: float | None = None
-
-    def meta(self, elapsed: float) -> dict[str, Any]:
-        return {
-            "updates": self.updates,
-            "evaluations": self.evaluations,
-            "env_steps": self.env_steps,
-            "elapsed": elapsed,
-            "solved_env_steps": self.solved_env_steps,
-            "solved_seconds": self.solved_seconds,
-        }
 
 
 def train_program(
@@ -337,7 +231,7 @@ def train_program(
     """
     start = time.perf_counter()
     seeds = seeds_of(runner)
-    shapes, init_program, chunk_program = _programs(algorithm, env, runner, seeds, program_description)
+    shapes, init_program, chunk_program = programs.build(algorithm, env, runner, seeds, program_description)
     state_tree = jax.tree.structure(shapes)
     meta: dict[str, Any] = {"updates": 0, "evaluations": 0, "elapsed": 0.0}
     if resume:
@@ -421,9 +315,9 @@ def _chunks(call, state, stats, schedule: ChunkSchedule, runner: RunnerConfig, l
         if may_stop and min(map(np.mean, eval_returns)) >= runner.stop_at_return:
             state, final_eval, following = _confirmed(call, state, schedule, counts, chunks, runner, start)
         if not ahead:
-            solved = counts.solved_env_steps is not None
+            meta = {**asdict(counts), "elapsed": row["wall_seconds"]}
             logger.checkpoint(
-                counts.updates, state, counts.meta(row["wall_seconds"]), force=checkpoint or solved
+                counts.updates, state, meta, force=checkpoint or counts.solved_env_steps is not None
             )
             if following is not None:
                 in_flight = call(state, following)
@@ -500,7 +394,7 @@ def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[RunnerConfig, s
         stop_at_return=stop,
         freeze_at_return=_freeze(run_args.freeze_at_return, preset),
         freeze_episodes=run_args.freeze_episodes,
-        workers=run_args.workers or _default_workers(run_args.seeds, agent.total_steps, stop),
+        workers=run_args.workers or workers.default_for(run_args.seeds, agent.total_steps, stop),
         ray_address=run_args.ray_address,
     )
     check_fits(program_of(agent, make_jax(run_args.env), runner), runner)
@@ -509,7 +403,7 @@ def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[RunnerConfig, s
             "--ray-address sends the compiled runner's --workers to a Ray cluster: give --workers N "
             "(or --runner ray for the Ray runner's actors)"
         )
-    return runner, _where(runner, chosen=run_args.workers is None)
+    return runner, workers.announced(runner, chosen=run_args.workers is None)
 
 
 def _freeze(value: str, preset: Any) -> float | None:
@@ -517,23 +411,6 @@ def _freeze(value: str, preset: Any) -> float | None:
     if value == "none":
         return None
     return preset.freeze_at_return if value == "auto" else float(value)
-
-
-def _default_workers(seeds: int, total_steps: int, stop_at_return: float | None) -> int:
-    """Without ``--workers``: every core for a run of all its steps long enough to gain; one process
-    for a run that stops at a return (how long it runs is not known, and a split would stop each
-    worker on its own seeds' return)."""
-    return 1 if stop_at_return is not None else workers.default_count(seeds, seeds * total_steps)
-
-
-def _where(runner: RunnerConfig, chosen: bool) -> str:
-    """The line's words on the seeds and the processes; ``chosen``: by default, not by --workers."""
-    seeds = f"{runner.num_seeds} seed{'s' if runner.num_seeds > 1 else ''}"
-    if runner.workers == 1:
-        return seeds
-    count = len(workers.split(runner))
-    by_default = ", one per core; --workers 1 keeps one process" if chosen else ""
-    return f"{seeds} over {count} worker processes{by_default}"
 
 
 def train(

@@ -19,7 +19,6 @@ saved) from seeds that depend on how far the run had come.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,12 +30,11 @@ import numpy as np
 from agentax import _xla, kernels
 from agentax.agents.protocol import PRIORITY, Agent, Episodes, Loop, OffPolicy, OnPolicy
 from agentax.envs import make_host_env
-from agentax.errors import StorageFull, UsageError
+from agentax.errors import UsageError
 from agentax.evaluate import host_episode_returns
 from agentax.nets import is_image
 from agentax.policies import Policy, with_random_actions
 from agentax.replay import Transition, example_transition
-from agentax.replay.files import restore_replay, save_replay
 from agentax.replay.host import ReplayBuffer
 from agentax.runners.driver import (
     Driver,
@@ -48,8 +46,8 @@ from agentax.runners.driver import (
     first_time_step,
 )
 from agentax.runners.rollout import scalars
-from agentax.runners.session import Session, TrainResult, checkpoint_target
-from agentax.runs import CHECKPOINT_PREFIX, REPLAY_PREFIX, Run, checkpoints, load_checkpoint, replay_beside
+from agentax.runners.session import ReplayCheckpoints, Session, TrainResult, checkpoint_target
+from agentax.runs import Run, load_checkpoint
 
 
 @dataclass(frozen=True)
@@ -372,46 +370,6 @@ class Evaluator:
 
     def close(self) -> None:
         self.env.close()
-
-
-class ReplayCheckpoints:
-    """The replay buffer saved with the agent's checkpoints: ``checkpoints/replay-<updates>.npz``
-    beside ``ckpt-<updates>.msgpack``, compressed and written atomically (no pickle), with the first
-    checkpoint, then at most every ``every_seconds``, and whenever the run ends. It is written
-    *before* its checkpoint, which commits the pair (:func:`agentax.runs.replay_beside`); a resumed
-    run starts from the newest checkpoint that has its replay and loads exactly that one, never an
-    older or a missing replay in silence (users of SB3, RLlib and TF-Agents report learning
-    collapsing after a restore without the buffer). The two newest pairs are kept."""
-
-    KEEP = 2
-
-    def __init__(self, run: Run | None, replay: Any, enabled: bool, every_seconds: float):
-        self.run, self.replay = run, replay
-        self.enabled = enabled and run is not None
-        self.every_seconds, self.saved_at = every_seconds, None
-
-    def before_checkpoint(self, updates: int, force: bool) -> None:
-        """Save the replay of checkpoint ``updates`` when due (``force``: now); its checkpoint follows."""
-        first = self.saved_at is None  # the first checkpoint has its replay too (small then)
-        if not self.enabled or not (
-            force or first or time.perf_counter() - self.saved_at >= self.every_seconds
-        ):
-            return
-        checkpoint = self.run.path / "checkpoints" / f"{CHECKPOINT_PREFIX}{updates}.msgpack"
-        try:
-            save_replay(self.replay, replay_beside(checkpoint))
-        except StorageFull as full:
-            raise StorageFull(full.path, full.needed, self.run.last_complete()) from None
-        self.saved_at = time.perf_counter()
-        paired = {replay_beside(p) for p in checkpoints(self.run.path, with_replay=True)[-self.KEEP :]}
-        for old in (self.run.path / "checkpoints").glob(f"{REPLAY_PREFIX}*.npz"):
-            if old not in paired and old != replay_beside(checkpoint):
-                old.unlink(missing_ok=True)  # older pairs, and a replay whose checkpoint never came
-
-    def restore(self, checkpoint: Path) -> None:
-        """Load the replay saved with ``checkpoint`` (the one :func:`restore` resumed from), if any."""
-        if self.enabled and replay_beside(checkpoint).is_file():
-            restore_replay(self.replay, replay_beside(checkpoint))
 
 
 def train(

@@ -47,7 +47,6 @@ from agentax.runners.host import (
     Evaluator,
     HostRunnerConfig,
     OffPolicyLearner,
-    ReplayCheckpoints,
     actor_seed,
     collection_over,
     env_factory,
@@ -58,7 +57,7 @@ from agentax.runners.host import (
     refuse_seeds,
     replay_for,
 )
-from agentax.runners.session import Session, TrainResult
+from agentax.runners.session import ReplayCheckpoints, Session, TrainResult
 from agentax.runs import Run
 
 POLL_SECONDS = 0.05  # how often a blocked thread looks whether the run has stopped

@@ -1,4 +1,11 @@
-"""Lowered training programs kept on disk (``jax.export``), so a repeated run skips tracing too.
+"""The compiled runner's programs: built from an agent's program, and kept on disk.
+
+:func:`build` makes the two programs of a run, vmapped over seeds: ``init`` and the ``chunk`` that
+scans ``updates_per_chunk`` updates and then evaluates the greedy policy when asked (on keys of the
+evaluation-seed rule, :data:`agentax.runners.session.EVAL_KEY_OFFSET`), both taking and giving the
+carry as the flat list of its arrays.
+
+Lowered training programs are kept on disk (``jax.export``), so a repeated run skips tracing too.
 
 The persistent compilation cache (:mod:`agentax._xla`) lets a repeated run skip XLA's compile,
 but jax looks a compiled program up only after tracing the Python code and lowering it to
@@ -24,8 +31,21 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
+import numpy as np
 
 from agentax import _xla, kernels
+from agentax.envs.core import Environment, episode_returns
+from agentax.runners.rollout import SEED_AXIS, Program
+from agentax.runners.session import EVAL_KEY_OFFSET
+
+INIT_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
+CHUNK_COMPILER_OPTIONS = {"xla_backend_optimization_level": 1}
+"""LLVM optimisation levels of the two programs (XLA's default is 3). The initialisation runs once:
+at level 0 PPO's compiles ~3x faster. The chunk runs over and over: at level 1 PPO's compiled in
+5.0 s instead of 6.3 s (8 seeds: 5.8 s instead of 7.8 s) and ran as fast (30 ms against 37 ms per
+chunk); at level 0 it ran 4x slower. Results can differ from level 3's in the last bits."""
+
 
 KEEP = 256
 """Programs kept: past this many, the least recently used go (each is ~0.1-1 MB)."""
@@ -110,3 +130,90 @@ def _forget_oldest(directory: Path) -> None:
     stored = sorted(directory.glob("*.jaxexport"), key=lambda path: path.stat().st_mtime)
     for path in stored[:-KEEP]:
         path.unlink(missing_ok=True)
+
+
+def init_from_seeds(algorithm: Program) -> Callable[[jax.Array], Any]:
+    """``seeds [S] -> carry`` with a leading seed axis: ``algorithm.init(jax.random.key(seed))`` each."""
+    return jax.vmap(lambda seed: algorithm.init(jax.random.key(seed)), axis_name=SEED_AXIS)
+
+
+def make_chunk(algorithm: Program, env: Environment, updates_per_chunk: int, eval_episodes: int):
+    """``chunk(state, num_active, do_eval, seed_key, evaluation) -> (state, metrics, returns, lengths)``.
+
+    One seed's chunk: keeps ``num_active`` (≤ ``updates_per_chunk``) updates; ``metrics`` are their means; the
+    evaluation runs only if ``do_eval`` (else zeros), on episodes keyed by ``fold_in(seed_key,
+    EVAL_KEY_OFFSET + evaluation)``. Vmap it over seeds with ``in_axes=(0, None, None, 0, None)``
+    so the flags stay unbatched and the ``cond`` stays real.
+    """
+
+    def chunk(state, num_active, do_eval, seed_key, evaluation):
+        eval_key = jax.random.fold_in(seed_key, EVAL_KEY_OFFSET + evaluation)
+
+        def body(state, i):
+            new_state, metrics = algorithm.update(state)
+            keep = i < num_active  # unbatched: a select of whole arrays, no per-seed branching
+            return jax.tree.map(lambda new, old: jnp.where(keep, new, old), new_state, state), metrics
+
+        state, metrics = jax.lax.scan(body, state, jnp.arange(updates_per_chunk))
+        weight = (jnp.arange(updates_per_chunk) < num_active).astype(jnp.float32)
+        metrics = jax.tree.map(lambda m: (m * weight).sum() / jnp.maximum(weight.sum(), 1.0), metrics)
+
+        def evaluate(state):
+            returns, lengths = episode_returns(env, algorithm.greedy_policy(state), eval_key, eval_episodes)
+            return returns, lengths
+
+        def skip(state):
+            return jnp.zeros(eval_episodes, jnp.float32), jnp.zeros(eval_episodes, jnp.int32)
+
+        returns, lengths = jax.lax.cond(do_eval, evaluate, skip, state)
+        return state, metrics, returns, lengths
+
+    return chunk
+
+
+def build(
+    algorithm: Program,
+    env: Environment,
+    runner: Any,
+    seeds: np.ndarray,
+    description: dict[str, Any] | None,
+) -> tuple[Any, Callable, Callable]:
+    """``(shapes, init, chunk)``: the carry's shapes and the runner's two programs, vmapped over seeds.
+
+    Both take and give the Any as the flat list of its arrays (plain lists export, custom
+    pytree nodes do not): ``init(seeds) -> leaves`` and ``chunk(leaves, num_active, do_eval, seeds,
+    evaluation) -> (leaves, metrics, returns, lengths)``. With a ``description`` they come from
+    :mod:`agentax.runners.programs`, so a repeated run neither traces nor lowers them.
+    """
+    traced_init = jax.jit(init_from_seeds(algorithm)).trace(seeds)
+    shapes = traced_init.out_info
+    state_tree = jax.tree.structure(shapes)
+    chunk = jax.vmap(
+        make_chunk(algorithm, env, runner.updates_per_chunk, runner.eval_episodes),
+        in_axes=(0, None, None, 0, None),
+        axis_name=SEED_AXIS,
+    )
+
+    def flat_init(seeds):
+        return jax.tree.leaves(init_from_seeds(algorithm)(seeds))
+
+    def flat_chunk(leaves, num_active, do_eval, seeds, evaluation):
+        keys = jax.vmap(jax.random.key)(seeds)
+        state, metrics, returns, lengths = chunk(
+            jax.tree.unflatten(state_tree, leaves), num_active, do_eval, keys, evaluation
+        )
+        return jax.tree.leaves(state), metrics, returns, lengths
+
+    if description is None:
+        init = traced_init.lower().compile(INIT_COMPILER_OPTIONS)
+        return shapes, lambda seeds: jax.tree.leaves(init(seeds)), jax.jit(flat_chunk, donate_argnums=0)
+    shaping = {
+        **description,
+        "num_seeds": runner.num_seeds,
+        "updates_per_chunk": runner.updates_per_chunk,
+        "eval_episodes": runner.eval_episodes,
+    }
+    init = jit(flat_init, (seeds,), {**shaping, "name": "init"})
+    init = init.lower(seeds).compile(INIT_COMPILER_OPTIONS)
+    example = (jax.tree.leaves(shapes), 0, True, seeds, 0)
+    return shapes, init, jit(flat_chunk, example, {**shaping, "name": "chunk"}, donate_argnums=0)

@@ -15,15 +15,18 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import jax
 import numpy as np
 
 from agentax.agents.protocol import Agent
+from agentax.errors import StorageFull
 from agentax.policies import Policy
+from agentax.replay.files import restore_replay, save_replay
 from agentax.runners.logger import RunLogger, finish_run
-from agentax.runs import Run, load_checkpoint
+from agentax.runs import CHECKPOINT_PREFIX, REPLAY_PREFIX, Run, checkpoints, load_checkpoint, replay_beside
 
 EVAL_SEED_OFFSET = 123_457
 EVAL_KEY_OFFSET = 1_000_003
@@ -146,6 +149,46 @@ def conclude(run: Run | None, result: TrainResult, returns: Any, lengths: Any, *
         run, returns, lengths, env_steps=result.env_steps, updates=result.updates, **fields, **extra
     )
     return result
+
+
+class ReplayCheckpoints:
+    """The replay buffer saved with the agent's checkpoints: ``checkpoints/replay-<updates>.npz``
+    beside ``ckpt-<updates>.msgpack``, compressed and written atomically (no pickle), with the first
+    checkpoint, then at most every ``every_seconds``, and whenever the run ends. It is written
+    *before* its checkpoint, which commits the pair (:func:`agentax.runs.replay_beside`); a resumed
+    run starts from the newest checkpoint that has its replay and loads exactly that one, never an
+    older or a missing replay in silence (users of SB3, RLlib and TF-Agents report learning
+    collapsing after a restore without the buffer). The two newest pairs are kept."""
+
+    KEEP = 2
+
+    def __init__(self, run: Run | None, replay: Any, enabled: bool, every_seconds: float):
+        self.run, self.replay = run, replay
+        self.enabled = enabled and run is not None
+        self.every_seconds, self.saved_at = every_seconds, None
+
+    def before_checkpoint(self, updates: int, force: bool) -> None:
+        """Save the replay of checkpoint ``updates`` when due (``force``: now); its checkpoint follows."""
+        first = self.saved_at is None  # the first checkpoint has its replay too (small then)
+        if not self.enabled or not (
+            force or first or time.perf_counter() - self.saved_at >= self.every_seconds
+        ):
+            return
+        checkpoint = self.run.path / "checkpoints" / f"{CHECKPOINT_PREFIX}{updates}.msgpack"
+        try:
+            save_replay(self.replay, replay_beside(checkpoint))
+        except StorageFull as full:
+            raise StorageFull(full.path, full.needed, self.run.last_complete()) from None
+        self.saved_at = time.perf_counter()
+        paired = {replay_beside(p) for p in checkpoints(self.run.path, with_replay=True)[-self.KEEP :]}
+        for old in (self.run.path / "checkpoints").glob(f"{REPLAY_PREFIX}*.npz"):
+            if old not in paired and old != replay_beside(checkpoint):
+                old.unlink(missing_ok=True)  # older pairs, and a replay whose checkpoint never came
+
+    def restore(self, checkpoint: Path) -> None:
+        """Load the replay saved with ``checkpoint`` (the one :func:`restore` resumed from), if any."""
+        if self.enabled and replay_beside(checkpoint).is_file():
+            restore_replay(self.replay, replay_beside(checkpoint))
 
 
 class Session:

@@ -61,6 +61,23 @@ def default_count(jobs: int, agent_steps: int) -> int:
     return max(1, min(usable_cores(), jobs)) if agent_steps >= BREAK_EVEN_AGENT_STEPS else 1
 
 
+def default_for(seeds: int, total_steps: int, stop_at_return: float | None) -> int:
+    """Without ``--workers``: every core for a run of all its steps long enough to gain; one process
+    for a run that stops at a return (how long it runs is not known, and a split would stop each
+    worker on its own seeds' return)."""
+    return 1 if stop_at_return is not None else default_count(seeds, seeds * total_steps)
+
+
+def announced(runner: Any, chosen: bool) -> str:
+    """The line's words on the seeds and the processes; ``chosen``: by default, not by --workers."""
+    seeds = f"{runner.num_seeds} seed{'s' if runner.num_seeds > 1 else ''}"
+    if runner.workers == 1:
+        return seeds
+    count = len(split(runner))
+    by_default = ", one per core; --workers 1 keeps one process" if chosen else ""
+    return f"{seeds} over {count} worker processes{by_default}"
+
+
 def split(runner: Any) -> list[Any]:
     """The runner config of each worker: ``runner.workers`` contiguous slices of the seeds (as even
     as they divide; never more workers than seeds), each with ``workers=1``."""
@@ -332,6 +349,8 @@ def resume_or_restart(folder: Path, config: dict[str, Any], resume: bool = True)
 
 __all__ = [
     "FINAL_RETURNS",
+    "announced",
+    "default_for",
     "map_processes",
     "map_ray",
     "merge_rows",
