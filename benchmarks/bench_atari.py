@@ -733,9 +733,9 @@ def _on_policy_notes(runs: dict[str, dict[str, dict]]) -> str:
 
 
 def kernels_backend() -> str:
-    from agentax import kernels
+    from agentax import kernel_choice
 
-    return f"{kernels.mode()} → {kernels.backend()}"
+    return f"{kernel_choice.mode()} → {kernel_choice.backend()}"
 
 
 def _sb3_version() -> str:

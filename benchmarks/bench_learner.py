@@ -13,7 +13,7 @@ Rows, all measured in this run:
   beside the rest) and made on one CPU (the compiled runner's, the cure for the XLA CPU hang);
 - the same update in torch 2.13 (``.bench-venv``, a subprocess): float32 and bf16 autocast, both on
   oneDNN, channels-last, ``torch.set_num_threads`` = the CPUs this process may use;
-- ``AGENTAX_CONV=auto``'s choice, measured afresh in this run (``agentax.kernels.resolve``: its own
+- ``AGENTAX_CONV=auto``'s choice, measured afresh in this run (``agentax.kernel_choice.resolve``: its own
   process and timing, on the one-CPU client), against the fastest of the rows above;
 - one PQN learning iteration of the ``breakout-hour`` preset (Q(λ) targets over a 32 × 64 rollout,
   then 2 epochs × 16 minibatches of 128 through the Nature CNN with LayerNorm, RAdam), per backend,
@@ -148,31 +148,25 @@ def fastest(fn, args, repeats: int = REPEATS, loop: int = LOOP, carry: bool = Tr
 
 
 def traced_per_backend(make, backends=BACKENDS) -> dict:
-    """``{backend: (jitted fn, args, seconds of its first call)}``, each traced and compiled with
-    ``AGENTAX_CONV`` set to it."""
+    """``{backend: (jitted fn, args, seconds of its first call)}``, each built by ``make(backend)``
+    on that convolution backend, traced and compiled."""
     import jax
 
     from agentax import kernels
 
     fns = {}
-    previous = os.environ.get("AGENTAX_CONV")
     for backend in backends:
         if backend != "xla" and not kernels.available():
             continue
-        os.environ["AGENTAX_CONV"] = backend
-        fn, args = make()
+        fn, args = make(backend)
         fn = jax.jit(fn)
         start = time.perf_counter()
-        jax.block_until_ready(fn(*args))  # trace and compile now, under this backend
+        jax.block_until_ready(fn(*args))  # trace and compile now
         fns[backend] = (fn, args, time.perf_counter() - start)
-    if previous is None:
-        os.environ.pop("AGENTAX_CONV", None)
-    else:
-        os.environ["AGENTAX_CONV"] = previous
     return fns
 
 
-def dqn_case():
+def dqn_case(backend: str):
     import jax
     import jax.numpy as jnp
 
@@ -192,13 +186,13 @@ def dqn_case():
         num_steps=jnp.ones(BATCH, jnp.int32),
     )
     sample = ReplaySample(transition, jnp.zeros(BATCH, jnp.int32), jnp.ones(BATCH))
-    state = dqn.init(jax.random.key(0), frames[0][0], 4, cfg)
+    state = dqn.init(jax.random.key(0), frames[0][0], 4, cfg, backend)
     return dqn.make_learn(cfg), (state, sample)
 
 
-def pqn_case(written_out: bool):
-    """PQN's learning iteration, its SGD steps written out one after the other in the program or
-    in a ``jax.lax.scan``."""
+def pqn_case(written_out: bool, backend: str):
+    """PQN's learning iteration on ``backend``'s convolutions, its SGD steps written out one after
+    the other in the program or in a ``jax.lax.scan``."""
     import jax
     import jax.numpy as jnp
 
@@ -211,7 +205,7 @@ def pqn_case(written_out: bool):
 
     cfg = PQN_PRESETS["breakout-hour"].config
     spec = EnvSpec((4, 84, 84), Discrete(4), jnp.uint8)
-    net = pqn.q_network(cfg, spec)
+    net = pqn.q_network(cfg, spec, backend)
     steps, envs = cfg.num_steps, cfg.num_envs
     rng = np.random.default_rng(0)
     frames = [jnp.asarray(rng.integers(0, 256, (steps, envs, 4, 84, 84), dtype=np.uint8)) for _ in range(2)]
@@ -279,11 +273,11 @@ def auto_against_fastest(auto: dict, dqn_ms: dict) -> str:
 
 
 def run() -> dict:
-    from agentax import kernels
+    from agentax import kernel_choice, kernels
 
     flops = dqn_update_flops()
     dqn_ms = {client: dqn_update_ms_on(client) for client in CLIENTS}
-    auto = kernels.resolve(*kernels.candidates(), path=kernels.cache_path(), again=True)
+    auto = kernel_choice.resolve(*kernel_choice.candidates(), path=kernel_choice.cache_path(), again=True)
     torch, torch_why = torch_times()
     pqn = {}  # (loop, backend) → (ms, compile s); XLA's convolutions are too slow in a scan to time
     for loop, written_out, backends in (

@@ -1,5 +1,5 @@
 """agentax.kernels: oneDNN's convolutions and dense products, and their gradients, against XLA's, and
-the fallback.
+the fallback; agentax.kernel_choice: which backend ``AGENTAX_CONV`` and ``auto`` choose.
 
 Each comparison is against ``lax.conv_general_dilated`` or ``jnp.matmul`` on the same random arrays:
 float32 to ``rtol=1e-4`` (oneDNN sums in another order; the sums are over up to 3,136 products),
@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from agentax import kernels
+from agentax import kernel_choice, kernels
 from agentax.errors import UsageError
 from agentax.nets import NatureCNN
 
@@ -43,11 +43,11 @@ def arrays(shape, size, out, seed=0):
     return x, w, dy_key
 
 
-def value_and_grads(x, w, dy_key, stride):
-    """The convolution, and the gradients of ``sum(conv * r)`` for a fixed random ``r``."""
+def value_and_grads(x, w, dy_key, stride, backend):
+    """The convolution on ``backend``, and the gradients of ``sum(conv * r)`` for a fixed random ``r``."""
 
     def loss(x, w):
-        y = kernels.conv2d(x, w, (stride, stride))
+        y = kernels.conv2d(x, w, (stride, stride), backend)
         return jnp.sum(y * jax.random.normal(dy_key, y.shape)), y
 
     (_, y), (dx, dw) = jax.jit(jax.value_and_grad(loss, argnums=(0, 1), has_aux=True))(x, w)
@@ -66,13 +66,11 @@ def assert_close(actual, desired, bf16):
 @needs_kernel
 @pytest.mark.parametrize("bf16", [False, True], ids=["f32", "bf16"])
 @pytest.mark.parametrize("layer", NATURE_LAYERS, ids=["conv1", "conv2", "conv3"])
-def test_forward_and_both_gradients_match_xla(monkeypatch, layer, bf16):
+def test_forward_and_both_gradients_match_xla(layer, bf16):
     shape, size, out, stride = layer
     x, w, dy_key = arrays(shape, size, out)
-    monkeypatch.setenv("AGENTAX_CONV", "xla")
-    expected = value_and_grads(x, w, dy_key, stride)
-    monkeypatch.setenv("AGENTAX_CONV", "onednn-bf16" if bf16 else "onednn")
-    actual = value_and_grads(x, w, dy_key, stride)
+    expected = value_and_grads(x, w, dy_key, stride, "xla")
+    actual = value_and_grads(x, w, dy_key, stride, "onednn-bf16" if bf16 else "onednn")
     assert actual[0].shape == expected[0].shape == (shape[0], *actual[0].shape[1:3], out)
     for a, e in zip(actual, expected, strict=True):
         assert a.dtype == e.dtype == jnp.float32
@@ -80,20 +78,19 @@ def test_forward_and_both_gradients_match_xla(monkeypatch, layer, bf16):
 
 
 @needs_kernel
-def test_the_ffi_call_is_in_the_program(monkeypatch):
+def test_the_ffi_call_is_in_the_program():
     """The oneDNN path really runs oneDNN (else the comparisons above could not fail)."""
     x, w, _ = arrays((2, 9, 9, 64), 3, 64)
-    monkeypatch.setenv("AGENTAX_CONV", "onednn")
-    loss = jax.value_and_grad(lambda x, w: kernels.conv2d(x, w, (1, 1)).sum(), (0, 1))
+    loss = jax.value_and_grad(lambda x, w: kernels.conv2d(x, w, (1, 1), "onednn").sum(), (0, 1))
     text = jax.jit(loss).lower(x, w).as_text()
     assert all(target in text for target in kernels.TARGETS if "conv" in target)
-    monkeypatch.setenv("AGENTAX_CONV", "xla")
-    assert "agentax_conv" not in jax.jit(lambda x, w: kernels.conv2d(x, w, (1, 1))).lower(x, w).as_text()
+    xla = jax.jit(lambda x, w: kernels.conv2d(x, w, (1, 1), "xla"))
+    assert "agentax_conv" not in xla.lower(x, w).as_text()
 
 
 @needs_kernel
 @pytest.mark.parametrize("shared_weights", [True, False], ids=["shared-weights", "weights-per-seed"])
-def test_vmapped_over_seeds(monkeypatch, shared_weights):
+def test_vmapped_over_seeds(shared_weights):
     """vmap over 3 seeds: weights shared (the batch folds into N) or one set per seed (one
     convolution per seed), forward and gradients equal to XLA's."""
     shape, size, out, stride = NATURE_LAYERS[1]
@@ -101,43 +98,42 @@ def test_vmapped_over_seeds(monkeypatch, shared_weights):
     if not shared_weights:
         w = jax.random.normal(dy_key, (3, size, size, shape[-1], out)) / np.sqrt(size * size * shape[-1])
 
-    def run():
+    def run(backend):
         w_axis = None if shared_weights else 0
-        return jax.vmap(lambda x, w: value_and_grads(x, w, dy_key, stride), in_axes=(0, w_axis))(x, w)
+        return jax.vmap(lambda x, w: value_and_grads(x, w, dy_key, stride, backend), in_axes=(0, w_axis))(
+            x, w
+        )
 
-    monkeypatch.setenv("AGENTAX_CONV", "xla")
-    expected = run()
-    monkeypatch.setenv("AGENTAX_CONV", "onednn")
-    actual = run()
+    expected = run("xla")
+    actual = run("onednn")
     for a, e in zip(actual, expected, strict=True):
         assert a.shape == e.shape
         assert_close(a, e, bf16=False)
 
 
 @needs_kernel
-def test_under_scan_with_donation(monkeypatch):
+def test_under_scan_with_donation():
     """SGD steps on one convolution under lax.scan, the parameters donated: as with XLA's."""
     shape, size, out, stride = NATURE_LAYERS[2]
     x, w, _ = arrays(shape, size, out)
 
-    def train(w):
+    def train(w, backend):
         def step(w, _):
-            grad = jax.grad(lambda w: jnp.mean(kernels.conv2d(x, w, (stride, stride)) ** 2))(w)
+            grad = jax.grad(lambda w: jnp.mean(kernels.conv2d(x, w, (stride, stride), backend) ** 2))(w)
             return w - 0.1 * grad, None
 
         return jax.lax.scan(step, w, None, length=3)[0]
 
-    monkeypatch.setenv("AGENTAX_CONV", "xla")
-    expected = jax.jit(train, donate_argnums=0)(jnp.copy(w))
-    monkeypatch.setenv("AGENTAX_CONV", "onednn")
-    assert_close(jax.jit(train, donate_argnums=0)(jnp.copy(w)), expected, bf16=False)
+    expected = jax.jit(train, donate_argnums=0, static_argnums=1)(jnp.copy(w), "xla")
+    actual = jax.jit(train, donate_argnums=0, static_argnums=1)(jnp.copy(w), "onednn")
+    assert_close(actual, expected, bf16=False)
 
 
-def dense_value_and_grads(x, w, seed=2):
-    """The dense product, and the gradients of ``sum(x @ w * r)`` for a fixed random ``r``."""
+def dense_value_and_grads(x, w, backend, seed=2):
+    """The dense product on ``backend``, and the gradients of ``sum(x @ w * r)`` for a fixed random ``r``."""
 
     def loss(x, w):
-        y = kernels.dense(x, w)
+        y = kernels.dense(x, w, backend)
         return jnp.sum(y * jax.random.normal(jax.random.key(seed), y.shape)), y
 
     (_, y), (dx, dw) = jax.jit(jax.value_and_grad(loss, argnums=(0, 1), has_aux=True))(x, w)
@@ -147,17 +143,16 @@ def dense_value_and_grads(x, w, seed=2):
 @needs_kernel
 @pytest.mark.parametrize("bf16", [False, True], ids=["f32", "bf16"])
 @pytest.mark.parametrize("batch_shape", [(32,), (4, 8)], ids=["batch", "steps-and-envs"])
-def test_the_dense_product_and_both_gradients_match_xla(monkeypatch, batch_shape, bf16):
+def test_the_dense_product_and_both_gradients_match_xla(batch_shape, bf16):
     """The Nature CNN's dense layer (3136 -> 512), on one batch axis or two (a rollout's)."""
     x_key, w_key = jax.random.split(jax.random.key(3))
     x = jax.random.normal(x_key, (*batch_shape, 3136))
     w = jax.random.normal(w_key, (3136, 512)) / np.sqrt(3136)
-    monkeypatch.setenv("AGENTAX_CONV", "xla")
-    expected = dense_value_and_grads(x, w)
-    monkeypatch.setenv("AGENTAX_CONV", "onednn-bf16" if bf16 else "onednn")
-    text = jax.jit(kernels.dense).lower(x, w).as_text()
+    backend = "onednn-bf16" if bf16 else "onednn"
+    expected = dense_value_and_grads(x, w, "xla")
+    text = jax.jit(lambda x, w: kernels.dense(x, w, backend)).lower(x, w).as_text()
     assert "agentax_matmul" in text  # oneDNN really runs, else the comparison could not fail
-    actual = dense_value_and_grads(x, w)
+    actual = dense_value_and_grads(x, w, backend)
     for a, e in zip(actual, expected, strict=True):
         assert a.shape == e.shape and a.dtype == jnp.float32
         assert_close(a, e, bf16)
@@ -165,53 +160,52 @@ def test_the_dense_product_and_both_gradients_match_xla(monkeypatch, batch_shape
 
 @needs_kernel
 @pytest.mark.parametrize("shared_weights", [True, False], ids=["shared-weights", "weights-per-seed"])
-def test_the_dense_product_vmapped_over_seeds(monkeypatch, shared_weights):
+def test_the_dense_product_vmapped_over_seeds(shared_weights):
     x_key, w_key = jax.random.split(jax.random.key(4))
     x = jax.random.normal(x_key, (3, 16, 256))
     w = jax.random.normal(w_key, (256, 64) if shared_weights else (3, 256, 64)) / 16.0
 
-    def run():
-        return jax.vmap(dense_value_and_grads, in_axes=(0, None if shared_weights else 0))(x, w)
+    def run(backend):
+        one = lambda x, w: dense_value_and_grads(x, w, backend)  # noqa: E731
+        return jax.vmap(one, in_axes=(0, None if shared_weights else 0))(x, w)
 
-    monkeypatch.setenv("AGENTAX_CONV", "xla")
-    expected = run()
-    monkeypatch.setenv("AGENTAX_CONV", "onednn")
-    for a, e in zip(run(), expected, strict=True):
+    expected = run("xla")
+    for a, e in zip(run("onednn"), expected, strict=True):
         assert a.shape == e.shape
         assert_close(a, e, bf16=False)
 
 
-def test_xla_mode_is_xlas_dense_product_exactly_and_other_products_pass_through(monkeypatch):
+def test_xla_mode_is_xlas_dense_product_exactly_and_other_products_pass_through():
     x, w = jax.random.normal(jax.random.key(5), (8, 64)), jax.random.normal(jax.random.key(6), (64, 16))
-    monkeypatch.setenv("AGENTAX_CONV", "xla")
-    np.testing.assert_array_equal(kernels.dense(x, w), x @ w)
-    monkeypatch.setenv("AGENTAX_CONV", "onednn")
+    np.testing.assert_array_equal(kernels.dense(x, w, "xla"), x @ w)
     numbers = (((1,), (0,)), ((), ()))
-    program = jax.jit(lambda x, w: kernels.dot_general(x, w, numbers, precision=jax.lax.Precision.HIGHEST))
+    dot = kernels.dot_general_with("onednn")
+    program = jax.jit(lambda x, w: dot(x, w, numbers, precision=jax.lax.Precision.HIGHEST))
     assert "agentax_matmul" not in program.lower(x, w).as_text()  # not a plain dense product: XLA's
 
 
-def test_xla_mode_is_xlas_convolution_exactly(monkeypatch):
-    monkeypatch.setenv("AGENTAX_CONV", "xla")
+def test_xla_mode_is_xlas_convolution_exactly():
     x, w, _ = arrays((2, 20, 20, 32), 4, 64)
     direct = jax.lax.conv_general_dilated(x, w, (2, 2), "VALID", dimension_numbers=("NHWC", "HWIO", "NHWC"))
-    np.testing.assert_array_equal(kernels.conv2d(x, w, (2, 2)), direct)
+    np.testing.assert_array_equal(kernels.conv2d(x, w, (2, 2), "xla"), direct)
 
 
 def test_a_missing_library_falls_back_to_xla_exactly(monkeypatch, tmp_path):
-    """``auto`` without the library is XLA's convolution bit for bit; ``onednn`` says what is missing."""
+    """``auto`` without the library is XLA's convolution bit for bit; ``onednn`` says what is missing,
+    whether asked for by ``AGENTAX_CONV`` or handed to a network."""
     monkeypatch.setattr(kernels, "_load", lambda: (None, f"{tmp_path}/none.so is missing"))
+    monkeypatch.setattr(kernel_choice, "_resolved", {})
     monkeypatch.setenv("AGENTAX_CONV", "auto")
-    assert kernels.backend() == "xla"
+    assert kernel_choice.backend_for((4, 84, 84)) == "xla"
     frames = jax.random.randint(jax.random.key(1), (2, 4, 84, 84), 0, 256).astype(jnp.uint8)
-    net = NatureCNN()
-    params = net.init(jax.random.key(0), frames)
-    fallback = net.apply(params, frames)
-    monkeypatch.setenv("AGENTAX_CONV", "xla")
-    np.testing.assert_array_equal(fallback, net.apply(params, frames))
+    params = NatureCNN().init(jax.random.key(0), frames)
+    fallback = NatureCNN(conv=kernel_choice.backend_for((4, 84, 84))).apply(params, frames)
+    np.testing.assert_array_equal(fallback, NatureCNN(conv="xla").apply(params, frames))
     monkeypatch.setenv("AGENTAX_CONV", "onednn")
     with pytest.raises(UsageError, match="none.so is missing"):
-        kernels.backend()
+        kernel_choice.backend()
+    with pytest.raises(UsageError, match="none.so is missing"):
+        NatureCNN(conv="onednn").apply(params, frames)
 
 
 REPO = Path(__file__).resolve().parents[1]
@@ -294,8 +288,8 @@ def never(runnable, batch):
 def on_the_cpu(monkeypatch):
     """No accelerator expected, no choice remembered from an earlier test, measuring allowed (the
     suite turns it off: conftest.py), into a file of the test's own."""
-    monkeypatch.setattr(kernels._xla, "_accelerator_expected", lambda: False)
-    monkeypatch.setattr(kernels, "_resolved", {})
+    monkeypatch.setattr(kernel_choice._xla, "_accelerator_expected", lambda: False)
+    monkeypatch.setattr(kernel_choice, "_resolved", {})
     monkeypatch.setenv("AGENTAX_KERNELS_MEASURE", "1")
 
 
@@ -309,25 +303,25 @@ def on_the_cpu(monkeypatch):
 )
 def test_auto_takes_the_fastest_measured(on_the_cpu, tmp_path, ms, chosen):
     timer = FakeTimer(ms)
-    got = kernels.resolve(ALL, {}, timer=timer, path=tmp_path / "kernels.json", cpu=ZEN4)
+    got = kernel_choice.resolve(ALL, {}, timer=timer, path=tmp_path / "kernels.json", cpu=ZEN4)
     assert (got["backend"], got["source"], got["ms"]) == (chosen, "measured", ms)
-    assert timer.calls == [(ALL, kernels.CHOICE_BATCH)]
+    assert timer.calls == [(ALL, kernel_choice.CHOICE_BATCH)]
 
 
 def test_a_kept_choice_is_reused_and_another_cpu_measures_again(on_the_cpu, tmp_path):
     path = tmp_path / "kernels.json"
-    first = kernels.resolve(ALL, {}, timer=FakeTimer(ZEN4_MS), path=path, cpu=ZEN4)
-    kept = kernels.resolve(ALL, {}, timer=never, path=path, cpu=ZEN4)
+    first = kernel_choice.resolve(ALL, {}, timer=FakeTimer(ZEN4_MS), path=path, cpu=ZEN4)
+    kept = kernel_choice.resolve(ALL, {}, timer=never, path=path, cpu=ZEN4)
     assert (kept["backend"], kept["ms"], kept["source"]) == (first["backend"], ZEN4_MS, "kept")
     xeon_ms = {"xla": 30.2, "onednn": 18.5, "onednn-bf16": 11.3}
     for cpu in [("Intel Xeon Platinum 8481C", ZEN4[1]), ("AMD EPYC", ZEN4[1] | {"amx_bf16"})]:
         timer = FakeTimer(xeon_ms)  # another name, or the same name with other flags
-        assert kernels.resolve(ALL, {}, timer=timer, path=path, cpu=cpu)["source"] == "measured"
+        assert kernel_choice.resolve(ALL, {}, timer=timer, path=path, cpu=cpu)["source"] == "measured"
         assert timer.calls
     assert len(json.loads(path.read_text())["choices"]) == 3  # each machine's choice kept
-    assert kernels.resolve(ALL, {}, timer=never, path=path, cpu=ZEN4)["backend"] == "onednn-bf16"
+    assert kernel_choice.resolve(ALL, {}, timer=never, path=path, cpu=ZEN4)["backend"] == "onednn-bf16"
     again = FakeTimer({"xla": 5.0, "onednn": 28.6})
-    assert kernels.resolve(ALL, {}, timer=again, path=path, cpu=ZEN4, again=True)["backend"] == "xla"
+    assert kernel_choice.resolve(ALL, {}, timer=again, path=path, cpu=ZEN4, again=True)["backend"] == "xla"
 
 
 def test_a_rebuilt_library_measures_again(on_the_cpu, monkeypatch, tmp_path):
@@ -335,10 +329,10 @@ def test_a_rebuilt_library_measures_again(on_the_cpu, monkeypatch, tmp_path):
     library.write_bytes(b"built once")
     monkeypatch.setenv("AGENTAX_ONEDNN_LIB", str(library))
     path = tmp_path / "kernels.json"
-    kernels.resolve(ALL, {}, timer=FakeTimer(ZEN4_MS), path=path, cpu=ZEN4)
+    kernel_choice.resolve(ALL, {}, timer=FakeTimer(ZEN4_MS), path=path, cpu=ZEN4)
     os.utime(library, ns=(0, 10**18))
     timer = FakeTimer(ZEN4_MS)
-    assert kernels.resolve(ALL, {}, timer=timer, path=path, cpu=ZEN4)["source"] == "measured"
+    assert kernel_choice.resolve(ALL, {}, timer=timer, path=path, cpu=ZEN4)["source"] == "measured"
 
 
 @pytest.mark.parametrize(
@@ -364,10 +358,10 @@ def test_a_rebuilt_library_measures_again(on_the_cpu, monkeypatch, tmp_path):
 )
 def test_a_corrupt_cache_is_ignored_and_rewritten(on_the_cpu, tmp_path, kept):
     path = tmp_path / "kernels.json"
-    key = kernels.choice_key(kernels.choice_fields(ZEN4))
+    key = kernel_choice.choice_key(kernel_choice.choice_fields(ZEN4))
     path.write_bytes(kept.replace(b"KEY", key.encode()))
     timer = FakeTimer(ZEN4_MS)
-    got = kernels.resolve(ALL, {}, timer=timer, path=path, cpu=ZEN4)
+    got = kernel_choice.resolve(ALL, {}, timer=timer, path=path, cpu=ZEN4)
     assert got["source"] == "measured" and timer.calls
     assert json.loads(path.read_text())["choices"][key]["backend"] == "onednn-bf16"
     assert sorted(p.name for p in tmp_path.iterdir()) == [
@@ -380,39 +374,39 @@ def test_a_corrupt_cache_is_ignored_and_rewritten(on_the_cpu, tmp_path, kept):
 def test_nothing_timed_takes_the_cpu_flags_choice(on_the_cpu, tmp_path, flags, chosen):
     """A measuring process that failed or hung: bfloat16 where the CPU has its arithmetic."""
     timer = FakeTimer({}, {name: "no result in 180 s" for name in ALL})
-    got = kernels.resolve(ALL, {}, timer=timer, path=tmp_path / "kernels.json", cpu=("AMD EPYC", flags))
+    got = kernel_choice.resolve(ALL, {}, timer=timer, path=tmp_path / "kernels.json", cpu=("AMD EPYC", flags))
     assert got["backend"] == chosen and "nothing could be timed" in got["why"]
 
 
 def test_without_the_library_or_off_x86_auto_is_xla_unmeasured(on_the_cpu, monkeypatch, tmp_path):
     monkeypatch.setenv("AGENTAX_CONV", "auto")
     monkeypatch.setenv("AGENTAX_KERNELS_CACHE", str(tmp_path / "kernels.json"))
-    monkeypatch.setattr(kernels, "measure", never)
+    monkeypatch.setattr(kernel_choice, "measure", never)
     monkeypatch.setattr(kernels, "_load", lambda: (None, "none.so is missing"))
-    assert kernels.candidates() == (
+    assert kernel_choice.candidates() == (
         ["xla"],
         {"onednn": "none.so is missing", "onednn-bf16": "none.so is missing"},
     )
-    assert kernels.backend() == "xla" and "none.so is missing" in kernels.choice()["why"]
+    assert kernel_choice.backend() == "xla" and "none.so is missing" in kernel_choice.choice()["why"]
     monkeypatch.setattr(kernels, "_load", lambda: (object(), ""))
-    monkeypatch.setattr(kernels.platform, "machine", lambda: "aarch64")
-    assert kernels.candidates()[0] == ["xla"]
-    assert kernels.backend() == "xla" and "not an x86-64 CPU (aarch64)" in kernels.choice()["why"]
+    monkeypatch.setattr(kernel_choice.platform, "machine", lambda: "aarch64")
+    assert kernel_choice.candidates()[0] == ["xla"]
+    assert kernel_choice.backend() == "xla" and "not an x86-64 CPU (aarch64)" in kernel_choice.choice()["why"]
     assert not (tmp_path / "kernels.json").exists()
 
 
 def test_on_an_accelerator_auto_is_xla_unmeasured(monkeypatch, tmp_path):
-    monkeypatch.setattr(kernels._xla, "_accelerator_expected", lambda: True)
-    got = kernels.resolve(ALL, {}, timer=never, path=tmp_path / "kernels.json", cpu=ZEN4)
+    monkeypatch.setattr(kernel_choice._xla, "_accelerator_expected", lambda: True)
+    got = kernel_choice.resolve(ALL, {}, timer=never, path=tmp_path / "kernels.json", cpu=ZEN4)
     assert got["backend"] == "xla" and "accelerator" in got["why"]
 
 
 @pytest.mark.parametrize(("loads", "bf16", "runnable"), [(True, True, ALL), (True, False, ALL[:2])])
 def test_the_candidates_are_what_loads_and_runs_here(monkeypatch, loads, bf16, runnable):
-    monkeypatch.setattr(kernels.platform, "machine", lambda: "x86_64")
+    monkeypatch.setattr(kernel_choice.platform, "machine", lambda: "x86_64")
     monkeypatch.setattr(kernels, "_load", lambda: (object(), ""))
-    monkeypatch.setattr(kernels, "bf16_runs", lambda: bf16)
-    assert kernels.candidates()[0] == runnable
+    monkeypatch.setattr(kernel_choice, "bf16_runs", lambda: bf16)
+    assert kernel_choice.candidates()[0] == runnable
 
 
 def test_a_program_without_convolutions_is_named_without_measuring(on_the_cpu, monkeypatch, tmp_path):
@@ -422,34 +416,45 @@ def test_a_program_without_convolutions_is_named_without_measuring(on_the_cpu, m
     path = tmp_path / "kernels.json"
     monkeypatch.setenv("AGENTAX_CONV", "auto")
     monkeypatch.setenv("AGENTAX_KERNELS_CACHE", str(path))
-    monkeypatch.setattr(kernels, "candidates", lambda: (ALL, {}))
-    monkeypatch.setattr(kernels, "cpu_info", lambda: ZEN4)
-    monkeypatch.setattr(kernels, "measure", never)
-    assert kernels.known_backend() == "auto, unmeasured"
+    monkeypatch.setattr(kernel_choice, "candidates", lambda: (ALL, {}))
+    monkeypatch.setattr(kernel_choice, "cpu_info", lambda: ZEN4)
+    monkeypatch.setattr(kernel_choice, "measure", never)
+    assert kernel_choice.known_backend() == "auto, unmeasured"
     monkeypatch.setenv("AGENTAX_KERNELS_MEASURE", "0")
-    assert kernels.known_backend() == kernels.backend() == "onednn-bf16"  # avx512_bf16: the flags'
-    assert kernels.choice()["source"] == "unmeasured" and not path.exists()
-    kernels.resolve(ALL, {}, timer=FakeTimer({"xla": 1.0, "onednn": 2.0}), path=path, cpu=ZEN4)
-    monkeypatch.setattr(kernels, "_resolved", {})
-    assert kernels.known_backend() == kernels.backend() == "xla"  # the kept choice
+    assert (
+        kernel_choice.known_backend() == kernel_choice.backend() == "onednn-bf16"
+    )  # avx512_bf16: the flags'
+    assert kernel_choice.choice()["source"] == "unmeasured" and not path.exists()
+    kernel_choice.resolve(ALL, {}, timer=FakeTimer({"xla": 1.0, "onednn": 2.0}), path=path, cpu=ZEN4)
+    monkeypatch.setattr(kernel_choice, "_resolved", {})
+    assert kernel_choice.known_backend() == kernel_choice.backend() == "xla"  # the kept choice
     monkeypatch.setenv("AGENTAX_CONV", "onednn")
-    assert kernels.known_backend() == "onednn"
+    assert kernel_choice.known_backend() == "onednn"
 
 
 @needs_kernel
-def test_auto_traces_the_chosen_backend_deciding_inside_the_trace(on_the_cpu, monkeypatch, tmp_path):
-    """The first ``backend()`` of a process may come while a program is traced: the choice is made
-    then (by another process, here a fake one) and the program holds the chosen kernel."""
+def test_the_entry_points_choice_is_what_the_network_runs(on_the_cpu, monkeypatch, tmp_path):
+    """``backend_for`` chooses before anything is traced (measuring, here a fake, once a process)
+    and the network handed its choice holds that kernel; tracing reads no environment and measures
+    nothing; flat observations choose ``xla`` without measuring."""
     monkeypatch.setenv("AGENTAX_CONV", "auto")
     monkeypatch.setenv("AGENTAX_KERNELS_CACHE", str(tmp_path / "kernels.json"))
-    x, w, _ = arrays((2, 9, 9, 64), 3, 64)
+    frames = jnp.zeros((2, 4, 84, 84), jnp.uint8)
+    params = NatureCNN().init(jax.random.key(0), frames)
     for ms, in_program in [({"xla": 1.0, "onednn": 2.0}, False), ({"xla": 2.0, "onednn": 1.0}, True)]:
-        monkeypatch.setattr(kernels, "_resolved", {})
-        monkeypatch.setattr(kernels, "measure", FakeTimer(ms))
-        kernels.choice(again=True)  # the fake's timings, not the kept ones
-        monkeypatch.setattr(kernels, "_resolved", {})
-        text = jax.jit(lambda x, w: kernels.conv2d(x, w, (1, 1))).lower(x, w).as_text()
+        monkeypatch.setattr(kernel_choice, "_resolved", {})
+        timer = FakeTimer(ms)
+        monkeypatch.setattr(kernel_choice, "measure", timer)
+        kernel_choice.choice(again=True)  # the fake's timings, not the kept ones
+        conv = kernel_choice.backend_for((4, 84, 84))
+        assert kernel_choice.backend_for((4, 84, 84)) == conv and len(timer.calls) == 1  # once
+        monkeypatch.setattr(kernel_choice, "measure", never)
+        monkeypatch.setenv("AGENTAX_CONV", "cudnn")  # read by no trace
+        text = jax.jit(NatureCNN(conv=conv).apply).lower(params, frames).as_text()
         assert ("agentax_conv_fwd" in text) == in_program
+        monkeypatch.setenv("AGENTAX_CONV", "auto")
+    monkeypatch.setenv("AGENTAX_CONV", "onednn")
+    assert kernel_choice.backend_for((8,)) == "xla"
 
 
 def test_agentax_kernels_shows_the_cpu_the_timings_the_choice_and_the_file(
@@ -460,10 +465,10 @@ def test_agentax_kernels_shows_the_cpu_the_timings_the_choice_and_the_file(
     path = tmp_path / "kernels.json"
     monkeypatch.setenv("AGENTAX_CONV", "auto")
     monkeypatch.setenv("AGENTAX_KERNELS_CACHE", str(path))
-    monkeypatch.setattr(kernels, "candidates", lambda: (ALL, {}))
-    monkeypatch.setattr(kernels, "cpu_info", lambda: ZEN4)
+    monkeypatch.setattr(kernel_choice, "candidates", lambda: (ALL, {}))
+    monkeypatch.setattr(kernel_choice, "cpu_info", lambda: ZEN4)
     timer = FakeTimer(ZEN4_MS)
-    monkeypatch.setattr(kernels, "measure", timer)
+    monkeypatch.setattr(kernel_choice, "measure", timer)
     assert main(["kernels"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[0] == "CPU: AMD EPYC (bfloat16 flags: avx512_bf16)"
@@ -474,7 +479,7 @@ def test_agentax_kernels_shows_the_cpu_the_timings_the_choice_and_the_file(
         ["onednn-bf16", "19.00", "<-", "chosen"],
     ]
     assert lines[-1].startswith("measured now (") and lines[-1].endswith(f"kept in {path}")
-    monkeypatch.setattr(kernels, "_resolved", {})
+    monkeypatch.setattr(kernel_choice, "_resolved", {})
     assert main(["kernels", "--json"]) == 0
     about = json.loads(capsys.readouterr().out)
     assert (about["backend"], about["ms"], about["source"], about["cache"]) == (
@@ -490,8 +495,8 @@ def test_agentax_kernels_shows_the_cpu_the_timings_the_choice_and_the_file(
 @needs_kernel
 def test_the_measuring_process_times_every_candidate_here():
     """The real measurement (~10-20 s on 2 cores): a positive time for each candidate, no errors."""
-    runnable = kernels.candidates()[0]
-    ms, errors = kernels.measure(runnable)
+    runnable = kernel_choice.candidates()[0]
+    ms, errors = kernel_choice.measure(runnable)
     assert errors == {} and sorted(ms) == sorted(runnable)
     assert all(0 < t < 10_000 for t in ms.values())
 
@@ -512,7 +517,7 @@ def test_a_bad_thread_count_is_one_clear_error(monkeypatch):
 def test_an_unknown_mode_is_an_error(monkeypatch):
     monkeypatch.setenv("AGENTAX_CONV", "cudnn")
     with pytest.raises(UsageError, match="auto, xla, onednn, onednn-bf16"):
-        kernels.mode()
+        kernel_choice.mode()
 
 
 def test_an_unknown_mode_ends_a_cli_run_in_one_line_naming_the_choices(tmp_path):
@@ -534,40 +539,37 @@ def test_an_unknown_mode_ends_a_cli_run_in_one_line_naming_the_choices(tmp_path)
 
 
 @needs_kernel
-def test_the_nature_cnn_keeps_its_parameters_and_output(monkeypatch):
+def test_the_nature_cnn_keeps_its_parameters_and_output():
     """Parameter names and shapes do not depend on the kernel (checkpoints load either way), and the
     network's output agrees with XLA's."""
     frames = jax.random.randint(jax.random.key(1), (4, 4, 84, 84), 0, 256).astype(jnp.uint8)
-    net = NatureCNN(layer_norm=True)
-    monkeypatch.setenv("AGENTAX_CONV", "xla")
+    net, onednn = NatureCNN(layer_norm=True, conv="xla"), NatureCNN(layer_norm=True, conv="onednn")
     params = net.init(jax.random.key(0), frames)
     expected = net.apply(params, frames)
-    monkeypatch.setenv("AGENTAX_CONV", "onednn")
-    onednn_params = net.init(jax.random.key(0), frames)
+    onednn_params = onednn.init(jax.random.key(0), frames)
     assert jax.tree.map(jnp.shape, onednn_params) == jax.tree.map(jnp.shape, params)
-    np.testing.assert_allclose(net.apply(params, frames), expected, rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(onednn.apply(params, frames), expected, rtol=1e-4, atol=1e-4)
 
 
 @pytest.mark.parametrize(
     "mode, scanned",
     [("xla", False), pytest.param("onednn", True, marks=needs_kernel)],
 )
-def test_the_learning_loop_is_written_out_only_for_xlas_convolutions(monkeypatch, mode, scanned):
+def test_the_learning_loop_is_written_out_only_for_xlas_convolutions(mode, scanned):
     """On frames, XLA's convolutions get their steps written out (a convolution in a loop body runs
     many times slower there), oneDNN's a ``lax.scan``; the same numbers either way."""
-    monkeypatch.setenv("AGENTAX_CONV", mode)
     shape, size, out, stride = NATURE_LAYERS[2]
     x, w, _ = arrays(shape, size, out)
 
     def step(w, _):
-        grad = jax.grad(lambda w: jnp.mean(kernels.conv2d(x, w, (stride, stride)) ** 2))(w)
+        grad = jax.grad(lambda w: jnp.mean(kernels.conv2d(x, w, (stride, stride), mode) ** 2))(w)
         return w - 0.1 * grad, jnp.sum(w)
 
     def train(w, loop):
         return loop(step, w, None, length=3)
 
-    loop = kernels.learning_loop((4, 84, 84))
+    loop = kernels.learning_loop((4, 84, 84), mode)
     assert ("scan[" in str(jax.make_jaxpr(train, static_argnums=1)(w, loop))) == scanned
     for actual, expected in zip(train(w, loop), train(w, jax.lax.scan), strict=True):
         assert_close(actual, expected, bf16=False)
-    assert kernels.learning_loop((8,)) is jax.lax.scan  # no convolutions: always a scan
+    assert kernels.learning_loop((8,), mode) is jax.lax.scan  # no convolutions: always a scan

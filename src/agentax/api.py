@@ -135,8 +135,8 @@ class Run:
         from agentax.export import export_run
 
         _xla.enable_compilation_cache()  # jax2onnx compiles ~70 small programs the first time it runs
-        greedy = lambda: self.policy  # noqa: E731  (restored only once the format is checked)
-        restore = functools.partial(_restore_learned, self.path, self.config, True) if stochastic else greedy
+        # restored only once the format is checked, on XLA's convolutions (no FFI call in either format)
+        restore = functools.partial(_restore_learned, self.path, self.config, stochastic, "xla")
         return export_run(self.path, self.config, restore, format, path, stochastic)
 
     def __repr__(self) -> str:
@@ -168,16 +168,19 @@ def restore_policy(run_dir: str | Path) -> tuple[str, Policy]:
     return config["env"], load_policy(Path(run_dir), config, also_known=tuple(ALGORITHMS))
 
 
-def _restore_learned(run_dir: Path, config: dict[str, Any], stochastic: bool = False) -> Policy:
+def _restore_learned(
+    run_dir: Path, config: dict[str, Any], stochastic: bool = False, conv: str | None = None
+) -> Policy:
     """The greedy policy of a learning algorithm's run (its best seed), from its newest good checkpoint;
-    ``stochastic``: its sampling head instead (:class:`agentax.export.SamplingAlgorithm`)."""
+    ``stochastic``: its sampling head instead (:class:`agentax.export.SamplingAlgorithm`); ``conv``:
+    its convolution backend (default: the run's entry point chooses)."""
     config = upgraded(config)
     module, cfg = algorithm_of(config)
     if stochastic:
         from agentax.export import SamplingAlgorithm
 
         module = SamplingAlgorithm(module)
-    return launch.restore(Path(run_dir), config, module, cfg)
+    return launch.restore(Path(run_dir), config, module, cfg, conv)
 
 
 def _announce(message: str, quiet: bool) -> None:

@@ -22,20 +22,19 @@ out an observation (Atari's frame skip, grey scale, resize and frame stack) stay
 
 How: the one-observation policy is traced to a jaxpr of ``lax`` primitives first, then vmapped over
 the batch. (jax2onnx swaps flax's linen layers for primitives of its own while it traces, and those
-have no batching rule; traced beforehand, it never sees a flax layer.) The trace uses XLA's
-convolutions and products (``AGENTAX_CONV=xla``): oneDNN's FFI calls exist in neither format.
+have no batching rule; traced beforehand, it never sees a flax layer.) The policy must be built on
+XLA's convolutions and products (the backend ``xla``, which the exporting entry point hands to the
+agent): oneDNN's FFI calls exist in neither format.
 ONNX gets no stochastic head: its random operators take their seed as a fixed attribute of the
 graph, not as an input, so a key could not drive them.
 """
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import importlib
 import logging
-import os
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
@@ -112,20 +111,6 @@ class SamplingAlgorithm:
         return dataclasses.replace(agent, greedy_policy=sampling_policy(agent))
 
 
-@contextlib.contextmanager
-def xla_kernels() -> Iterator[None]:
-    """While inside, :mod:`agentax.kernels` traces XLA's convolutions and products (no FFI calls)."""
-    before = os.environ.get("AGENTAX_CONV")
-    os.environ["AGENTAX_CONV"] = "xla"
-    try:
-        yield
-    finally:
-        if before is None:
-            os.environ.pop("AGENTAX_CONV", None)
-        else:
-            os.environ["AGENTAX_CONV"] = before
-
-
 def batched(
     policy: Policy, obs: jax.ShapeDtypeStruct, stochastic: bool = False
 ) -> tuple[Callable[..., jax.Array], jax.ShapeDtypeStruct]:
@@ -137,10 +122,9 @@ def batched(
     theirs); the stochastic one splits ``key`` into ``N``, one per row.
     """
     key_data = jax.ShapeDtypeStruct((2,), jnp.uint32)
-    with xla_kernels():
-        closed, action = jax.make_jaxpr(
-            lambda o, k: policy(o, jax.random.wrap_key_data(k)), return_shape=True
-        )(obs, key_data)
+    closed, action = jax.make_jaxpr(lambda o, k: policy(o, jax.random.wrap_key_data(k)), return_shape=True)(
+        obs, key_data
+    )
 
     def one(obs: jax.Array, key_data: jax.Array) -> jax.Array:
         return jax.core.eval_jaxpr(closed.jaxpr, closed.consts, obs, key_data)[0]

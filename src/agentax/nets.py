@@ -55,21 +55,22 @@ class NatureCNN(nn.Module):
 
     layer_norm: bool = False
     """LayerNorm before each ReLU (PQN's network, as purejaxql's ``pqn_atari``)"""
+    conv: str = "xla"
+    """the convolution backend (:data:`agentax.kernels.BACKENDS`), chosen by the entry point"""
 
     @nn.compact
     def __call__(self, frames: jax.Array) -> jax.Array:
-        x = nature_convolutions(frames, self.layer_norm)
-        x = nn.Dense(
-            512, kernel_init=nn.initializers.orthogonal(jnp.sqrt(2.0)), dot_general=kernels.dot_general
-        )(x)
+        x = nature_convolutions(frames, self.layer_norm, self.conv)
+        init = nn.initializers.orthogonal(jnp.sqrt(2.0))
+        x = nn.Dense(512, kernel_init=init, dot_general=kernels.dot_general_with(self.conv))(x)
         return nn.relu(nn.LayerNorm()(x) if self.layer_norm else x)
 
 
-def nature_convolutions(frames: jax.Array, layer_norm: bool = False) -> jax.Array:
+def nature_convolutions(frames: jax.Array, layer_norm: bool = False, conv: str = "xla") -> jax.Array:
     """The Nature CNN's three convolutions, inside the calling module: uint8 ``[..., 4, 84, 84]``
     → ``[..., 3136]`` features (the frames divided by 255 first; ``layer_norm``: LayerNorm over
-    each position's channels before each ReLU). The convolutions are :mod:`agentax.kernels`' (oneDNN
-    on the CPU where built, XLA's otherwise: ``AGENTAX_CONV``), with flax's parameters unchanged."""
+    each position's channels before each ReLU). The convolutions are :mod:`agentax.kernels`' on
+    backend ``conv`` (oneDNN's FFI calls on the CPU, or XLA's), with flax's parameters unchanged."""
     batch_shape = frames.shape[:-3]
     x = frames.reshape(-1, *frames.shape[-3:]).astype(jnp.float32) / 255.0
     x = jnp.transpose(x, (0, 2, 3, 1))  # [N, C, H, W] -> [N, H, W, C]
@@ -81,7 +82,7 @@ def nature_convolutions(frames: jax.Array, layer_norm: bool = False) -> jax.Arra
             (stride, stride),
             padding="VALID",
             kernel_init=init,
-            conv_general_dilated=kernels.conv_general_dilated,
+            conv_general_dilated=kernels.conv_general_dilated_with(conv),
         )(x)
         x = nn.relu(nn.LayerNorm()(x) if layer_norm else x)
     return x.reshape(*batch_shape, -1)
@@ -177,9 +178,12 @@ class NatureConvTorso(nn.Module):
     """The Nature CNN's three convolutions without its dense layer: ``[..., 4, 84, 84]`` → ``[..., 3136]``
     (for a noisy 512 layer on top; :class:`NatureCNN` is the same convolutions with a plain one)."""
 
+    conv: str = "xla"
+    """the convolution backend, as :class:`NatureCNN`'s"""
+
     @nn.compact
     def __call__(self, frames: jax.Array) -> jax.Array:
-        return nature_convolutions(frames)
+        return nature_convolutions(frames, conv=self.conv)
 
 
 def scaled_noise(x: jax.Array) -> jax.Array:
@@ -254,6 +258,8 @@ class QNetwork(nn.Module):
     noisy: bool = False
     """factorised noisy layers (NoisyNet) after the torso"""
     noisy_sigma0: float = 0.5
+    conv: str = "xla"
+    """the Nature CNN's convolution backend (with ``cnn``)"""
 
     @nn.compact
     def __call__(self, obs: jax.Array, deterministic: bool = True) -> jax.Array:
@@ -263,9 +269,13 @@ class QNetwork(nn.Module):
             return nn.Dense(features)
 
         if not self.noisy:
-            x = NatureCNN()(obs) if self.cnn else MLP(self.hidden, self.activation)(obs.astype(jnp.float32))
+            x = (
+                NatureCNN(conv=self.conv)(obs)
+                if self.cnn
+                else MLP(self.hidden, self.activation)(obs.astype(jnp.float32))
+            )
         elif self.cnn:
-            x = nn.relu(dense(512)(NatureConvTorso()(obs)))
+            x = nn.relu(dense(512)(NatureConvTorso(self.conv)(obs)))
         else:
             x = MLP(self.hidden[:-1], self.activation)(obs.astype(jnp.float32))
             if self.hidden:
@@ -352,6 +362,8 @@ class ActorCritic(nn.Module):
     """one Nature CNN torso shared by actor and critic (image observations), as CleanRL's Atari PPO"""
     image_shape: tuple[int, ...] | None = None
     """one MinAtar conv torso shared by actor and critic, on flat observations of this ``[H, W, C]``"""
+    conv: str = "xla"
+    """the Nature CNN's convolution backend (with ``cnn``)"""
 
     @nn.compact
     def __call__(self, obs: jax.Array):
@@ -359,7 +371,7 @@ class ActorCritic(nn.Module):
         hidden_init = nn.initializers.orthogonal(jnp.sqrt(2.0))
         shared = self.cnn or self.image_shape is not None
         if self.cnn:
-            actor = critic = NatureCNN()(obs)
+            actor = critic = NatureCNN(conv=self.conv)(obs)
         elif self.image_shape is not None:
             actor = critic = MinAtarCNN(tuple(self.image_shape))(obs)
         else:

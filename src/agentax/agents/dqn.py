@@ -222,7 +222,8 @@ class DQNState:
     network: QNetwork = struct.field(pytree_node=False)
 
 
-def q_network(cfg: DQNConfig, num_actions: int, cnn: bool = False) -> QNetwork:
+def q_network(cfg: DQNConfig, num_actions: int, cnn: bool = False, conv: str = "xla") -> QNetwork:
+    """The Q-network of ``cfg``'s variant (``cnn``: on the Nature CNN, its convolutions on ``conv``)."""
     return QNetwork(
         num_actions=num_actions,
         hidden=tuple(cfg.hidden),
@@ -234,6 +235,7 @@ def q_network(cfg: DQNConfig, num_actions: int, cnn: bool = False) -> QNetwork:
         v_max=cfg.v_max,
         noisy=cfg.noisy,
         noisy_sigma0=cfg.noisy_sigma0,
+        conv=conv,
     )
 
 
@@ -276,15 +278,17 @@ def num_actions_of(action_space: Any) -> int:
     )
 
 
-def init(key: jax.Array, obs_example: jax.Array, num_actions: int, cfg: DQNConfig) -> DQNState:
+def init(
+    key: jax.Array, obs_example: jax.Array, num_actions: int, cfg: DQNConfig, conv: str = "xla"
+) -> DQNState:
     """A fresh learner for observations shaped like ``obs_example`` (one observation; stacked
-    frames ``[4, 84, 84]`` get the Nature CNN)."""
+    frames ``[4, 84, 84]`` get the Nature CNN, its convolutions on backend ``conv``)."""
     cnn = is_image(jnp.shape(obs_example))
     if cfg.augment != "none" and not cnn:
         raise UsageError(
             f"augment={cfg.augment!r} shifts image frames, not observations {jnp.shape(obs_example)}"
         )
-    network = q_network(cfg, num_actions, cnn=cnn)
+    network = q_network(cfg, num_actions, cnn=cnn, conv=conv)
     params = network.init(key, jnp.asarray(obs_example)[None])
     return DQNState(
         params=params,
@@ -504,11 +508,12 @@ def importance_exponent_at(cfg: DQNConfig, env_steps: jax.Array) -> jax.Array:
     return linear_schedule(cfg.importance_exponent_start, 1.0, cfg.total_steps)(env_steps)
 
 
-def make_agent(spec: EnvSpec, cfg: DQNConfig, *, loop: Loop = jax.lax.scan) -> Agent:
+def make_agent(spec: EnvSpec, cfg: DQNConfig, *, loop: Loop = jax.lax.scan, conv: str = "xla") -> Agent:
     """DQN's pure functions for every runner (see ``agentax.agents.protocol``).
 
     ``act``'s ``progress`` is the env steps (episodes, in the episode schedule) that set ε. ``learn``
     is one learning step, so ``loop`` goes unused: the runner loops over a learning phase's steps.
+    ``conv``: the Nature CNN's convolution backend (the entry point's choice).
     """
     cfg.validate()
     num_actions = num_actions_of(spec.action_space)
@@ -535,7 +540,7 @@ def make_agent(spec: EnvSpec, cfg: DQNConfig, *, loop: Loop = jax.lax.scan) -> A
     )
     return Agent(
         name="dqn",
-        init=lambda key: init(key, jnp.zeros(spec.obs_shape, spec.obs_dtype), num_actions, cfg),
+        init=lambda key: init(key, jnp.zeros(spec.obs_shape, spec.obs_dtype), num_actions, cfg, conv),
         act=act_epsilon_greedy,
         greedy_policy=greedy_policy,
         learn=learn_step,

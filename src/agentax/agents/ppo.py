@@ -174,11 +174,12 @@ def action_dim(spec: EnvSpec) -> int:
     return spec.action_space.shape[0]
 
 
-def network(cfg: PPOConfig, spec: EnvSpec) -> ActorCritic:
+def network(cfg: PPOConfig, spec: EnvSpec, conv: str = "xla") -> ActorCritic:
+    """PPO's actor-critic for ``spec`` (on stacked frames the Nature CNN, its convolutions on ``conv``)."""
     cnn = is_image(spec.obs_shape)
     image_shape = image_shape_for(cfg.conv_torso, spec)
     return ActorCritic(
-        action_dim(spec), is_continuous(spec), tuple(cfg.hidden), cfg.activation, cnn, image_shape
+        action_dim(spec), is_continuous(spec), tuple(cfg.hidden), cfg.activation, cnn, image_shape, conv
     )
 
 
@@ -241,10 +242,10 @@ def _log_prob_entropy(actor_out: Any, action: jax.Array, continuous: bool) -> tu
 
 
 def act(
-    params: Any, obs: jax.Array, key: jax.Array, spec: EnvSpec, cfg: PPOConfig
+    params: Any, obs: jax.Array, key: jax.Array, spec: EnvSpec, cfg: PPOConfig, conv: str = "xla"
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Sample actions for observations ``[E, *obs_shape]``: ``(action, log_prob [E], value [E])``."""
-    actor_out, value = network(cfg, spec).apply(params, obs)
+    actor_out, value = network(cfg, spec, conv).apply(params, obs)
     if is_continuous(spec):
         mean, log_std = actor_out
         action = mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape)
@@ -261,11 +262,15 @@ def env_action(action: jax.Array, spec: EnvSpec) -> jax.Array:
 
 
 def greedy_policy(
-    params: Any, spec: EnvSpec, cfg: PPOConfig, obs_stats: running.RunningMeanStd | None = None
+    params: Any,
+    spec: EnvSpec,
+    cfg: PPOConfig,
+    obs_stats: running.RunningMeanStd | None = None,
+    conv: str = "xla",
 ) -> Policy:
     """The deterministic policy for evaluation: the most probable action (the Gaussian's mean), on
     raw observations standardised by ``obs_stats`` where given."""
-    net = network(cfg, spec)
+    net = network(cfg, spec, conv)
 
     def policy(obs: jax.Array, key: jax.Array) -> jax.Array:
         actor_out, _ = net.apply(params, observe(obs_stats, obs, cfg))
@@ -290,12 +295,19 @@ def clipped_surrogate_loss(
     return -masked_mean(jnp.minimum(ratio * advantage_t, clipped * advantage_t), valid_t)
 
 
-def loss_fn(params: Any, batch: dict[str, jax.Array], clip_eps: jax.Array, spec: EnvSpec, cfg: PPOConfig):
+def loss_fn(
+    params: Any,
+    batch: dict[str, jax.Array],
+    clip_eps: jax.Array,
+    spec: EnvSpec,
+    cfg: PPOConfig,
+    conv: str = "xla",
+):
     """The PPO loss of one minibatch (flat ``[B, ...]`` arrays); returns ``(loss, metrics)``.
 
     With ``batch["valid"]`` (bool ``[B]``) every mean runs over the valid entries only."""
     valid = batch.get("valid")
-    actor_out, value = network(cfg, spec).apply(params, batch["obs"])
+    actor_out, value = network(cfg, spec, conv).apply(params, batch["obs"])
     new_log_prob, entropies = _log_prob_entropy(actor_out, batch["action"], is_continuous(spec))
     advantage = normalize(batch["advantage"], valid) if cfg.normalize_advantages else batch["advantage"]
     policy_loss = clipped_surrogate_loss(new_log_prob, batch["log_prob"], advantage, clip_eps, valid)
@@ -319,12 +331,13 @@ def learn(
     spec: EnvSpec,
     cfg: PPOConfig,
     loop: Loop = jax.lax.scan,
+    conv: str = "xla",
 ) -> tuple[PPOAgent, dict[str, jax.Array]]:
     """One PPO iteration on a rollout ``[T, E, ...]`` (``info["log_prob"]`` from :func:`act`, the
     behaviour policy's; ``info["valid"]``, if there, the steps to learn from): the normalisers take
     the rollout in (:func:`take_in`), then GAE, then epochs of minibatch SGD, each run by ``loop``
-    (``lax.scan``'s signature; the runner chooses it)."""
-    net, tx = network(cfg, spec), optimizer(cfg)
+    (``lax.scan``'s signature; the runner chooses it); ``conv``: the Nature CNN's convolution backend."""
+    net, tx = network(cfg, spec, conv), optimizer(cfg)
     agent, rollout = take_in(agent, rollout, cfg)
     # Both values from the learner's parameters: a rollout collected with older ones (a parallel
     # runner's policy lag) would otherwise feed each change of V into the targets again.
@@ -356,7 +369,7 @@ def learn(
 
     def sgd_step(carry, minibatch):
         params, opt_state = carry
-        grads, metrics = grad_fn(params, minibatch, clip_eps, spec, cfg)
+        grads, metrics = grad_fn(params, minibatch, clip_eps, spec, cfg, conv)
         updates, opt_state = tx.update(grads, opt_state, params)
         return (optax.apply_updates(params, updates), opt_state), metrics
 
@@ -377,9 +390,10 @@ def learn(
     return agent, jax.tree.map(jnp.mean, metrics)
 
 
-def make_agent(spec: EnvSpec, cfg: PPOConfig, *, loop: Loop = jax.lax.scan) -> Agent:
+def make_agent(spec: EnvSpec, cfg: PPOConfig, *, loop: Loop = jax.lax.scan, conv: str = "xla") -> Agent:
     """PPO's pure functions for every runner (see ``agentax.agents.protocol``);
-    ``loop`` runs the learning steps (the runner's :func:`agentax.kernels.learning_loop`)."""
+    ``loop`` runs the learning steps (the runner's :func:`agentax.kernels.learning_loop`), ``conv``
+    is the Nature CNN's convolution backend (the entry point's choice)."""
     cfg.validate()
     action_dim(spec)  # a clear error for actions PPO cannot take
     if cfg.normalize_observations and is_image(spec.obs_shape):
@@ -388,15 +402,16 @@ def make_agent(spec: EnvSpec, cfg: PPOConfig, *, loop: Loop = jax.lax.scan) -> A
         )
 
     def act_with_info(state: PPOAgent, obs: jax.Array, key: jax.Array, progress: jax.Array):
-        action, action_log_prob, _ = act(state.params, observe(state.obs_stats, obs, cfg), key, spec, cfg)
+        obs = observe(state.obs_stats, obs, cfg)
+        action, action_log_prob, _ = act(state.params, obs, key, spec, cfg, conv)
         return action, {"log_prob": action_log_prob}
 
     return Agent(
         name="ppo",
         init=lambda key: init(key, spec, cfg),
         act=act_with_info,
-        greedy_policy=lambda state: greedy_policy(state.params, spec, cfg, state.obs_stats),
-        learn=lambda state, rollout, key: learn(state, rollout, key, spec, cfg, loop),
+        greedy_policy=lambda state: greedy_policy(state.params, spec, cfg, state.obs_stats, conv),
+        learn=lambda state, rollout, key: learn(state, rollout, key, spec, cfg, loop, conv),
         experience=OnPolicy(cfg.num_envs, cfg.num_steps),
         total_steps=cfg.total_steps,
         env_action=lambda action: env_action(action, spec),

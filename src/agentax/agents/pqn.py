@@ -120,13 +120,13 @@ class PQNState:
     updates: jax.Array  # int32 []: learning iterations so far
 
 
-def q_network(cfg: PQNConfig, spec: EnvSpec) -> nn.Module:
+def q_network(cfg: PQNConfig, spec: EnvSpec, conv: str = "xla") -> nn.Module:
     """``obs [..., *obs_shape] -> Q [..., num_actions]`` with LayerNorm after every hidden layer: an
-    MLP of ``hidden`` on flat observations, the Nature CNN on stacked frames, MinAtar's conv torso
-    with ``conv_torso``."""
+    MLP of ``hidden`` on flat observations, the Nature CNN on stacked frames (its convolutions on
+    backend ``conv``), MinAtar's conv torso with ``conv_torso``."""
     num_actions = num_actions_of(spec)
     if is_image(spec.obs_shape):
-        return nn.Sequential([NatureCNN(layer_norm=True), nn.Dense(num_actions)])
+        return nn.Sequential([NatureCNN(layer_norm=True, conv=conv), nn.Dense(num_actions)])
     image_shape = image_shape_for(cfg.conv_torso, spec)
     if image_shape is not None:
         return nn.Sequential([MinAtarCNN(image_shape, layer_norm=True), nn.Dense(num_actions)])
@@ -222,13 +222,13 @@ def learn(
     return PQNState(params, opt_state, state.updates + 1), metrics
 
 
-def make_agent(spec: EnvSpec, cfg: PQNConfig, *, loop: Loop = jax.lax.scan) -> Agent:
+def make_agent(spec: EnvSpec, cfg: PQNConfig, *, loop: Loop = jax.lax.scan, conv: str = "xla") -> Agent:
     """PQN's pure functions for every runner (see ``agentax.agents.protocol``); ``act``'s ``progress``
-    is the env steps that set ε."""
+    is the env steps that set ε; ``conv``: the Nature CNN's convolution backend."""
     cfg.validate()
     if len(spec.obs_shape) != 1 and not is_image(spec.obs_shape):
         raise UsageError(f"PQN takes flat observations or stacked frames [C, H, W], not {spec.obs_shape}")
-    net = q_network(cfg, spec)
+    net = q_network(cfg, spec, conv)
     q_values = q_values_of(net, spec)
 
     def init(key: jax.Array) -> PQNState:

@@ -189,11 +189,12 @@ def returns_to_go(reward: jax.Array, ended: jax.Array, discount_factor: float) -
     return discounted_returns(reward, discounts, jnp.zeros(reward.shape[1:]))
 
 
-def make_agent(spec: EnvSpec, cfg: ReinforceConfig, *, loop: Loop = jax.lax.scan) -> Agent:
+def make_agent(spec: EnvSpec, cfg: ReinforceConfig, *, loop: Loop = jax.lax.scan, conv: str = "xla") -> Agent:
     """REINFORCE's pure functions for every runner (see ``agentax.agents.protocol``).
 
     It learns from whole episodes: ``Episodes(episodes_per_update, max_steps)``, the steps after an
-    episode's end masked out by ``info["valid"]``. ``learn`` is one gradient step (``loop`` unused).
+    episode's end masked out by ``info["valid"]``. ``learn`` is one gradient step (``loop`` unused;
+    ``conv`` too: no convolutions).
     """
     cfg.validate()
     actions = actions_of(spec)

@@ -77,12 +77,13 @@ class SACState:
     step: jax.Array  # int32 []
 
 
-def make_agent(spec: EnvSpec, cfg: SACConfig, *, loop: Loop = jax.lax.scan) -> Agent:
+def make_agent(spec: EnvSpec, cfg: SACConfig, *, loop: Loop = jax.lax.scan, conv: str = "xla") -> Agent:
     """SAC's pure functions for every runner (see ``agentax.agents.protocol``).
 
     ``act``'s ``progress`` counts env steps (uniform actions before ``learning_starts``); ``learn`` is
-    one learning step, so ``loop`` goes unused. Actions live in ``[-1, 1]^d``: the replay stores them
-    so, ``env_action`` and the greedy policy rescale them to the env's bounds.
+    one learning step, so ``loop`` goes unused, and so does ``conv`` (no convolutions). Actions live
+    in ``[-1, 1]^d``: the replay stores them so, ``env_action`` and the greedy policy rescale them to
+    the env's bounds.
     """
     cfg.validate()
     action_dim = continuous_action_dim(spec, "sac")

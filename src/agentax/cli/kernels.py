@@ -8,7 +8,7 @@ from typing import Any
 
 import tyro
 
-from agentax import kernels
+from agentax import kernel_choice
 
 
 @dataclass(frozen=True)
@@ -24,8 +24,8 @@ class KernelsArgs:
 
 
 def describe(about: dict[str, Any], flags: frozenset[str]) -> list[str]:
-    """The choice (:func:`agentax.kernels.choice`) as lines for the terminal."""
-    bf16 = ", ".join(sorted(flags & set(kernels.BF16_FLAGS))) or "none"
+    """The choice (:func:`agentax.kernel_choice.choice`) as lines for the terminal."""
+    bf16 = ", ".join(sorted(flags & set(kernel_choice.BF16_FLAGS))) or "none"
     lines = [f"CPU: {about['cpu']} (bfloat16 flags: {bf16})"]
     lines.append(f"AGENTAX_CONV={about['mode']} -> {about['backend']}: {about['why']}")
     ms, errors = about.get("ms", {}), about.get("errors", {})
@@ -48,9 +48,9 @@ def describe(about: dict[str, Any], flags: frozenset[str]) -> list[str]:
 
 def main(argv: list[str]) -> int:
     args = tyro.cli(KernelsArgs, args=argv, prog="agentax kernels")
-    about = kernels.choice(again=args.measure)
+    about = kernel_choice.choice(again=args.measure)
     if args.json:
         print(json.dumps(about))
     else:
-        print("\n".join(describe(about, kernels.cpu_info()[1])))
+        print("\n".join(describe(about, kernel_choice.cpu_info()[1])))
     return 0

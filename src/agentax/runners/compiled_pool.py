@@ -47,7 +47,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from agentax import _xla, kernels
+from agentax import _xla, kernel_choice
 from agentax.agents.protocol import Agent, OnPolicy
 from agentax.envs.atari import FRAME_SKIP, is_atari_id
 from agentax.envs.core import TimeStep
@@ -208,7 +208,9 @@ def start(agent_state: Any, env: XlaPool, key: jax.Array, env_steps: int) -> OnP
 def make_collect(agent: Agent, env: XlaPool) -> Callable:
     """``collect(carry) -> (carry, trajectory, games [T, E])`` (jittable): the on-policy rollout on
     ``env`` with ``carry.agent``'s parameters, the games it finished taken out of the trajectory."""
-    rollout = on_policy_rollout(agent, PoolEnvs(env), kernels.learning_loop(env.observation_space().shape))
+    rollout = on_policy_rollout(
+        agent, PoolEnvs(env), kernel_choice.learning_loop_for(env.observation_space().shape)
+    )
 
     def collect(carry: OnPolicyCarry):
         carry, trajectory = rollout(carry)

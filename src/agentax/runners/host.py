@@ -27,7 +27,7 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
-from agentax import _xla, kernels
+from agentax import _xla, kernel_choice
 from agentax.agents.protocol import PRIORITY, Agent, Episodes, Loop, OffPolicy, OnPolicy
 from agentax.envs import make_host_env
 from agentax.errors import UsageError
@@ -401,7 +401,7 @@ def train(
     if isinstance(experience, OffPolicy):
         replay = replay_for(agent, actor.obs_shape, runner.seed)
         observer = ReplayObserver(replay, experience.n_step, experience.discount_factor)
-        learner = OffPolicyLearner(agent, replay, loop=kernels.learning_loop(actor.obs_shape))
+        learner = OffPolicyLearner(agent, replay, loop=kernel_choice.learning_loop_for(actor.obs_shape))
         replay_checkpoints = ReplayCheckpoints(
             run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
         )

@@ -43,12 +43,16 @@ class Launch:
     seed, or None where the state stayed in other processes)"""
 
 
-def agent_maker(module: Any, spec: Any, cfg: Any) -> Callable[[], Any]:
-    """``make()``: the algorithm's agent for ``spec``, learning in the loop this platform runs best
-    (a picklable callable: Ray's actor processes build the agent with it)."""
-    from agentax import kernels
+def agent_maker(module: Any, spec: Any, cfg: Any, conv: str | None = None) -> Callable[[], Any]:
+    """``make()``: the algorithm's agent for ``spec``, learning in the loop this platform runs best,
+    its convolutions on ``conv``, else on the backend chosen here (``AGENTAX_CONV``; a picklable
+    callable: Ray's actor processes build the agent with it)."""
+    from agentax import kernel_choice, kernels
 
-    return functools.partial(module.make_agent, spec, cfg, loop=kernels.learning_loop(spec.obs_shape))
+    if conv is None:  # chosen once here, before anything is traced
+        conv = kernel_choice.backend_for(spec.obs_shape)
+    loop = kernels.learning_loop(spec.obs_shape, conv)
+    return functools.partial(module.make_agent, spec, cfg, loop=loop, conv=conv)
 
 
 def parse_stop(value: str, preset: Any, env: Any) -> float | None:
@@ -134,8 +138,9 @@ def _launch(runner_module: Any, agent: Any, remake: Any, env_id: str, runner: An
     return Launch(runner, where, train)
 
 
-def restore(run_dir: Path, config: dict[str, Any], module: Any, cfg: Any) -> Policy:
-    """The greedy policy of the run's best seed, from its newest good checkpoint."""
+def restore(run_dir: Path, config: dict[str, Any], module: Any, cfg: Any, conv: str | None = None) -> Policy:
+    """The greedy policy of the run's best seed, from its newest good checkpoint (its convolutions on
+    ``conv``, else on :func:`agent_maker`'s choice)."""
     kind = kind_of(config)
     spec, _ = env_specs(kind, config["env"], *_host_options(config.get("runner", {})))
-    return RUNNERS[kind].load().restore(Path(run_dir), config, agent_maker(module, spec, cfg)())
+    return RUNNERS[kind].load().restore(Path(run_dir), config, agent_maker(module, spec, cfg, conv)())

@@ -37,7 +37,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from agentax import _xla, kernels
+from agentax import _xla, kernel_choice
 from agentax.agents.protocol import Agent, Episodes, OffPolicy
 from agentax.errors import UsageError
 from agentax.runners import host
@@ -558,7 +558,7 @@ def _off_policy(agent, runner, fleet, threads, coordinator, rows, state, learner
     for i, actor in enumerate(actors):
         threads.append(ActorThread(actor, lambda thread, i=i: collect(thread, i), coordinator, i))
     rows.meter = Meter(threads, fleet.figures)
-    learner = OffPolicyLearner(agent, replay, loop=kernels.learning_loop(actors[0].obs_shape))
+    learner = OffPolicyLearner(agent, replay, loop=kernel_choice.learning_loop_for(actors[0].obs_shape))
 
     def drain() -> list[float]:
         return [r for actor in actors for r in actor.finished_returns()]

@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from agentax import _xla, kernels
+from agentax import _xla, kernel_choice, kernels
 from agentax.envs.core import Environment, episode_returns
 from agentax.runners.rollout import SEED_AXIS, Program
 from agentax.runners.session import EVAL_KEY_OFFSET
@@ -78,7 +78,7 @@ def fingerprint(description: dict[str, Any], example_args: Any) -> str:
         "backend": jax.default_backend(),
         "x64": bool(jax.config.jax_enable_x64),
         "agentax": source_digest(),
-        "conv": kernels.known_backend(),  # XLA's convolutions or oneDNN's: another program
+        "conv": kernel_choice.known_backend(),  # XLA's convolutions or oneDNN's: another program
     }
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:32]
 
