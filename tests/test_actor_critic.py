@@ -83,6 +83,7 @@ def test_bad_input_is_one_line_and_exit_code_2(argv, message, capsys):
     assert message in err and err.count("\n") == 1, err
 
 
+@pytest.mark.slow
 def test_td3_moves_the_actor_and_the_targets_every_policy_delay_steps():
     cfg = td3.TD3Config(hidden=(16, 16), policy_delay=2, tau=0.5)
     agent = td3.make_agent(SPEC, cfg)
@@ -106,6 +107,7 @@ def test_td3_moves_the_actor_and_the_targets_every_policy_delay_steps():
     assert all(np.isfinite(float(metrics[k])) for k in ("critic_loss", "actor_loss", "q_mean"))
 
 
+@pytest.mark.slow
 def test_sac_copies_its_critics_with_tau_1_and_keeps_a_fixed_alpha_without_autotune():
     cfg = sac.SACConfig(hidden=(16, 16), tau=1.0, autotune=False, initial_alpha=0.2)
     agent = sac.make_agent(SPEC, cfg)
@@ -120,6 +122,7 @@ def test_sac_copies_its_critics_with_tau_1_and_keeps_a_fixed_alpha_without_autot
     assert metrics["priority"].shape == (32,)
 
 
+@pytest.mark.slow
 def test_sac_fits_its_critics_and_moves_alpha_towards_the_target_entropy():
     """Repeated steps on one batch: the critic loss falls; α's first (Adam) step goes the way the
     entropy's gap to the target −d says (up while the entropy is below it), and the entropy rises."""
@@ -138,6 +141,7 @@ def test_sac_fits_its_critics_and_moves_alpha_towards_the_target_entropy():
     assert entropy[-20:].mean() > entropy[:5].mean()
 
 
+@pytest.mark.slow
 def test_the_uniform_warm_up_then_the_policy_and_greedy_actions_in_bounds():
     for module, cfg in (
         (sac, sac.SACConfig(hidden=(8,), learning_starts=10)),
@@ -164,6 +168,7 @@ SMALL = {  # the Zoo's Pendulum presets with 64-wide layers and a short warm-up
 }
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 @pytest.mark.parametrize("algo", ["sac", "td3"])
 def test_learns_pendulum_on_the_compiled_runner(algo):
@@ -177,6 +182,7 @@ def test_learns_pendulum_on_the_compiled_runner(algo):
     assert min(result.eval["per_seed_mean"]) > -400, result.eval
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 @pytest.mark.parametrize("runner", ["host", "parallel"])
 @pytest.mark.parametrize("algo", ["sac", "td3"])
@@ -193,6 +199,7 @@ def test_trains_gymnasiums_pendulum_on_the_host_runners(algo, runner, tmp_path):
     )
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_a_non_finite_action_stops_the_host_run_with_exit_code_3(monkeypatch, tmp_path, capsys):
     """A policy that turns NaN (its actor's output here) stops the run as a NaN loss does: one line

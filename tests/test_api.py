@@ -28,6 +28,7 @@ def trained(tmp_path_factory):
     return agentax.train("ppo", env="CartPole-v1", seeds=2, out=out, progress=False, **SMALL)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_train_then_load_scores_the_same(trained, capsys):
     run = trained
@@ -51,6 +52,7 @@ def test_train_then_load_scores_the_same(trained, capsys):
     assert len(run.final_eval["per_seed"]) == 2 and "iqm_ci" in run.final_eval
 
 
+@pytest.mark.slow
 def test_metrics_plot_and_video(trained, tmp_path):
     run = agentax.load(trained.path)
     rows = run.metrics
@@ -65,6 +67,7 @@ def test_metrics_plot_and_video(trained, tmp_path):
         run.video(tmp_path / "episode.avi")
 
 
+@pytest.mark.slow
 def test_the_cli_trains_on_the_same_path(trained, tmp_path, capsys):
     """`agentax train` with the same settings parses into the same call: the same numbers."""
     out = tmp_path / "cli"
@@ -96,6 +99,7 @@ def test_bad_overrides_name_the_known_fields(tmp_path):
         agentax.load(tmp_path)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_host_runner_through_the_api(tmp_path):
     run = agentax.train(
@@ -105,6 +109,7 @@ def test_host_runner_through_the_api(tmp_path):
     assert run.evaluate(episodes=5, seed=2) == agentax.load(run.path).evaluate(episodes=5, seed=2)
 
 
+@pytest.mark.slow
 def test_train_is_a_plain_function_beside_the_runners_package():
     """``agentax.train`` is :func:`agentax.api.train`; the runners are the package ``agentax.runners``,
     so importing a runner module never rebinds the name (in a fresh interpreter, either order)."""

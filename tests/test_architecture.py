@@ -368,6 +368,7 @@ def test_module_names_and_relative_imports_resolve():
     ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(ALGORITHMS))
 def test_every_registered_algorithm_follows_the_protocol(name):
     module = algorithm(name)

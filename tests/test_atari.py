@@ -61,6 +61,7 @@ def test_bad_backend_and_missing_backend(monkeypatch):
     assert make_atari(BREAKOUT, backend="auto").backend_name == "ale"  # auto falls back
 
 
+@pytest.mark.slow
 def test_first_frame_same_in_both_backends():
     """No no-ops, no sticky actions: after reset (and its FIRE) both backends show the same frame."""
     for game in (BREAKOUT, "ALE/Pong-v5", "ALE/SpaceInvaders-v5"):
@@ -73,6 +74,7 @@ def test_first_frame_same_in_both_backends():
         assert first[0].std() > 0  # a real screen, not a blank buffer
 
 
+@pytest.mark.slow
 def test_deterministic_games_identical_in_both_backends():
     """Sticky actions and no-ops off, Breakout is a function of the actions: both backends play the
     same games (rewards, life-loss ends, scores); the frames differ at most at a game over, where
@@ -103,6 +105,7 @@ class _FireOnReset(gymnasium.Wrapper):
         return self.env.step(1)[0], {}
 
 
+@pytest.mark.slow
 def test_preprocessing_equals_gymnasium_atari_preprocessing():
     """ale backend == Gymnasium's AtariPreprocessing + FrameStackObservation, frame by frame, with
     sticky actions on (the same seed seeds the same emulator), until the first lost life (after it
@@ -134,6 +137,7 @@ def test_preprocessing_equals_gymnasium_atari_preprocessing():
         reference.close()
 
 
+@pytest.mark.slow
 def test_envpool_adapter_hides_next_step_reset():
     """Against a bare pool on the same seed and actions: EnvPool returns the last frame on the
     ending step and the next start one step later (ignoring that step's action); the adapter returns
@@ -164,6 +168,7 @@ def test_envpool_adapter_hides_next_step_reset():
     env.close()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backend", ["envpool", "ale"])
 def test_learning_view_and_true_scores(backend):
     """The same seeds and actions in training and evaluation mode play the same games: training

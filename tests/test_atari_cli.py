@@ -35,6 +35,7 @@ def played(out: str) -> tuple[float, int]:
     return float(match.group(1)), int(match.group(2))
 
 
+@pytest.mark.slow
 def test_play_random_writes_a_gif_of_the_whole_game_and_its_true_score(tmp_path, capsys):
     video = tmp_path / "x.gif"
     args = ["--env", BREAKOUT, "--policy", "random", "--seed", "4"]
@@ -77,6 +78,7 @@ def tiny_run(run_dir: Path, algo: str = "ppo", backend: str = "ale", sticky_acti
     return run_dir
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")  # ffmpeg, which reads the MP4 back
 def test_play_a_run_writes_an_mp4_of_one_frame_per_step_with_the_runs_env_settings(tmp_path, capsys):
     run_dir = tiny_run(tmp_path / "run")
@@ -98,6 +100,7 @@ def test_play_a_run_writes_an_mp4_of_one_frame_per_step_with_the_runs_env_settin
     assert json.loads(capsys.readouterr().out)["env_backend"] == "envpool"
 
 
+@pytest.mark.slow
 def test_evaluate_random_gives_the_random_baseline_in_whole_games(capsys):
     episodes = 32
     assert (

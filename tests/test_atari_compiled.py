@@ -90,6 +90,7 @@ def _mlp_rollout(seed: int, valid: np.ndarray) -> tuple[Transition, dict]:
     )
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(60)
 def test_ppo_learns_nothing_from_masked_steps():
     """Changing everything of the masked steps (observation, action, reward, log-probability, next
@@ -123,6 +124,7 @@ def _ppo_agent(env, **overrides):
     return agent_maker(ppo, EnvSpec.of(env), cfg)()
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(60)
 def test_rollout_on_a_real_pool_masks_reset_steps_after_done_steps():
     """Two 128-step rollouts of 8 Breakout envs with an untrained CNN policy (the compiled runner's
@@ -167,6 +169,7 @@ def _host_env(training: bool, seed: int):
     return env
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(90)
 def test_in_program_pool_plays_the_host_adapters_games():
     """Same seed, same actions (the in-program pool gets an extra, different action on each reset
@@ -237,6 +240,7 @@ def test_refuses_what_it_cannot_run():
         check(agent, "CartPole-v1", Config())
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(150)
 def test_short_run_writes_the_run_folder_loads_and_resumes(tmp_path):
     """Two iterations of 2 envs x 32 steps: metrics rows, a checkpoint that the host runner's
@@ -320,6 +324,7 @@ def test_policy_lag_1_collects_rollout_k_plus_1_beside_learning_on_k_with_its_st
     assert collected == [0, 0, 1, 2, 3] and states == [1, 2, 3, 4, 5]
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(150)
 def test_policy_lag_1_on_a_real_pool_learns_the_first_update_as_lag_0_and_then_goes_its_way(tmp_path):
     """Two iterations of 2 Breakout envs × 32 steps at lag 0 and at lag 1 (a row each, a large

@@ -103,6 +103,7 @@ def test_every_step_matches_gymnasium(version):
     assert (ref["terminated"] & ref["truncated"]).sum() == 1  # the constructed fall on the last step
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("version", VERSIONS)
 def test_random_episodes_match_from_the_same_start(version):
     env, num_episodes, horizon = VERSIONS[version][0](), 100, 120
@@ -161,6 +162,7 @@ def test_initial_states_are_distributed_as_gymnasiums():
     assert len(np.unique(obs[:, 0])) > 0.99 * n  # full float resolution, no coarse grid
 
 
+@pytest.mark.slow
 def test_start_values_are_jaxs_own_threefry_draws():
     # The unrolled hash is bit for bit jax's Threefry-2x32, on 1,000 random keys and counters ...
     words = jax.random.bits(jax.random.key(6), (4, 1000))
@@ -237,6 +239,7 @@ def _random_batch(n: int, seed: int):
     return env, jax.random.split(key_step, n), state, actions
 
 
+@pytest.mark.slow
 def test_vmapped_batch_equals_single_envs():
     env, keys, state, actions = _random_batch(64, seed=4)
     ts, next_state = jax.jit(jax.vmap(env.step))(keys, state, actions)
@@ -250,6 +253,7 @@ def test_vmapped_batch_equals_single_envs():
             np.testing.assert_allclose(a[i], b, rtol=1e-6, atol=1e-7)
 
 
+@pytest.mark.slow
 def test_jit_equals_no_jit():
     env, keys, state, actions = _random_batch(8, seed=5)
     compiled_step = jax.jit(env.step)

@@ -20,6 +20,7 @@ from agentax.search.settings import load_best_setting, vacuum_policy
 AGENTAX = str(Path(sys.executable).with_name("agentax"))
 
 
+@pytest.mark.slow
 def test_envs_lists_jax_and_gymnasium_envs_with_their_spaces(capsys):
     assert main(["envs", "--json"]) == 0
     rows = {row["id"]: row for row in json.loads(capsys.readouterr().out)}
@@ -36,6 +37,7 @@ def test_envs_lists_jax_and_gymnasium_envs_with_their_spaces(capsys):
     assert "MountainCar-v0" in table and "Discrete(3)" in table
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_evaluate_json_matches_the_lecture(capsys):
     # The lecture: the basic policy over 500 episodes of CartPole (<= 200 steps) averages about 42,
@@ -61,6 +63,7 @@ def test_evaluate_table_and_gymnasium_env(capsys):
     assert "random policy on FrozenLake-v1" in out and "mean return" in out and "30 episodes, seed 1" in out
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_play_writes_the_animation_and_reports_the_return(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
@@ -75,6 +78,7 @@ def test_play_writes_the_animation_and_reports_the_return(tmp_path, monkeypatch,
     assert (tmp_path / "runs" / "play" / "CartPole-v0-random.gif").stat().st_size > 1000
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_demo_evaluates_and_writes_a_gif(tmp_path, capsys):
     video = tmp_path / "demo.gif"
@@ -83,6 +87,7 @@ def test_demo_evaluates_and_writes_a_gif(tmp_path, capsys):
     assert "basic policy on CartPole-v1" in out and f"wrote {video}" in out and video.stat().st_size > 1000
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(200)
 def test_a_trained_run_folder_is_a_policy(tmp_path, capsys):
     # A tiny vacuum grid search writes a run folder; evaluate and play take the env from it.
@@ -136,6 +141,7 @@ def test_bad_input_is_one_line_and_exit_code_2(argv, message, capsys):
     assert captured.err.count("\n") == 1 and captured.err.startswith(f"agentax {argv[0]}: error: ")
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize(
     "argv", [["evaluate", "--env", "NoSuchEnv-v3"], ["play", "--env", "CartPole-v1", "--video", "x.txt"]]

@@ -47,6 +47,7 @@ HANG_PROGRAM = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(150)
 def test_vmapped_chunk_called_repeatedly_never_hangs_and_no_thread_stays_pinned():
     """The compiled runner's 8-seed PPO program, called 6 times (+ the final evaluation), finishes.
@@ -179,6 +180,7 @@ def _params(result, seed_index):
     return jax.tree.leaves(jax.tree.map(lambda x: np.asarray(x[seed_index]), result.state.agent.params))
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_seed_alone_equals_seed_inside_a_vmapped_batch_and_reruns_are_identical():
     batch = _train(RunnerConfig(seed=0, num_seeds=3, updates_per_chunk=4, eval_episodes=3))
@@ -195,6 +197,7 @@ def test_seed_alone_equals_seed_inside_a_vmapped_batch_and_reruns_are_identical(
         np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_interrupted_run_resumes_to_the_same_end_and_a_torn_checkpoint_is_a_clear_error(tmp_path):
     runner = RunnerConfig(seed=0, num_seeds=2, updates_per_chunk=4, eval_episodes=3)
@@ -219,6 +222,7 @@ def test_interrupted_run_resumes_to_the_same_end_and_a_torn_checkpoint_is_a_clea
     assert (tmp_path / "cut" / "eval.json").exists() and (tmp_path / "cut" / "curve.png").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_looking_ahead_a_chunk_changes_no_number(tmp_path):
     """The runner dispatches chunk k + 1 before writing chunk k's row, except where chunk k's state

@@ -111,6 +111,7 @@ def test_free_running_pendulum_episode_matches_from_the_same_start():
     assert np.flatnonzero(np.asarray(truncated)).tolist() == [199] and gym_rows[-1][3]
 
 
+@pytest.mark.slow
 def test_resets_spaces_and_registration():
     pendulum, car = make("Pendulum-v1"), make("MountainCarContinuous-v0")
     keys = jax.random.split(jax.random.key(0), 4000)

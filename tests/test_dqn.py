@@ -47,6 +47,7 @@ def test_terminated_stops_bootstrapping_truncated_does_not():
     np.testing.assert_allclose(discount, [0.729, 0.0], rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_dueling_aggregation_by_hand():
     value, advantage = jnp.array([[1.0]]), jnp.array([[1.0, 2.0, 4.0]])
     # max: V + A - max A = 1 + [1, 2, 4] - 4 = [-2, -1, 1]
@@ -85,6 +86,7 @@ def linear_agent(cfg, weight=((1.0, 2.0), (0.0, 1.0))):
     return agent.replace(params=params, target_params=params, opt_state=dqn.optimizer(cfg).init(params))
 
 
+@pytest.mark.slow
 def test_learn_uses_the_td_targets_it_should():
     # Q(s) = s @ [[1, 2], [0, 1]]: Q([1, 0]) = [1, 2], Q([0, 1]) = [0, 1], Q([1, 1]) = [1, 3].
     cfg = dqn.DQNConfig(
@@ -138,6 +140,7 @@ def test_double_dqn_target_through_learn():
     assert float(metrics["priority"][0]) == pytest.approx(1 + 0.5 * 4 - 1)  # max over the target: 2.0
 
 
+@pytest.mark.slow
 def test_compiled_and_host_runners_take_the_same_learning_step():
     """The same transitions in the JAX buffer (compiled runner) and the NumPy buffer (host driver), the
     same batch drawn from each, one learning step vmapped over seeds and one jitted on the host."""
@@ -191,6 +194,7 @@ def test_presets_and_validation():
     assert config_from_dict(dqn.DQNConfig, dataclasses.asdict(lecture)) == lecture
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(240)
 @pytest.mark.parametrize("n_step", [1, 3])
 def test_one_agent_keeps_the_same_schedule_on_the_compiled_and_the_host_runner(tmp_path, n_step):
@@ -233,6 +237,7 @@ def test_freezing_seeds_is_a_compiled_runner_option_refused_elsewhere(tmp_path):
     assert not (tmp_path / "h").exists() and not (tmp_path / "p").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize("prioritized", [False, True])
 def test_the_host_learner_reduces_whatever_scalar_metrics_an_agent_names(prioritized):

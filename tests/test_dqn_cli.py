@@ -21,6 +21,7 @@ from agentax.runners import session
 from agentax.runs import load_checkpoint, read_metrics
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_train_dqn_with_every_flag_writes_a_run(tmp_path, capsys):
     out = tmp_path / "run"
@@ -75,6 +76,7 @@ def test_continuous_actions_are_refused_before_a_run_folder_exists(tmp_path, cap
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_a_gymnasium_env_trains_through_the_host_driver(tmp_path):
     out = tmp_path / "acrobot"
     assert main(["train", "dqn", "--env", "Acrobot-v1", "--total-steps", "1000", "--out", str(out)]) == 0
@@ -124,6 +126,7 @@ CRASH_AT = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(240)
 @pytest.mark.parametrize("stage", ["first_committed", "replay_written", "checkpoint_half_written"])
 def test_a_kill_at_each_stage_of_a_checkpoint_resumes_with_the_replay_of_its_checkpoint(tmp_path, stage):
