@@ -13,8 +13,8 @@ second, actor ``i`` acts with its key folded from the third and seeds its envs `
 policy-lag-0 run with one actor, number for number.
 
 Checkpoints hold the agent state and the learner's key, and beside them the replay buffer
-(:class:`ReplayCheckpoints`); a resumed run restarts its envs (a Gymnasium env's state cannot be
-saved) from seeds that depend on how far the run had come.
+(:class:`~agentax.runners.session.ReplayCheckpoints`); a resumed run restarts its envs (a Gymnasium
+env's state cannot be saved) from seeds that depend on how far the run had come.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ from agentax.runners.driver import (
     first_time_step,
 )
 from agentax.runners.rollout import scalars
-from agentax.runners.session import ReplayCheckpoints, Session, TrainResult, checkpoint_target
+from agentax.runners.session import Session, TrainResult, checkpoint_target
 from agentax.runs import Run, load_checkpoint
 
 
@@ -402,12 +402,7 @@ def train(
         replay = replay_for(agent, actor.obs_shape, runner.seed)
         observer = ReplayObserver(replay, experience.n_step, experience.discount_factor)
         learner = OffPolicyLearner(agent, replay, loop=kernel_choice.learning_loop_for(actor.obs_shape))
-        replay_checkpoints = ReplayCheckpoints(
-            run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
-        )
-        session.before_checkpoint = replay_checkpoints.before_checkpoint
-        if resume:
-            replay_checkpoints.restore(session.meta["checkpoint"])
+        session.keep_replay(replay)
     metrics: dict[str, Any] = {}
     # the returns of each row: from what was learned (on-policy, so a parallel run with lag 0 logs
     # the same), else from the actor (off-policy, or whole Atari games, which only the env knows)

@@ -32,7 +32,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import numpy as np
@@ -57,7 +57,7 @@ from agentax.runners.host import (
     refuse_seeds,
     replay_for,
 )
-from agentax.runners.session import ReplayCheckpoints, Session, TrainResult
+from agentax.runners.session import Session, TrainResult
 from agentax.runs import Run
 
 POLL_SECONDS = 0.05  # how often a blocked thread looks whether the run has stopped
@@ -414,21 +414,10 @@ def train(
     try:
         fleet = make_fleet(coordinator, updates, done_steps, session.actors_key)
         logger = session.begin(f"{agent.name} {env_id} ({fleet.description})", progress)
-        loop = _off_policy if isinstance(agent.experience, OffPolicy) else _on_policy
-        rows = _Rows(session)
+        learner = _off_policy if isinstance(agent.experience, OffPolicy) else _on_policy
+        loop = Loop(agent, runner, fleet, threads, coordinator, _Rows(session))
         with logger, interrupted_at_a_safe_point(coordinator):
-            state, updates, env_steps = loop(
-                agent,
-                runner,
-                fleet,
-                threads,
-                coordinator,
-                rows,
-                state,
-                session.learner_key,
-                updates,
-                done_steps,
-            )
+            state, updates, env_steps = learner(loop, state, session.learner_key, updates, done_steps)
     finally:
         coordinator.stop.set()
         for thread in threads:
@@ -436,6 +425,18 @@ def train(
         if fleet is not None:
             fleet.close()
     return session.finish(state, env_steps, updates)
+
+
+class Loop(NamedTuple):
+    """What a learner's loop works with: the agent, the runner's settings, the actors (their fleet
+    and the threads it adds), the coordinator and the session's rows."""
+
+    agent: Agent
+    runner: ParallelRunnerConfig
+    fleet: Fleet
+    threads: list[ActorThread]
+    coordinator: Coordinator
+    rows: _Rows
 
 
 class _Rows:
@@ -460,8 +461,10 @@ class _Rows:
         return self.session.log_row(*args, final=final, extra=extra, counts={"episodes": 0})
 
 
-def _on_policy(agent, runner, fleet, threads, coordinator, rows, state, learner_key, updates, done_steps):
+def _on_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, done_steps: int):
     """Rollout ``k`` from every actor, collected with parameter version ``k - policy_lag``; learn."""
+    agent, runner, fleet, rows = loop.agent, loop.runner, loop.fleet, loop.rows
+    threads, coordinator = loop.threads, loop.coordinator
     experience, actors = agent.experience, fleet.actors
     last_update = num_updates(agent)
     channel = ParameterChannel(coordinator, updates, state, keep=runner.policy_lag + 2, share=fleet.share)
@@ -514,19 +517,15 @@ def _on_policy(agent, runner, fleet, threads, coordinator, rows, state, learner_
     return state, updates, env_steps
 
 
-def _off_policy(agent, runner, fleet, threads, coordinator, rows, state, learner_key, updates, done_steps):
+def _off_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, done_steps: int):
     """Actors fill the shared replay as the rate limiter allows; the learner learns as it allows."""
+    agent, runner, fleet, rows = loop.agent, loop.runner, loop.fleet, loop.rows
+    threads, coordinator = loop.threads, loop.coordinator
     experience: OffPolicy = agent.experience
     actors = fleet.actors
     replay = replay_for(agent, actors[0].obs_shape, runner.seed)
     rows.replay = replay
-    session = rows.session
-    checkpoints = ReplayCheckpoints(
-        session.run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
-    )
-    session.before_checkpoint = checkpoints.before_checkpoint
-    if "checkpoint" in session.meta:  # a resumed run
-        checkpoints.restore(session.meta["checkpoint"])
+    rows.session.keep_replay(replay)
     chunk = experience.train_frequency * (experience.num_envs // runner.actors)
     limiter = RateLimiter(
         coordinator,

@@ -221,6 +221,17 @@ class Session:
         self.solved: tuple[float, float, tuple[np.ndarray, np.ndarray]] | None = None
         """once the run stopped solved: its env steps, seconds and final evaluation"""
 
+    def keep_replay(self, replay: Any) -> None:
+        """Keep ``replay`` beside the checkpoints (:class:`ReplayCheckpoints`, as the runner's
+        settings say), restored from the one this run resumed from."""
+        runner = self.runner
+        kept = ReplayCheckpoints(
+            self.run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
+        )
+        self.before_checkpoint = kept.before_checkpoint
+        if "checkpoint" in self.meta:  # a resumed run
+            kept.restore(self.meta["checkpoint"])
+
     def begin(self, description: str, progress: bool = False) -> RunLogger:
         """The run logger (a context manager: Ctrl-C becomes ``TrainingInterrupted``), its progress
         bar named ``description``; the first row's speed counts from here."""
