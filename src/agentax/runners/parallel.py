@@ -26,11 +26,9 @@ from __future__ import annotations
 
 import dataclasses
 import queue
-import signal
 import threading
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -41,6 +39,16 @@ from agentax import _xla, kernel_choice
 from agentax.agents.protocol import Agent, Episodes, OffPolicy
 from agentax.errors import UsageError
 from agentax.runners import host
+from agentax.runners.coordination import (
+    Coordinator,
+    ParameterChannel,
+    RateLimiter,
+    Stopped,
+    in_memory,
+    interrupted_at_a_safe_point,
+    put,
+    take,
+)
 from agentax.runners.driver import FinishedReturns, ReplayObserver
 from agentax.runners.host import (
     Actor,
@@ -59,8 +67,6 @@ from agentax.runners.host import (
 )
 from agentax.runners.session import Session, TrainResult
 from agentax.runs import Run
-
-POLL_SECONDS = 0.05  # how often a blocked thread looks whether the run has stopped
 
 
 @dataclass(frozen=True)
@@ -129,151 +135,6 @@ def configure_actors(
     return runner, where
 
 
-class Stopped(Exception):
-    """Raised inside a thread's wait once the run is stopping."""
-
-
-class Coordinator:
-    """The run's stop flag and the first error of any thread."""
-
-    def __init__(self):
-        self.stop = threading.Event()
-        self.error: BaseException | None = None
-
-    def fail(self, error: BaseException) -> None:
-        if self.error is None:
-            self.error = error
-        self.stop.set()
-
-    def check(self) -> None:
-        """Raise the first thread's error in the caller (the learner), or ``Stopped``."""
-        if self.error is not None:
-            raise self.error
-        if self.stop.is_set():
-            raise Stopped
-
-    def wait_until(self, condition: threading.Condition, ready: Callable[[], bool]) -> float:
-        """Wait on ``condition`` (held) until ``ready()``; returns the seconds waited."""
-        start = time.perf_counter()
-        self.check()  # also when never waiting: a busy learner still ends with the run
-        while not ready():
-            condition.wait(POLL_SECONDS)
-            self.check()
-        return time.perf_counter() - start
-
-
-@contextmanager
-def interrupted_at_a_safe_point(coordinator: Coordinator) -> Iterator[None]:
-    """Ctrl-C ends the run where the learner next checks the coordinator (between learning steps,
-    with no call to XLA or Ray cut in half: a Ray call interrupted inside left ``ray.shutdown``
-    hanging); a second Ctrl-C interrupts at once. In the main thread only (where signals land)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.getsignal(signal.SIGINT)
-
-    def interrupt(signum, frame):
-        signal.signal(signal.SIGINT, previous)
-        coordinator.fail(KeyboardInterrupt())
-
-    signal.signal(signal.SIGINT, interrupt)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
-def in_memory(version: int, state: Any) -> Any:
-    """How actor threads receive a published state: the state itself (they share the learner's memory)."""
-    return state
-
-
-class ParameterChannel:
-    """Published agent states by version; keeps the ``keep`` newest so an actor can ask for one exactly.
-
-    ``share(version, state)`` is what is kept for the actors: the state itself for threads
-    (:func:`in_memory`), a reference into Ray's object store for actor processes (``train.ray``)."""
-
-    def __init__(
-        self,
-        coordinator: Coordinator,
-        version: int,
-        state: Any,
-        keep: int,
-        share: Callable[[int, Any], Any] = in_memory,
-    ):
-        self.coordinator, self.keep, self.share = coordinator, keep, share
-        self.versions = {version: share(version, state)}
-        self.condition = threading.Condition()
-
-    def publish(self, version: int, state: Any) -> None:
-        shared = self.share(version, state)  # outside the lock: actors may read older versions meanwhile
-        with self.condition:
-            self.versions[version] = shared
-            for old in [v for v in self.versions if v <= version - self.keep]:
-                del self.versions[old]
-            self.condition.notify_all()
-
-    def get(self, version: int) -> tuple[Any, float]:
-        """The state of ``version`` (waiting for it) and the seconds waited."""
-        with self.condition:
-            waited = self.coordinator.wait_until(self.condition, lambda: version in self.versions)
-            return self.versions[version], waited
-
-    def latest(self) -> tuple[int, Any]:
-        with self.condition:
-            version = max(self.versions)
-            return version, self.versions[version]
-
-
-class RateLimiter:
-    """Keeps ``learned ≈ ratio × (inserted − min_inserts)`` (Reverb's SampleToInsertRatio).
-
-    The learner may start a phase of ``phase`` learning steps while ``learned ≤ ratio × (inserted −
-    min_inserts)`` (a sequential loop learns right after each collected chunk); actors may insert while
-    they are less than ``slack`` env steps ahead of what the learner has caught up with.
-    """
-
-    def __init__(self, coordinator: Coordinator, ratio: float, min_inserts: int, slack: int):
-        self.coordinator, self.ratio, self.min_inserts, self.slack = coordinator, ratio, min_inserts, slack
-        self.inserted = self.learned = 0
-        self.closed = False  # no more inserts: the learner catches up and ends
-        self.condition = threading.Condition()
-
-    def learn_ready(self) -> bool:
-        started = self.inserted >= max(self.min_inserts, 1)
-        return started and self.learned <= self.ratio * (self.inserted - self.min_inserts)
-
-    def insert_ready(self) -> bool:
-        caught_up = self.min_inserts + self.learned / self.ratio
-        return self.inserted < self.min_inserts or self.inserted < caught_up + self.slack
-
-    def await_insert(self) -> float:
-        with self.condition:
-            return self.coordinator.wait_until(self.condition, self.insert_ready)
-
-    def inserted_steps(self, count: int) -> None:
-        with self.condition:
-            self.inserted += count
-            self.condition.notify_all()
-
-    def await_learn(self) -> tuple[bool, float]:
-        """Wait for a learning phase; ``(False, waited)`` once inserts are closed and it is caught up."""
-        with self.condition:
-            waited = self.coordinator.wait_until(self.condition, lambda: self.learn_ready() or self.closed)
-            return self.learn_ready(), waited
-
-    def learned_steps(self, count: int) -> None:
-        with self.condition:
-            self.learned += count
-            self.condition.notify_all()
-
-    def close(self) -> None:
-        with self.condition:
-            self.closed = True
-            self.condition.notify_all()
-
-
 class ActorThread(threading.Thread):
     """Runs ``work(actor)`` in a daemon thread; an error stops the whole run through the coordinator."""
 
@@ -290,28 +151,6 @@ class ActorThread(threading.Thread):
             pass
         except BaseException as error:  # handed to the learner, never lost in a thread
             self.coordinator.fail(error)
-
-
-def put(items: queue.Queue, item: Any, coordinator: Coordinator) -> float:
-    """Put into a bounded queue, giving up once the run stops; returns the seconds waited."""
-    start = time.perf_counter()
-    while True:
-        coordinator.check()
-        try:
-            items.put(item, timeout=POLL_SECONDS)
-            return time.perf_counter() - start
-        except queue.Full:
-            continue
-
-
-def take(items: queue.Queue, coordinator: Coordinator) -> tuple[Any, float]:
-    start = time.perf_counter()
-    while True:
-        coordinator.check()
-        try:
-            return items.get(timeout=POLL_SECONDS), time.perf_counter() - start
-        except queue.Empty:
-            continue
 
 
 class Meter:

@@ -54,9 +54,10 @@ from agentax.envs import make_host_env
 from agentax.errors import NodeLost, UsageError
 from agentax.replay import Transition
 from agentax.runners import parallel
+from agentax.runners.coordination import POLL_SECONDS, Coordinator
 from agentax.runners.driver import EnvironmentSteps, TrajectoryObserver
 from agentax.runners.host import Actor, actor_seed, fold_actor_key
-from agentax.runners.parallel import POLL_SECONDS, Coordinator, Fleet, ParallelRunnerConfig, configure_actors
+from agentax.runners.parallel import Fleet, ParallelRunnerConfig, configure_actors
 from agentax.runners.parallel import algorithm_config as actors_algorithm_config
 from agentax.runners.parallel import train as train_parallel
 from agentax.runners.ray_cluster import ray_session
