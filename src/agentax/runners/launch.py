@@ -16,12 +16,15 @@ Every runner module (a row of :data:`agentax.runners.RUNNERS`) exports the same 
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from agentax.agents.protocol import EnvSpec
+from agentax.envs import make_host_env, make_jax
 from agentax.errors import UsageError
 from agentax.policies import Policy
 from agentax.runners import RUNNERS, kind_of
@@ -71,9 +74,6 @@ def parse_stop(value: str, preset: Any, env: Any) -> float | None:
 
 def host_env_spec(env_id: str, backend: str, sticky_actions: float) -> tuple[Any, Any]:
     """``(EnvSpec, Gymnasium's EnvSpec or None)`` of ``env_id`` as the host runners make it."""
-    from agentax.agents.protocol import EnvSpec
-    from agentax.envs import make_host_env
-
     probe = make_host_env(env_id, 1, backend=backend, sticky_actions=sticky_actions)
     specs = EnvSpec.of(probe), getattr(getattr(probe, "vector_env", None), "spec", None)
     probe.close()
@@ -84,9 +84,6 @@ def env_specs(kind: str, env_id: str, backend: str = "auto", sticky_actions: flo
     """``(EnvSpec, what --stop-at-return auto reads the solved threshold of)`` of ``env_id`` as the
     ``kind`` runner makes it: agentax's JAX env, else the host adapter."""
     if RUNNERS[kind].envs == "jax":
-        from agentax.agents.protocol import EnvSpec
-        from agentax.envs import make_jax
-
         env = make_jax(env_id)
         return EnvSpec.of(env), env
     return host_env_spec(env_id, backend, sticky_actions)
@@ -109,8 +106,6 @@ def prepare(algo: str, module: Any, run_args: Any, cfg: Any, preset: Any, kind: 
 
 def _with_stop(run_args: Any, stop: float | None) -> Any:
     """``run_args`` with ``stop_at_return`` resolved to a number or None (what every ``configure`` reads)."""
-    import dataclasses
-
     return dataclasses.replace(run_args, stop_at_return=stop)
 
 

@@ -23,7 +23,10 @@ import dataclasses
 import math
 import multiprocessing
 import os
+import shutil
 import signal
+import socket
+import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from queue import Empty
@@ -31,9 +34,10 @@ from typing import Any
 
 import numpy as np
 
-from agentax.errors import UsageError
+from agentax.errors import TrainingInterrupted, UsageError
 from agentax.runners.ray_cluster import ray_session
 from agentax.runners.session import SOLVED, TIMINGS, TrainResult, conclude
+from agentax.runs import Run, checkpoints, read_config, read_json, read_metrics, write_json
 
 FINAL_RETURNS = "final-returns.json"
 """What a finished worker leaves beside its eval.json: the final evaluation's returns and lengths
@@ -186,9 +190,6 @@ def map_ray(fn: Callable[..., Any], jobs: Sequence[tuple], address: str) -> list
 
 def node() -> str:
     """Where this process runs: the host name, and the Ray node's id inside a Ray task."""
-    import socket
-    import sys
-
     ray = sys.modules.get("ray")
     if ray is not None and ray.is_initialized():
         return f"{socket.gethostname()} (Ray node {ray.get_runtime_context().get_node_id()[:12]})"
@@ -199,8 +200,6 @@ def _ray_job(fn: Callable[..., Any], job: tuple) -> Any:
     """One job in a Ray task; its first element is the (absolute) folder it writes in."""
     folder = Path(job[0])
     if not folder.parent.is_dir():
-        import socket
-
         raise UsageError(
             f"a worker on {socket.gethostname()} cannot see {folder.parent}: a run or sweep on a Ray "
             "cluster writes its folder from every node, so --out must be on a filesystem they all share"
@@ -266,11 +265,6 @@ def train(run: Any, runner: Any, train_one: Callable[..., Any], *, resume: bool,
     :func:`train_worker` says what it is called with), then write the run's merged metrics,
     eval.json and curve.png; the run's :class:`~agentax.runners.session.TrainResult`
     (``state=None``: the agents stayed in the workers)."""
-    import shutil
-
-    from agentax.errors import TrainingInterrupted
-    from agentax.runs import Run, read_json, read_metrics
-
     parts = split(runner)
     jobs = [
         (str(run.path.resolve()), w, part, resume, progress and w == 0, train_one)
@@ -317,8 +311,6 @@ def train_worker(
     ``worker-<w>/``, resumed from its checkpoint if there is one, trained by ``train_one(config, run,
     runner, resume=, progress=) -> TrainResult`` (``config``: the run's config.json); its timings. A
     worker that had finished is only read back."""
-    from agentax.runs import read_config, read_json, write_json
-
     folder = worker_dir(run_dir, w)
     done = folder / FINAL_RETURNS
     if done.is_file():
@@ -336,10 +328,6 @@ def train_worker(
 def resume_or_restart(folder: Path, config: dict[str, Any], resume: bool = True) -> tuple[Any, bool]:
     """``(run, resumed)``: the run in ``folder`` to resume from its checkpoint (``resume`` and it has
     one), else a new run of ``config`` there (a folder made but never checkpointed starts again)."""
-    import shutil
-
-    from agentax.runs import Run, checkpoints
-
     if resume and (folder / "config.json").is_file() and bool(checkpoints(folder)):
         return Run.open(folder), True
     if folder.exists():
