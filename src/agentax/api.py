@@ -257,7 +257,8 @@ def train(
     progress: bool = True,
     **overrides: Any,
 ) -> Run:
-    """Train ``algo`` ('reinforce', 'ppo', 'dqn') on ``env`` into a run folder, as ``agentax train`` does.
+    """Train ``algo`` (a name of :data:`agentax.agents.ALGORITHMS`) on ``env`` into a run folder, as
+    ``agentax train`` does.
 
     ``preset`` ('auto': the algorithm's preset for the env) gives the starting config; ``total_steps``
     and any further keyword naming a field of the algorithm's config (``learning_rate=1e-3``,

@@ -1,6 +1,6 @@
 """The agent protocol: what every algorithm offers, whatever runner drives it.
 
-An algorithm module (``agentax.agents.reinforce``, ``ppo``, ``dqn``) is a namespace of pure
+An algorithm module (each of the registry :data:`agentax.agents.ALGORITHMS`) is a namespace of pure
 functions over pytrees. Its contract, written once here:
 
 - a frozen config dataclass with ``total_steps`` and ``validate()``, named in the registry
