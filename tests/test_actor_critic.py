@@ -170,10 +170,12 @@ SMALL = {  # the Zoo's Pendulum presets with 64-wide layers and a short warm-up
 
 @pytest.mark.slow
 @pytest.mark.timeout(300)
-@pytest.mark.parametrize("algo", ["sac", "td3"])
+@pytest.mark.parametrize("algo", ["sac", pytest.param("td3", marks=pytest.mark.long)])
 def test_learns_pendulum_on_the_compiled_runner(algo):
     """From random swings (about −1,200) to an upright pendulum for both seeds in 5,000 (SAC) or
-    8,000 (TD3) steps."""
+    8,000 (TD3) steps. TD3's (~100 s with an empty compile cache) runs in make test-long: in make
+    test its numbers are pinned by the golden rows td3_compiled and td3_host (tests/test_golden.py),
+    and SAC's learning, on the same off-policy machinery, is checked here."""
     cfg = presets.preset(algo, "pendulum", **SMALL[algo]).config
     runner = RunnerConfig(seed=0, num_seeds=2, updates_per_chunk=1_000, eval_episodes=10)
     env = make_jax(PENDULUM)
