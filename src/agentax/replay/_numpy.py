@@ -1,11 +1,10 @@
 """NumPy pieces both host buffers share (:mod:`agentax.replay.host`'s and the frame buffer's): the
-sum-tree of prioritized replay and TF-Agents' ``as_dataset`` with a prefetching thread."""
+sum-tree of prioritized replay and TF-Agents' ``as_dataset``, its batches drawn ahead."""
 
 from __future__ import annotations
 
-import queue
-import threading
-from collections.abc import Callable, Iterator
+import collections
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -41,42 +40,38 @@ def find_prefix_sum(tree: np.ndarray, mass: np.ndarray) -> np.ndarray:
 class Dataset:
     """TF-Agents' ``as_dataset`` for a buffer with ``sample(batch_size)`` and ``prioritized``."""
 
-    def as_dataset(
-        self, sample_batch_size: int, num_batches: int = 1, prefetch: int = 2
-    ) -> Iterator[ReplaySample]:
-        """Endless uniform batches, each leaf ``[num_batches, sample_batch_size, ...]``, drawn ``prefetch``
-        ahead by a daemon thread (uniform replay only: prioritized batches depend on the last update)."""
+    def as_dataset(self, sample_batch_size: int, num_batches: int = 1, prefetch: int = 2) -> DrawAhead:
+        """Endless uniform batches, each leaf ``[num_batches, sample_batch_size, ...]``, drawn
+        ``prefetch + 1`` ahead (uniform replay only: prioritized batches depend on the last update)."""
         if self.prioritized:
             raise ValueError("as_dataset draws ahead, so it serves uniform replay only; sample() instead")
-        return Prefetch(lambda: self._stacked(sample_batch_size, num_batches), prefetch)
+        return DrawAhead(lambda: self._stacked(sample_batch_size, num_batches), prefetch + 1)
 
     def _stacked(self, batch_size: int, num_batches: int) -> ReplaySample:
         batch = self.sample(batch_size * num_batches)
         return jax.tree.map(lambda x: x.reshape(num_batches, batch_size, *x.shape[1:]), batch)
 
 
-class Prefetch:
-    """An iterator over ``draw()`` results that a daemon thread keeps ``depth`` ahead."""
+class DrawAhead:
+    """An iterator over ``draw()`` results kept ``depth`` ahead, drawn on the caller's thread at
+    fixed points: when it is made, and at each :meth:`refill`. So batch ``k`` holds what the buffer
+    held when batch ``k - depth`` was taken, whatever the threads' timing: the same seed gives the
+    same batches. A learner calls :meth:`refill` right after dispatching its (asynchronous) update,
+    so the drawing overlaps XLA's work on the batch taken; without it, ``next`` draws when empty."""
 
     def __init__(self, draw: Callable[[], Any], depth: int):
-        self.draw = draw
-        self.queue: queue.Queue = queue.Queue(maxsize=max(depth, 1))
-        self.error: BaseException | None = None
-        threading.Thread(target=self._fill, daemon=True, name="replay-prefetch").start()
+        self.draw, self.depth = draw, max(depth, 1)
+        self.ahead: collections.deque = collections.deque()
+        self.refill()
 
-    def _fill(self) -> None:
-        try:
-            while True:
-                self.queue.put(self.draw())
-        except BaseException as error:  # handed to the consumer, never lost in a thread
-            self.error = error
-            self.queue.put(None)
+    def refill(self) -> None:
+        while len(self.ahead) < self.depth:
+            self.ahead.append(self.draw())
 
-    def __iter__(self) -> Prefetch:
+    def __iter__(self) -> DrawAhead:
         return self
 
     def __next__(self) -> Any:
-        item = self.queue.get()
-        if item is None:
-            raise RuntimeError("replay prefetch failed") from self.error
-        return item
+        if not self.ahead:
+            self.refill()
+        return self.ahead.popleft()

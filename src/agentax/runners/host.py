@@ -285,7 +285,7 @@ def replay_for(agent: Agent, obs_shape: tuple[int, ...], seed: int) -> Any:
 
 class OffPolicyLearner:
     """Learning phases on a replay buffer: ``gradient_steps`` learning steps, one compiled call for
-    uniform replay (a ``lax.scan`` over batches drawn ahead by ``as_dataset``), step by step for
+    uniform replay (a ``lax.scan`` over batches drawn ahead by ``as_dataset``, while XLA learns), step by step for
     prioritized replay (each batch depends on the priorities the last one set). A phase's metrics
     are the means of every scalar metric ``learn`` returns (whatever the agent names them); the
     priorities come from ``metrics[PRIORITY]``."""
@@ -312,7 +312,9 @@ class OffPolicyLearner:
         if not experience.prioritized:
             if self.dataset is None:
                 self.dataset = self.replay.as_dataset(experience.batch_size, experience.gradient_steps)
-            return self.learn_many(state, next(self.dataset), key)
+            learned = self.learn_many(state, next(self.dataset), key)  # dispatched: XLA works on it
+            self.dataset.refill()  # meanwhile the batch of a later phase is drawn
+            return learned
         beta = float(experience.importance_exponent(env_steps))
         steps = []
         for step_key in jax.random.split(key, experience.gradient_steps):
