@@ -285,8 +285,8 @@ def replay_for(agent: Agent, obs_shape: tuple[int, ...], seed: int) -> Any:
 
 class OffPolicyLearner:
     """Learning phases on a replay buffer: ``gradient_steps`` learning steps, one compiled call for
-    uniform replay (a ``lax.scan`` over batches drawn ahead by ``as_dataset``, while XLA learns), step by step for
-    prioritized replay (each batch depends on the priorities the last one set). A phase's metrics
+    uniform replay (a ``lax.scan`` over batches drawn ahead by ``as_dataset`` while XLA learns), step
+    by step for prioritized replay (each batch depends on the priorities the last one set). A phase's metrics
     are the means of every scalar metric ``learn`` returns (whatever the agent names them); the
     priorities come from ``metrics[PRIORITY]``."""
 
