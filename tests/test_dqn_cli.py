@@ -150,6 +150,7 @@ def test_a_kill_at_each_stage_of_a_checkpoint_resumes_with_the_replay_of_its_che
     assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]  # the half-written one is gone
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(240)
 @pytest.mark.parametrize("runner", [pytest.param("compiled", marks=pytest.mark.long), "host"])
 def test_resume_of_a_run_killed_before_its_first_checkpoint_starts_it_from_its_config(tmp_path, runner):

@@ -96,6 +96,7 @@ def check_same_actions(path, policy, obs: np.ndarray, continuous: bool) -> np.nd
     return actions
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 @pytest.mark.parametrize("name", list(TINY))
 def test_both_formats_act_as_the_agentax_policy(runs, name, capsys):
@@ -140,6 +141,7 @@ def test_both_formats_act_as_the_agentax_policy(runs, name, capsys):
     assert json.loads(export.card_path(hlo_file).read_text())["platforms"] == ["cpu", "cuda"]
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize("name", ["ppo-cartpole", "sac-pendulum"])
 def test_the_stochastic_module_samples_as_the_agent_with_its_key(runs, name, tmp_path):
@@ -166,6 +168,7 @@ def test_the_stochastic_module_samples_as_the_agent_with_its_key(runs, name, tmp
     assert not np.array_equal(actions, agentax_actions(run.policy, obs))  # not the greedy actions
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_evaluate_policy_file_gives_the_runs_evaluation(runs, capsys):
     """``agentax evaluate --policy FILE`` plays the same episodes as ``--policy RUN_DIR``: the same

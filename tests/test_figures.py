@@ -52,6 +52,7 @@ def test_every_figure_on_the_pages_is_its_sources_value():
     assert _marked((ROOT / "README.md").read_text()), "the README shows no marked figure"
 
 
+@pytest.mark.slow
 def test_each_figure_one_off_in_its_last_digit_fails_the_check():
     """Every marked figure of the README and the docs pages, one at a time, changed by one in its last
     digit: the check names that figure, on that page and line."""

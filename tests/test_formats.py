@@ -62,6 +62,7 @@ def test_the_current_format_has_its_fixtures():
     assert set(formats.STATE_MIGRATIONS) == set(formats.CONFIG_MIGRATIONS) == set(range(1, formats.FORMAT))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("version", "name"), RUNS)
 def test_a_fixture_acts_and_evaluates_as_it_did_when_written(version, name, tmp_path, capsys):
     folder = copy_of(version, name, tmp_path)
@@ -85,6 +86,7 @@ def test_a_fixture_acts_and_evaluates_as_it_did_when_written(version, name, tmp_
     assert err.count("run-folder format") == (version < formats.FORMAT)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("version", "name"), RUNS)
 def test_a_fixture_resumes_in_todays_format(version, name, tmp_path):
     """The run continues from its checkpoint (given twice its steps), and what it writes is
@@ -139,6 +141,7 @@ def test_a_folder_of_a_newer_format_is_one_line(where, tmp_path, capsys):
     )
 
 
+@pytest.mark.slow
 def test_report_plot_and_play_read_a_format_1_folder(tmp_path):
     folder = copy_of(1, "ppo-compiled-2seeds", tmp_path)
     assert main(["report", str(folder)]) == 0
@@ -148,6 +151,7 @@ def test_report_plot_and_play_read_a_format_1_folder(tmp_path):
     assert (tmp_path / "episode.gif").stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_resume_after_its_checkpoints_folder_was_deleted_starts_again(tmp_path, capsys):
     folder = copy_of(formats.FORMAT, "ppo-host", tmp_path)
     shutil.rmtree(folder / "checkpoints")

@@ -207,6 +207,7 @@ def assert_same_rows(golden: Path, trained: Path) -> None:
 LONG_CASES = {"ppo_atari_compiled"}  # ~110 s cold (the Nature CNN's compilation): make test-long
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "name", [pytest.param(n, marks=pytest.mark.long) if n in LONG_CASES else n for n in CASES]
 )

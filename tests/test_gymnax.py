@@ -19,6 +19,7 @@ from agentax.nets import MinAtarCNN  # noqa: E402
 from agentax.sweeps import sweep  # noqa: E402
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["Breakout-MinAtar", "Asterix-MinAtar", "CartPole-v1", "Catch-bsuite"])
 def test_the_adapter_steps_as_gymnax_steps(name):
     """600 random steps from the same keys through gymnax's ``step`` and the adapter's: the same
@@ -83,6 +84,7 @@ def test_a_sweep_runs_on_a_minatar_game(tmp_path):
     assert all(np.isfinite(row["scores"]).all() for row in swept.settings)
 
 
+@pytest.mark.slow
 def test_the_minatar_torso_on_flat_observations_is_the_conv_net_on_gymnax_image():
     """MinAtarCNN on the adapter's flat observations equals MinAtar's network written out with
     ``lax.conv`` on gymnax's own ``[10, 10, 4]`` images (so the reshape undoes the flattening and the
@@ -128,6 +130,7 @@ def test_pqn_with_the_minatar_torso_learns_breakout_minatar(tmp_path):
     assert run.final_eval["mean_return"] > 1.5, run.final_eval
 
 
+@pytest.mark.slow
 def test_ppo_and_pqn_put_the_minatar_torso_before_their_heads():
     """``conv_torso``: PPO's actor and critic share one MinAtarCNN, PQN's Q-head sits on one; both
     map a batch of flat boards to ``[batch, 3]`` (and PPO's values to ``[batch]``)."""

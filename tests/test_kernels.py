@@ -63,6 +63,7 @@ def assert_close(actual, desired, bf16):
         np.testing.assert_allclose(actual, desired, rtol=1e-4, atol=1e-4 * np.abs(desired).max())
 
 
+@pytest.mark.slow
 @needs_kernel
 @pytest.mark.parametrize("bf16", [False, True], ids=["f32", "bf16"])
 @pytest.mark.parametrize("layer", NATURE_LAYERS, ids=["conv1", "conv2", "conv3"])
@@ -88,6 +89,7 @@ def test_the_ffi_call_is_in_the_program():
     assert "agentax_conv" not in xla.lower(x, w).as_text()
 
 
+@pytest.mark.slow
 @needs_kernel
 @pytest.mark.parametrize("shared_weights", [True, False], ids=["shared-weights", "weights-per-seed"])
 def test_vmapped_over_seeds(shared_weights):
@@ -158,6 +160,7 @@ def test_the_dense_product_and_both_gradients_match_xla(batch_shape, bf16):
         assert_close(a, e, bf16)
 
 
+@pytest.mark.slow
 @needs_kernel
 @pytest.mark.parametrize("shared_weights", [True, False], ids=["shared-weights", "weights-per-seed"])
 def test_the_dense_product_vmapped_over_seeds(shared_weights):
@@ -190,6 +193,7 @@ def test_xla_mode_is_xlas_convolution_exactly():
     np.testing.assert_array_equal(kernels.conv2d(x, w, (2, 2), "xla"), direct)
 
 
+@pytest.mark.slow
 def test_a_missing_library_falls_back_to_xla_exactly(monkeypatch, tmp_path):
     """``auto`` without the library is XLA's convolution bit for bit; ``onednn`` says what is missing,
     whether asked for by ``AGENTAX_CONV`` or handed to a network."""
@@ -247,6 +251,7 @@ def test_the_install_skips_the_kernel_only_where_it_cannot_be_built(tmp_path, wh
     assert not kernel.exists()
 
 
+@pytest.mark.slow
 def test_a_test_run_without_the_kernel_says_so_in_its_summary(tmp_path):
     """The last lines of ``make test`` (CI's summary), not only the skip reasons."""
     missing = tmp_path / "none.so"
@@ -520,6 +525,7 @@ def test_an_unknown_mode_is_an_error(monkeypatch):
         kernel_choice.mode()
 
 
+@pytest.mark.slow
 def test_an_unknown_mode_ends_a_cli_run_in_one_line_naming_the_choices(tmp_path):
     """Issue 30: read while the network is traced, a bad ``AGENTAX_CONV`` ended ``agentax train`` in
     a JAX traceback."""
@@ -538,6 +544,7 @@ def test_an_unknown_mode_ends_a_cli_run_in_one_line_naming_the_choices(tmp_path)
     )
 
 
+@pytest.mark.slow
 @needs_kernel
 def test_the_nature_cnn_keeps_its_parameters_and_output():
     """Parameter names and shapes do not depend on the kernel (checkpoints load either way), and the

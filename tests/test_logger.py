@@ -50,6 +50,7 @@ def assert_checkpoints_finite(run_dir, agent):
 # ---------------------------------------------------------------- non-finite guard
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize(
     ("algo", "runner", "metric", "steps"),
@@ -76,6 +77,7 @@ def test_a_diverging_run_stops_with_one_line_and_exit_code_3(tmp_path, capsys, a
     assert checkpoints(out) == []
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_only_finite_parameters_are_checkpointed(tmp_path):
     """Parameters turned NaN after the 4th iteration: the run stops at the next checkpoint and the
@@ -101,6 +103,7 @@ def test_only_finite_parameters_are_checkpointed(tmp_path):
 # ---------------------------------------------------------------- checkpoint fallback on --resume
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_resume_skips_a_damaged_checkpoint(tmp_path, capsys):
     cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=2_048)
@@ -129,6 +132,7 @@ def test_resume_skips_a_damaged_checkpoint(tmp_path, capsys):
 # ---------------------------------------------------------------- Ctrl-C
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_ctrl_c_says_how_to_resume_and_resume_works(tmp_path, capsys, monkeypatch):
     out = tmp_path / "run"

@@ -161,6 +161,7 @@ def test_mdp_env_steps_like_gymnasium_on_deterministic_frozenlake():
     assert episodes > 5
 
 
+@pytest.mark.slow
 def test_mdp_env_impossible_action_is_a_no_op_and_time_limit_truncates():
     env = make_jax("LectureMDP-v0")
     assert env.observation_space().n == 3 and env.action_space().n == 3

@@ -61,6 +61,7 @@ def test_the_message_names_the_bytes_and_what_fits(monkeypatch, capsys, tmp_path
     assert 2 < int(err.split("at most about ")[1].split()[0]) < 6, err  # 1 GB / (10,000 × ~27 KB)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 @pytest.mark.parametrize(
     ("algo", "env_id", "sizes"),
@@ -84,6 +85,7 @@ def test_the_estimate_is_within_a_factor_of_two_or_so_of_xlas_own(algo, env_id, 
     assert 0.5 * xla < estimate < 2.5 * xla, (estimate, xla)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_the_check_leaves_jax_without_a_cpu_client():
     """The check runs before the runner chooses how jax makes its CPU client (every CPU for the host

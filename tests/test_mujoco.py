@@ -167,6 +167,7 @@ def _ppo_agent(spec: EnvSpec, total_steps: int, num_envs: int, num_steps: int):
     return agent_maker(ppo, spec, cfg)()
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_host_ppo_on_half_cheetah_two_updates(tmp_path):
     """PPO's Gaussian head on Gymnasium's HalfCheetah-v5 (host runner): 2 envs x 128 steps, two
@@ -191,6 +192,7 @@ def test_host_ppo_on_half_cheetah_two_updates(tmp_path):
     assert np.isfinite(evaluation["mean_return"])
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_compiled_ppo_on_hopper_two_updates(tmp_path):
     """PPO with EnvPool's Hopper-v5 inside the program: 4 envs x 64 steps, two updates. An untrained
@@ -232,6 +234,7 @@ def test_compiled_runner_refuses_an_off_policy_agent_and_other_envs():
         check(agent, "Hopper-v5", Config(env_backend="ale"))
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(60)
 def test_no_opengl_is_one_line(tmp_path):
     """GLFW without a display cannot draw: ``agentax play`` says so in one line (in a process of its
@@ -254,6 +257,7 @@ def test_no_opengl_is_one_line(tmp_path):
     assert "Traceback" not in done.stderr
 
 
+@pytest.mark.slow
 def test_video_of_a_mujoco_episode_where_egl_works(monkeypatch, tmp_path):
     """Hopper with random actions drawn through EGL (skipped, with its one line, where EGL is
     missing): 320x240 frames that are not blank, every third step (125 fps written at 41.7)."""

@@ -42,6 +42,7 @@ def test_running_stats_equal_numpy_over_every_batch_seen(wrap):
     assert stats.mean.dtype == stats.var.dtype == stats.count.dtype == jnp.float32
 
 
+@pytest.mark.slow
 def test_a_mask_merges_only_the_samples_it_marks():
     rng = np.random.default_rng(1)
     batch = rng.normal(size=(40, 3)).astype(np.float32)
@@ -77,6 +78,7 @@ def _rollout(reward, terminated, truncated, obs=None, info=None) -> Transition:
     )
 
 
+@pytest.mark.slow
 def test_rewards_are_scaled_by_the_std_of_the_discounted_return_hand_computed():
     # One env, γ = 0.5, rewards [1, 2, 3, 4], the episode ends (truncated) after step 1:
     #   R_0 = 1,  R_1 = 0.5·1 + 2 = 2.5 (then reset),  R_2 = 3,  R_3 = 0.5·3 + 4 = 5.5
