@@ -118,6 +118,7 @@ def test_without_normalisation_the_state_and_the_rollout_are_as_before():
     assert same is agent and seen is rollout
 
 
+@pytest.mark.slow
 def test_ppo_learn_updates_the_stats_and_the_greedy_policy_reads_them():
     cfg = ppo.PPOConfig(**SMALL, normalize_observations=True, normalize_rewards=True)
     agent = ppo.make_agent(SPEC, cfg)
@@ -185,6 +186,7 @@ def _observations(n: int = 5) -> jax.Array:
     return jnp.asarray(rng.uniform(-1.0, 1.0, size=(n, 3)) * [1.0, 1.0, 8.0], jnp.float32)  # cos, sin, θ'
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_host_checkpoint_saves_and_restores_the_stats(tmp_path):
     from agentax.runners.host import restore_policy
@@ -227,6 +229,7 @@ def test_host_checkpoint_saves_and_restores_the_stats(tmp_path):
     np.testing.assert_allclose(exported, loaded, rtol=0, atol=1e-5)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_compiled_runner_runs_normalised_ppo_and_restores_its_stats(tmp_path):
     run = agentax.train(
@@ -255,6 +258,7 @@ def test_compiled_runner_runs_normalised_ppo_and_restores_its_stats(tmp_path):
     np.testing.assert_array_equal(loaded, jax.vmap(run.policy, in_axes=(0, None))(obs, jax.random.key(0)))
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_compiled_mujoco_picks_the_preset_and_leaves_envpools_reset_steps_out_of_the_stats(tmp_path):
     """EnvPool's Hopper-v5 inside the program (``--preset auto``: mujoco, both normalisers on), 4 envs

@@ -51,6 +51,7 @@ def assert_same_trees(a, b):
 # ---------------------------------------------------------------- runner swap: host == parallel lag 0
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_ppo_on_the_host_and_the_parallel_runner_at_lag_0_gives_the_same_numbers():
     cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=8_192)
@@ -69,6 +70,7 @@ def test_ppo_on_the_host_and_the_parallel_runner_at_lag_0_gives_the_same_numbers
     assert on_host.eval["mean_return"] == in_threads.eval["mean_return"]
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_reinforce_episodes_on_both_runners_give_the_same_numbers():
     cfg = reinforce.ReinforceConfig(total_steps=3_200, episodes_per_update=4, max_steps=200)
@@ -101,6 +103,7 @@ def test_parallel_ppo_with_policy_lag_1_solves_cartpole():
     assert result.eval["mean_return"] >= 475, (result.eval, [r["mean_return"] for r in result.rows])
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_policy_lag_1_runs_are_reproducible():
     cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=4_096)
@@ -235,6 +238,7 @@ if "FailingEnv-v0" not in gymnasium.registry:
     gymnasium.register(id="FailingEnv-v0", entry_point=FailingCartPole, max_episode_steps=500)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("algo", ["ppo", "dqn"])
 def test_an_error_in_an_actor_ends_the_run_with_that_error(algo):
@@ -261,6 +265,7 @@ def test_an_error_in_the_learner_stops_the_actors():
 # ---------------------------------------------------------------- the figures of the rows
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_a_slow_learner_shows_as_actors_waiting():
     """Lag 0: the actors wait for every new parameter version while the learner learns (0.2 s)."""
@@ -283,6 +288,7 @@ def test_a_slow_learner_shows_as_actors_waiting():
         assert row["learner_updates_per_second"] < 5.5  # at most one update per 0.2 s
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_ctrl_c_ends_a_parallel_run_with_no_thread_and_no_handler_left(tmp_path):
     import os
@@ -311,6 +317,7 @@ def test_ctrl_c_ends_a_parallel_run_with_no_thread_and_no_handler_left(tmp_path)
     assert 2 <= metrics.read_text().count("\n") < 20  # it stopped soon after the signal
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_the_default_actors_fit_a_preset_of_one_env(tmp_path):
     """Issue 18 item 7: ``--runner parallel`` on a one-env preset (DQN's Atari presets) takes one

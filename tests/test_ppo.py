@@ -49,6 +49,7 @@ def test_config_validation_names_the_bad_value():
         presets.preset("ppo", "nope")
 
 
+@pytest.mark.slow
 def test_one_update_moves_the_policy_and_reports_finite_losses():
     env = make_jax("CartPole-v1")
     cfg = dataclasses.replace(

@@ -37,6 +37,7 @@ def test_q_lambda_targets_by_hand():
     )
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_targets_from_acts_q_values_equal_a_second_forward_pass():
     """On an EnvPool-style rollout (``info["valid"]``: ``next_obs[t]`` is ``obs[t + 1]``) PQN
@@ -72,6 +73,7 @@ def test_targets_from_acts_q_values_equal_a_second_forward_pass():
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_pqn_solves_cartpole_on_the_compiled_runner(tmp_path):
     """The default preset, two seeds vmapped: every seed's greedy policy averages at least 475
@@ -83,6 +85,7 @@ def test_pqn_solves_cartpole_on_the_compiled_runner(tmp_path):
     assert min(s["mean_return"] for s in run.final_eval["per_seed"]) >= 475
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_the_same_pqn_agent_learns_on_the_host_runner(tmp_path):
     """Gymnasium's CartPole-v1 stepped on the host by the Driver: far above a random policy (~22)."""

@@ -24,6 +24,7 @@ Z3 = jnp.array([-1.0, 0.0, 1.0])
 P3 = jnp.array([0.2, 0.5, 0.3])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("wrap", [lambda f: f, jax.jit], ids=["plain", "jit"])
 def test_categorical_projection_by_hand(wrap):
     project = wrap(dqn.categorical_projection)
@@ -42,6 +43,7 @@ def test_categorical_projection_by_hand(wrap):
     np.testing.assert_allclose(project(z5, p5, 1.0, 0.5, z5), [0.0, 0.0, 0.2, 0.5, 0.3], atol=1e-6)
 
 
+@pytest.mark.slow
 def test_categorical_projection_keeps_the_mass_vmapped():
     key_r, key_d, key_p = jax.random.split(jax.random.key(0), 3)
     rewards = jax.random.uniform(key_r, (64,), minval=-15.0, maxval=15.0)
@@ -110,6 +112,7 @@ C51 = dqn.DQNConfig(
 )
 
 
+@pytest.mark.slow
 def test_c51_loss_is_the_cross_entropy_by_hand():
     sample = c51_sample([1, 0], [0.5, 0.25], [False, True], [1.0, 0.5])
     _, metrics = jax.jit(dqn.make_learn(C51))(tabular_c51_agent(C51, ONLINE), sample)
@@ -123,6 +126,7 @@ def test_c51_loss_is_the_cross_entropy_by_hand():
     assert float(metrics["q_mean"]) == pytest.approx(0.125, rel=1e-5)
 
 
+@pytest.mark.slow
 def test_c51_double_picks_with_the_online_network():
     # The target network has s' rows swapped: action 0 → [0.2, 0.5, 0.3] (Q 0.1), action 1 uniform.
     target = [ONLINE[0], [ONLINE[1][1], ONLINE[1][0]]]
@@ -138,6 +142,7 @@ def test_c51_double_picks_with_the_online_network():
     np.testing.assert_allclose(metrics["priority"], [1.005063], rtol=1e-5)  # the target's own argmax
 
 
+@pytest.mark.slow
 def test_noisy_dense():
     x = jax.random.normal(jax.random.key(0), (5, 3))
     layer = NoisyDense(4, sigma0=0.0)
@@ -185,6 +190,7 @@ def test_shift_moves_pixels_exactly():
     np.testing.assert_array_equal(moved[:, 0], moved[:, 2])  # the top row replicated into the gap
 
 
+@pytest.mark.slow
 def test_random_shift_crops_each_sample_at_its_own_offset():
     frames = jax.random.randint(jax.random.key(0), (8, 4, 84, 84), 0, 256).astype(jnp.uint8)
     shifted = random_shift(jax.random.key(1), frames)
@@ -240,6 +246,7 @@ def test_rainbow_learns_cartpole_through_the_host_runner():
     assert result.eval["mean_return"] > 75, result.eval
 
 
+@pytest.mark.slow
 def test_rainbow_on_the_compiled_runner():
     """The compiled program gives learn its key (noise) inside the scan; uniform replay (PER: host test)."""
     cfg = dataclasses.replace(

@@ -232,6 +232,7 @@ def test_stacked_frames_travel_once_and_come_back_exactly():
     assert pack_frames(flat) is flat and unpack_frames(flat) is flat  # not frames: sent as they are
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_a_breakout_rollout_packs_over_sixfold_and_unpacks_exactly():
     import jax
@@ -259,6 +260,7 @@ def test_a_breakout_rollout_packs_over_sixfold_and_unpacks_exactly():
 # ---------------------------------------------------------------- learning, same numbers, same folder
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_ppo_on_ray_actors_learns_and_gives_the_thread_actors_numbers(cluster, tmp_path):
     cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=16_384)
@@ -318,6 +320,7 @@ def test_the_compiled_runners_workers_run_as_ray_tasks_on_both_nodes_with_one_pr
     assert len(nodes) == 2 and all("Ray node" in n for n in nodes), nodes  # one CPU a node: one worker each
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_dqn_on_ray_actors_learns_and_resumes_with_its_replay(cluster, tmp_path):
     cfg = dataclasses.replace(presets.preset("dqn", "default").config, total_steps=30_000)
@@ -347,6 +350,7 @@ def test_dqn_on_ray_actors_learns_and_resumes_with_its_replay(cluster, tmp_path)
 # ---------------------------------------------------------------- faults
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_a_killed_actor_process_is_replaced_and_the_run_finishes(cluster, tmp_path):
     cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=32_768)
@@ -391,6 +395,7 @@ def wait_for_no_collectors(cluster, seconds: float = 10.0) -> bool:
     return not collector_pids(cluster)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_a_learner_error_ends_the_run_and_its_actor_processes(cluster, tmp_path):
     cfg = dataclasses.replace(presets.preset("dqn", "default").config, learning_rate=1e30, total_steps=20_000)
@@ -411,6 +416,7 @@ def test_more_actors_than_the_cluster_has_cpus_is_refused(cluster):
         ray_runner.train(agent, "CartPole-v1", RayRunnerConfig(actors=8), make_agent=remake)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_a_lost_node_whose_cpus_the_run_needs_ends_it_with_the_resume_hint(cluster, tmp_path):
     """A third node joins the fixture's two, its collector's node is then lost: the two CPUs left
@@ -494,6 +500,7 @@ def agentax_env(marker: str) -> dict[str, str]:
     return {**os.environ, "RAY_TMPDIR": marker, "PYTHONUNBUFFERED": "1"}
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_the_cli_starts_and_stops_its_own_ray_also_on_ctrl_c_and_on_errors(own_ray_tmpdir, tmp_path):
     env = agentax_env(own_ray_tmpdir)
@@ -539,6 +546,7 @@ def test_the_cli_starts_and_stops_its_own_ray_also_on_ctrl_c_and_on_errors(own_r
     assert_none_left(own_ray_tmpdir)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_beside_a_ray_start_cluster_a_run_has_its_own_ray_and_auto_joins_it(own_ray_tmpdir, tmp_path):
     """A user's ``ray start --head`` running: without ``--ray-address`` the run starts a Ray of its own
@@ -586,6 +594,7 @@ def ray_start(*args: str, env: dict[str, str]) -> str:
     return done.stdout + done.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_ray_address_host_port_joins_a_token_cluster_and_a_wrong_token_is_one_line(own_ray_tmpdir, tmp_path):
     """The cluster how-to, on one machine: a token, ``ray start --head`` (a token found: Ray 2.60 turns
@@ -636,6 +645,7 @@ def test_ray_address_host_port_joins_a_token_cluster_and_a_wrong_token_is_one_li
     assert time.monotonic() - start < 15  # at once, not after Ray's 20 s of retries
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_a_lost_local_ray_node_ends_the_cli_run_with_one_line_saying_what_to_do(own_ray_tmpdir, tmp_path):
     """Its runtime env agent killed, the run's local Ray node dies and Ray ends the learner's process
@@ -671,6 +681,7 @@ def test_a_lost_local_ray_node_ends_the_cli_run_with_one_line_saying_what_to_do(
     assert_none_left(own_ray_tmpdir)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(60)
 def test_the_watcher_says_how_to_resume_a_run_with_a_checkpoint_and_is_quiet_after_a_normal_end(tmp_path):
     code = (

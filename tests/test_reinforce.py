@@ -16,6 +16,7 @@ from agentax.runners.compiled import RunnerConfig, compiled_program, train_progr
 from agentax.runs import read_metrics
 
 
+@pytest.mark.slow
 def test_loss_is_minus_mean_log_prob_times_normalized_return():
     cfg = reinforce.ReinforceConfig(hidden=(5,), sigmoid_head=True)
     agent = reinforce.init(jax.random.key(0), (4,), 2, cfg)
@@ -63,6 +64,7 @@ def test_reinforce_learns_cartpole_v0(preset):
     assert last > 3 * first and last > 100, [r["mean_return"] for r in result.rows]
 
 
+@pytest.mark.slow
 def test_a_gaussian_heads_log_prob_is_the_normal_density_and_the_env_gets_clipped_actions():
     """On Pendulum's Box [-2, 2] the policy is a diagonal Gaussian: its log-prob is the normal density's
     log, a sampled action leaves the bounds only until the env's clip, the greedy action is the mean."""
@@ -84,6 +86,7 @@ def test_a_gaussian_heads_log_prob_is_the_normal_density_and_the_env_gets_clippe
     assert jnp.allclose(greedy, jnp.clip(mean, -2, 2))
 
 
+@pytest.mark.slow
 def test_the_default_head_fits_the_number_of_actions():
     """The lecture's sigmoid head [z, 0] on two actions (CartPole's golden rows); a softmax over one
     logit per action on three (Acrobot), where it used to be refused."""
@@ -95,6 +98,7 @@ def test_the_default_head_fits_the_number_of_actions():
         assert logits.shape == (2, n) and bool(jnp.all(logits[:, 1:] == 0.0)) == sigmoid, logits
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_reinforce_trains_acrobot_from_the_cli(tmp_path, capsys):
     out = tmp_path / "run"
@@ -105,6 +109,7 @@ def test_reinforce_trains_acrobot_from_the_cli(tmp_path, capsys):
     assert (out / "eval.json").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_reinforce_with_the_gaussian_head_learns_pendulum():
     """The pendulum preset at a quarter of its budget, one seed: from about -1,200 (random) to

@@ -62,6 +62,7 @@ def test_uniform_sample_draws_only_filled_slots():
     np.testing.assert_array_equal(sample.weights, np.ones(1000))
 
 
+@pytest.mark.slow
 def test_host_ring_buffer_matches_jax():
     jax_state, host_state = uniform.init(5, EXAMPLE), host.init(5, jax.device_get(EXAMPLE))
     for rewards in ([1, 2, 3], [4, 5], [6, 7, 8, 9]):
@@ -125,6 +126,7 @@ def filled_prioritized(td_errors, capacity=8, exponent=0.6):
     return prioritized.update_priorities(state, jnp.arange(len(td_errors)), jnp.asarray(td_errors))
 
 
+@pytest.mark.slow
 def test_sampling_frequencies_match_priorities():
     # p = |δ| = [1, 2, 3, 4, 0.5]; P ∝ p^0.6.
     td_errors = np.array([1.0, -2.0, 3.0, 4.0, -0.5])
@@ -171,6 +173,7 @@ def test_importance_weights_follow_the_formula():
     np.testing.assert_allclose(host_sample.weights, [1.0, 0.5], rtol=1e-5)
 
 
+@pytest.mark.slow
 def test_new_transitions_get_the_max_priority():
     state = filled_prioritized([5.0, 1.0], exponent=0.6)
     assert float(state.max_priority) == pytest.approx(5.0)

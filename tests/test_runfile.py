@@ -42,6 +42,7 @@ def by_flags(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_a_preset_file_trains_as_the_flags_do(by_flags, tmp_path, capsys):
     preset = tmp_path / "ppo.toml"
@@ -58,6 +59,7 @@ def test_a_preset_file_trains_as_the_flags_do(by_flags, tmp_path, capsys):
     assert config == flags
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_a_run_folders_run_toml_repeats_the_run(by_flags, tmp_path):
     written = tomllib.loads((by_flags / "run.toml").read_text())
@@ -88,6 +90,7 @@ def test_flags_beside_the_file_override_its_fields(tmp_path):
     assert 'max_grad_norm = "none"' in runfile.dumps("dqn", run_args, cfg)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_a_sweeps_best_toml_trains_the_best_setting(tmp_path):
     swept = sweep(

@@ -193,6 +193,7 @@ def test_restore_policy_rejects_unknown_algorithms_and_empty_folders(tmp_path):
         restore_policy(tmp_path)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_a_full_disk_while_checkpointing_is_one_line_and_keeps_the_last_checkpoint(
     tmp_path, monkeypatch, capsys

@@ -53,6 +53,7 @@ def run(algorithm, config, fitness, num_params, seeds=1, seed=0):
     return state, history
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize(
     "algorithm, config",
@@ -71,6 +72,7 @@ def test_finds_the_optimum_of_a_shifted_sphere(algorithm, config):
     assert np.all(history[-1]["best_fitness"] > history[0]["best_fitness"])
 
 
+@pytest.mark.slow
 def test_population_evaluated_in_one_call_equals_one_by_one():
     env = make_env("CartPole-v0", NetConfig())
     flat = FlatPolicy.create(env, NetConfig())
@@ -121,6 +123,7 @@ def test_vacuum_policy_probabilities():
     assert np.abs(actions[:, 1]).max() <= 0.7 and np.abs(actions[:, 1]).max() > 0.69
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_many_vacuum_settings_in_one_call_equal_one_by_one():
     p, r = np.array([0.2, 0.8, 0.95, 0.6], np.float32), np.array([0.5, 3.0, 1.5, 2.0], np.float32)
@@ -137,6 +140,7 @@ def test_many_vacuum_settings_in_one_call_equal_one_by_one():
 SHORT = Vacuum().default_params().replace(episode_seconds=600.0)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_vacuum_grid_search_heatmap_marks_the_best(tmp_path):
     config = GridSearchConfig(num_p=6, num_r=5, num_episodes=3, final_episodes=20)
@@ -156,6 +160,7 @@ def test_vacuum_grid_search_heatmap_marks_the_best(tmp_path):
     assert summary["p"] == pytest.approx(result.best_p) and summary["episodes"] == 20
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_vacuum_random_search_is_reproducible():
     config = RandomSearchConfig(num_settings=8, r_max=1.0, num_episodes=2, final_episodes=5)

@@ -15,6 +15,7 @@ from agentax.envs.core import episode_returns
 from agentax.search import cem, grid
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_cartpole_cem_run_folder(tmp_path):
     out = tmp_path / "run"
@@ -49,6 +50,7 @@ def test_cartpole_cem_run_folder(tmp_path):
     assert float(returns.min()) == result["min_return"] and float(returns.max()) == result["max_return"]
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_vacuum_grid_run_folder(tmp_path):
     out = tmp_path / "vacuum"
@@ -89,6 +91,7 @@ def test_bad_input_is_one_line_and_exit_2(argv, needle, capsys):
     assert err.count("\n") == 1 and needle in err and "Traceback" not in err
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(60)
 def test_bad_input_from_the_command_line():
     result = subprocess.run(

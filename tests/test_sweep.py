@@ -23,6 +23,7 @@ def swept(tmp_path_factory):
     return sweep("ppo", grid={"learning_rate": "1e-3,3e-3", "num_envs": "4,8"}, out=out, **SMALL)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_traced_and_static_names_and_the_folder(swept):
     asked = json.loads((swept.path / "sweep.json").read_text())
@@ -46,6 +47,7 @@ def test_traced_and_static_names_and_the_folder(swept):
     assert best["iqm"] == max(row["iqm"] for row in swept.settings)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_a_setting_trained_alone_gives_the_sweeps_numbers(swept, tmp_path):
     """Agent (s, k) of a sweep starts from seed k's keys with setting s traced: the same final
@@ -57,6 +59,7 @@ def test_a_setting_trained_alone_gives_the_sweeps_numbers(swept, tmp_path):
     assert [s["mean_return"] for s in run.final_eval["per_seed"]] == pytest.approx(setting["scores"])
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_a_finished_sweep_is_read_back_and_another_request_is_refused(swept, monkeypatch):
     from agentax.runners import workers
@@ -117,6 +120,7 @@ def test_random_settings_stay_in_their_ranges_and_repeat_with_the_seed():
     assert drawn == random_settings(ranges, types, 200, seed=3)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_optuna_asks_batches_and_a_rerun_asks_the_same(tmp_path):
     """Two batches of two TPE trials, each batch one program; the same command again reads every
@@ -135,6 +139,7 @@ def test_optuna_asks_batches_and_a_rerun_asks_the_same(tmp_path):
         sweep("ppo", **{**asked, "ranges": {"num_envs": (2.0, 8.0, False)}, "out": tmp_path / "p"})
 
 
+@pytest.mark.slow
 def test_sacs_utd_is_traced_and_a_traced_count_loops_that_many_times():
     """``--utd`` sets the learning steps per phase, a count: traced, the phase loops as many times
     as each agent's count (under vmap the longest, the others masked), with the scan's carry and

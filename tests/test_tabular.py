@@ -81,6 +81,7 @@ def test_planning_is_the_same_plain_jitted_and_vmapped_over_discount_factors():
     assert int(value_iteration(mdp, 0.95, tol=1e-4).num_iterations) > 50
 
 
+@pytest.mark.slow
 def test_frozenlake_value_iteration_matches_the_linear_system_of_its_optimal_policy():
     for map_name in ("4x4", "8x8"):
         dense, sparse = frozenlake(map_name), frozenlake(map_name, sparse=True)
@@ -108,6 +109,7 @@ def test_frozenlake_optimal_policy_wins_in_gymnasium_itself():
     assert wins / 300 > 0.6  # the optimal policy succeeds ~74% within 100 steps; random play ~1.5%
 
 
+@pytest.mark.slow
 def test_sparse_gridworld_value_is_the_geometric_sum_of_step_costs():
     # Without slip the shortest path from (0, 0) to (99, 99) takes 198 steps of reward −1:
     # V*(start) = −(1 − γ^198) / (1 − γ); with γ = 0.99 that is −86.32.
@@ -117,6 +119,7 @@ def test_sparse_gridworld_value_is_the_geometric_sum_of_step_costs():
     assert bool(result.converged)
 
 
+@pytest.mark.slow
 def test_dense_and_sparse_forms_agree_on_a_random_mdp():
     dense = random_mdp(0, 300, 4)
     sparse = dense.to_sparse()
@@ -277,6 +280,7 @@ def test_q_value_iterates_converge_in_under_20_iterations_on_the_lecture_mdp():
     assert errors[19] < 0.1 * errors[0] and errors[-1] < 1e-3
 
 
+@pytest.mark.slow
 def test_error_bounds_stop_early_within_tol_of_v_star():
     # MacQueen's bounds: the midpoint is within tol of V* (here V* itself from a tight residual run).
     for mdp in (lecture_mdp(), random_mdp(1, 200, 3), frozenlake("4x4", sparse=True)):
@@ -300,6 +304,7 @@ def test_episode_returns_split_the_step_stream_at_episode_ends():
     np.testing.assert_array_equal(episode_returns(rewards[0], ends[0]), [-102, -1])
 
 
+@pytest.mark.slow
 def test_learners_accept_discount_factor_one_where_planning_refuses_it():
     # A policy can bump into the walls of cliff walking forever: value iteration has no finite
     # answer at γ = 1, but every sampled episode ends (terminated, or at the episode cap).
@@ -315,6 +320,7 @@ def test_learners_accept_discount_factor_one_where_planning_refuses_it():
         q_learning(jax.random.key(0), mdp, QLearningConfig(discount_factor=1.5))
 
 
+@pytest.mark.slow
 def test_cliff_walking_sarsa_walks_the_safe_path_q_learning_the_optimal_one():
     # Sutton & Barto, Example 6.6 and Figure 6.4: γ = 1, ε = 0.1, α = 0.5. Measured over 10 seeds,
     # episodes 401-500: SARSA −25.3 (seeds −20 to −29), Q-learning −45.9 (−35 to −58): Q-learning
@@ -341,6 +347,7 @@ def test_cliff_walking_sarsa_walks_the_safe_path_q_learning_the_optimal_one():
     assert last_100["sarsa"] - last_100["q-learning"] > 10
 
 
+@pytest.mark.slow
 def test_solve_cli_runs_example_6_6(capsys):
     from agentax.cli import main
 

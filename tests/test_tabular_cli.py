@@ -21,6 +21,7 @@ def test_solve_lecture_q_value_iteration_json(capsys):
     assert result["iterations"] < 200
 
 
+@pytest.mark.slow
 def test_solve_value_iteration_and_td_print_v(capsys):
     result = solve_json(capsys, "--mdp", "chain", "--method", "value-iteration", "--discount-factor", "0.5")
     # 10-state chain, reward 1 on entering state 9: V*(s) = 0.5^(8 − s) for s < 9, V*(9) = 0.
@@ -30,6 +31,7 @@ def test_solve_value_iteration_and_td_print_v(capsys):
     assert len(td["V"]) == 3 and td["steps"] == 2000 and "Q" not in td
 
 
+@pytest.mark.slow
 def test_solve_cliffwalking_walks_around_the_cliff(capsys):
     result = solve_json(capsys, "--mdp", "cliffwalking", "--method", "value-iteration")
     # The shortest safe path from the start (36): up, 11 × right, down = 13 steps of reward −1,
@@ -40,6 +42,7 @@ def test_solve_cliffwalking_walks_around_the_cliff(capsys):
     assert len(result["V"]) == 48
 
 
+@pytest.mark.slow
 def test_solve_table_and_plot(capsys, tmp_path):
     plot = tmp_path / "compare.png"
     assert (

@@ -23,6 +23,7 @@ from agentax.runners.session import EVAL_KEY_OFFSET
 from agentax.runs import read_metrics
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
@@ -86,6 +87,7 @@ def test_resuming_a_folder_without_a_run(tmp_path, capsys):
     assert "holds no run" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_train_then_plot_then_restore_policy(tmp_path, capsys):
     out = tmp_path / "run"
@@ -124,6 +126,7 @@ def test_train_then_plot_then_restore_policy(tmp_path, capsys):
     assert float(np.mean(returns)) == pytest.approx(evaluation["per_seed"][best]["mean_return"])
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_host_loop_trains_pendulum_and_loads(tmp_path):
     out = tmp_path / "pendulum"
@@ -190,6 +193,7 @@ def test_killed_run_resumes_to_the_full_number_of_steps(tmp_path):
     assert json.loads((out / "eval.json").read_text())["episodes"] == 20
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_sigterm_checkpoints_says_how_to_continue_and_exits_143(tmp_path):
     """Issue 18 item 2: SIGTERM (``kill``, a scheduler) ends a run as Ctrl-C does, and the first

@@ -332,6 +332,7 @@ def _params():
         yield pytest.param(page, id=page.stem, marks=marks)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("page", list(_params()))
 def test_page_runs_and_prints_what_it_shows(page: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
     for module in REQUIRES.get(page.name, ()):

@@ -67,6 +67,7 @@ def test_rotation_turns_in_place_and_cleans_its_cell():
     assert not cells(state)[4, 4]
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_dust_conserved_and_robot_stays_in_room():
     settings = [(0.9, 3.0), (0.5, 0.5), (1.0, 0.0)]
