@@ -128,9 +128,9 @@ def sweep(
     from agentax.agents import algorithm
     from agentax.envs import JAX_ENVS, make_jax
     from agentax.runfile import choose_preset
-    from agentax.runners.compiled import RunnerConfig, compiled_program
+    from agentax.runners.compiled import compiled_program
     from agentax.runners.sweep import float_fields, traceable
-    from agentax.runners.workers import default_count, map_processes
+    from agentax.runners.workers import default_count
 
     grid, ranges = grid or {}, ranges or {}
     method = method if method != "auto" else ("grid" if grid else "random")
@@ -147,16 +147,8 @@ def sweep(
     base = (
         chosen.config if total_steps is None else dataclasses.replace(chosen.config, total_steps=total_steps)
     )
-    fields = {f.name: type(getattr(base, f.name)) for f in dataclasses.fields(base)}
     names = list(grid) + list(ranges)
-    unknown = [n for n in names if n not in fields]
-    if unknown:
-        raise UsageError(
-            f"unknown {algo} setting {unknown[0]!r}; the {type(base).__name__} fields are {', '.join(fields)}"
-        )
-    not_numbers = [n for n in names if fields[n] not in (int, float, bool)]
-    if not_numbers:
-        raise UsageError(f"{not_numbers[0]} is not a number and cannot be swept; set it with agentax train")
+    fields = _numeric_fields(algo, base, names)
     jax_env = make_jax(env)
 
     def make_program(cfg):
@@ -200,49 +192,93 @@ def sweep(
     }
     _open_folder(path, request)
 
-    def train_settings(p: int, members: list[dict[str, Any]]) -> list[np.ndarray]:
-        """Program ``p``: ``members`` (their static values equal) × the seeds; each member's scores."""
-        cfg = dataclasses.replace(base, **{n: members[0][n] for n in static})
-        runner = RunnerConfig(
-            seed=seed,
-            num_seeds=seeds,
-            num_settings=len(members),
-            updates_per_chunk=chosen.updates_per_chunk,
-            eval_every_chunks=chosen.eval_every_chunks,
-            eval_episodes=chosen.eval_episodes,
+    programs = _Programs(path, request, base, chosen, static, traced, workers, ray_address, progress)
+    if method == "optuna":
+        settings, scores = _optuna(path, ranges, trials, batch, seed, programs.train, base, progress)
+    else:
+        scores = programs.train_all(settings)
+    return _write_results(path, request, settings, scores)
+
+
+def _numeric_fields(algo: str, base: Any, names: list[str]) -> dict[str, type]:
+    """The type of each field of ``base`` (the algorithm's config); a ``UsageError`` where ``names``
+    holds one it lacks or one that is not a number."""
+    fields = {f.name: type(getattr(base, f.name)) for f in dataclasses.fields(base)}
+    unknown = [n for n in names if n not in fields]
+    if unknown:
+        raise UsageError(
+            f"unknown {algo} setting {unknown[0]!r}; the {type(base).__name__} fields are {', '.join(fields)}"
         )
-        parts = np.array_split(np.arange(len(members)), min(workers, len(members)))
+    not_numbers = [n for n in names if fields[n] not in (int, float, bool)]
+    if not_numbers:
+        raise UsageError(f"{not_numbers[0]} is not a number and cannot be swept; set it with agentax train")
+    return fields
+
+
+@dataclass(frozen=True)
+class _Programs:
+    """How a sweep's settings train: those whose static values are equal as one program, their
+    traced values a table inside it (split over ``workers`` processes)."""
+
+    path: Path
+    request: dict[str, Any]
+    base: Any
+    preset: Any
+    static: list[str]
+    traced: list[str]
+    workers: int
+    ray_address: str | None
+    progress: bool
+
+    def train(self, p: int, members: list[dict[str, Any]]) -> list[np.ndarray]:
+        """Program ``p``: ``members`` (their static values equal) × the seeds; each member's scores."""
+        from agentax.runners.compiled import RunnerConfig, schedule_of
+        from agentax.runners.workers import map_processes
+
+        seeds = self.request["seeds"]
+        cfg = dataclasses.replace(self.base, **{n: members[0][n] for n in self.static})
+        runner = RunnerConfig(
+            seed=self.request["seed"], num_seeds=seeds, num_settings=len(members), **schedule_of(self.preset)
+        )
+        parts = np.array_split(np.arange(len(members)), min(self.workers, len(members)))
         jobs = []
         for w, part in enumerate(parts):
-            table = {n: np.repeat([members[j][n] for j in part], seeds).astype(np.float32) for n in traced}
-            folder = path.resolve() / (f"program-{p}" if len(parts) == 1 else f"program-{p}-{w}")
-            jobs.append((folder, request, cfg, dataclasses.replace(runner, num_settings=len(part)), table))
+            table = {
+                n: np.repeat([members[j][n] for j in part], seeds).astype(np.float32) for n in self.traced
+            }
+            folder = self.path.resolve() / (f"program-{p}" if len(parts) == 1 else f"program-{p}-{w}")
+            jobs.append(
+                (folder, self.request, cfg, dataclasses.replace(runner, num_settings=len(part)), table)
+            )
         # several jobs: one process a worker, each with its own one-CPU XLA client (the first shows progress)
-        shown = [(*job, progress and w == 0) for w, job in enumerate(jobs)]
-        per_agent = np.concatenate(map_processes(_train_program, shown, ray_address))
+        shown = [(*job, self.progress and w == 0) for w, job in enumerate(jobs)]
+        per_agent = np.concatenate(map_processes(_train_program, shown, self.ray_address))
         return [per_agent[j * seeds : (j + 1) * seeds] for j in range(len(members))]
 
-    if method == "optuna":
-        settings, scores = _optuna(path, ranges, trials, batch, seed, train_settings, base, progress)
-        return _write_results(path, request, settings, scores)
-    groups: dict[tuple, list[int]] = {}
-    for i, setting in enumerate(settings):
-        groups.setdefault(tuple(setting[n] for n in static), []).append(i)
-    if progress:
-        print(
-            f"sweep of {algo} on {env}: {len(settings)} settings × {seeds} seeds in {len(groups)} program(s) "
-            f"into {path}\n  traced inside a program: {', '.join(traced) or 'none'}"
-            f"\n  one program per value: {', '.join(static) or 'none'}",
-            flush=True,
-        )
-    scores: dict[int, np.ndarray] = {}
-    for p, members in enumerate(groups.values()):
-        if progress:
-            shown = ", ".join(f"{n}={settings[members[0]][n]}" for n in static)
-            print(f"program {p + 1}/{len(groups)}{': ' + shown if shown else ''} ({len(members)} settings)")
-        for i, member_scores in zip(members, train_settings(p, [settings[i] for i in members]), strict=True):
-            scores[i] = member_scores
-    return _write_results(path, request, settings, scores)
+    def train_all(self, settings: list[dict[str, Any]]) -> dict[int, np.ndarray]:
+        """Every setting (a grid's or random draws'), a program per group of equal static values."""
+        groups: dict[tuple, list[int]] = {}
+        for i, setting in enumerate(settings):
+            groups.setdefault(tuple(setting[n] for n in self.static), []).append(i)
+        if self.progress:
+            request = self.request
+            print(
+                f"sweep of {request['algo']} on {request['env']}: {len(settings)} settings × "
+                f"{request['seeds']} seeds in {len(groups)} program(s) into {self.path}\n"
+                f"  traced inside a program: {', '.join(self.traced) or 'none'}"
+                f"\n  one program per value: {', '.join(self.static) or 'none'}",
+                flush=True,
+            )
+        scores: dict[int, np.ndarray] = {}
+        for p, members in enumerate(groups.values()):
+            if self.progress:
+                shown = ", ".join(f"{n}={settings[members[0]][n]}" for n in self.static)
+                print(
+                    f"program {p + 1}/{len(groups)}{': ' + shown if shown else ''} ({len(members)} settings)"
+                )
+            for i, member_scores in zip(members, self.train(p, [settings[i] for i in members]), strict=True):
+                scores[i] = member_scores
+        return scores
 
 
 def _check_request(method: str, grid: dict, ranges: dict, random: int, trials: int, batch: int) -> None:

@@ -388,9 +388,7 @@ def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[RunnerConfig, s
     runner = RunnerConfig(
         seed=run_args.seed,
         num_seeds=run_args.seeds,
-        updates_per_chunk=preset.updates_per_chunk,
-        eval_every_chunks=preset.eval_every_chunks,
-        eval_episodes=preset.eval_episodes,
+        **schedule_of(preset),
         stop_at_return=stop,
         freeze_at_return=_freeze(run_args.freeze_at_return, preset),
         freeze_episodes=run_args.freeze_episodes,
@@ -404,6 +402,12 @@ def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[RunnerConfig, s
             "(or --runner ray for the Ray runner's actors)"
         )
     return runner, workers.announced(runner, chosen=run_args.workers is None)
+
+
+def schedule_of(preset: Any) -> dict[str, int]:
+    """What a :class:`RunnerConfig` takes of a preset: its chunks and evaluations."""
+    names = ("updates_per_chunk", "eval_every_chunks", "eval_episodes")
+    return {name: getattr(preset, name) for name in names}
 
 
 def _freeze(value: str, preset: Any) -> float | None:
