@@ -198,6 +198,7 @@ def test_evaluate_policy_file_gives_the_runs_evaluation(runs, capsys):
                 assert of_file[stat] == pytest.approx(of_run[stat], rel=1e-6)
 
 
+@pytest.mark.slow
 def test_export_of_a_cartpole_policy_through_the_cli(runs, tmp_path, capsys):
     """The command line's one line names the file, its size, the card and the time (measured, not
     asserted: the docs state it)."""
@@ -216,6 +217,7 @@ def no_checkpoint_run(runs, tmp_path):
     return folder
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "argv, message",
     [

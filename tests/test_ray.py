@@ -407,6 +407,7 @@ def test_a_learner_error_ends_the_run_and_its_actor_processes(cluster, tmp_path)
     assert wait_for_no_collectors(cluster), collector_pids(cluster)
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(60)
 def test_more_actors_than_the_cluster_has_cpus_is_refused(cluster):
     from agentax.errors import UsageError
