@@ -6,20 +6,21 @@ seed's carry (agent state, env states, replay if any, key, and an ``episodes`` f
 :class:`agentax.returns.EpisodeStats` updated at every env step) and whose ``update(carry) ->
 (carry, metrics)`` is one collect-then-learn iteration, ``num_updates`` of them a training.
 
-**The runner** compiles one program, ``jax.jit(jax.vmap(chunk))``, where ``chunk`` scans
-``update`` ``updates_per_chunk`` times (a shared, unbatched count discards the updates past the
-end in a last, shorter chunk, so no second program is compiled) and then, when asked,
-evaluates the greedy policy with :func:`agentax.envs.core.episode_returns` on fresh evaluation
+**The runner** compiles one program, ``jax.jit(jax.vmap(chunk))``
+(:func:`agentax.runners.programs.build`), where ``chunk`` scans ``update`` ``updates_per_chunk``
+times (a shared, unbatched count discards the updates past the end in a last, shorter chunk, so no
+second program is compiled) and then, when asked, evaluates the greedy policy on fresh evaluation
 keys — inside the same program. Seed ``k`` of a batch starting at ``seed`` uses
-``jax.random.key(seed + k)``, so seed ``k`` run alone gives the same numbers as inside a batch.
-The program and the one that initialises the carry pass it as the flat list of its arrays;
-given a description of what they compute, :mod:`agentax.runners.programs` keeps them on disk, so a
-repeated run neither traces nor compiles them.
+``jax.random.key(seed + k)``, so seed ``k`` run alone gives the same numbers as inside a batch;
+:mod:`agentax.runners.programs` keeps the programs on disk, so a repeated run neither traces nor
+compiles them.
 
-Between chunks, back in Python, it logs a row (metrics.csv, TensorBoard, a rich progress bar),
-checkpoints the whole carry (so a resumed run continues exactly), and stops early once
-every seed's evaluation mean reaches ``stop_at_return`` (solved means solved on every seed).
-At the end it evaluates the greedy policies once more on fresh keys, writes eval.json and curve.png.
+Between chunks (:class:`ChunkSchedule`), back in Python, it logs a row through the session's pieces
+(:mod:`agentax.runners.session`: metrics.csv, TensorBoard, a rich progress bar), checkpoints the
+whole carry (so a resumed run continues exactly), and stops early once every seed's evaluation mean
+reaches ``stop_at_return`` (solved means solved on every seed). At the end it evaluates the greedy
+policies once more on fresh keys into eval.json and curve.png (:func:`~agentax.runners.session.conclude`).
+With ``workers > 1`` :func:`train` splits the seeds over processes (:mod:`agentax.runners.workers`).
 
 ``import agentax`` has jax create its CPU client on one CPU (:mod:`agentax._xla`), the cure for
 the XLA CPU hang this program, called over and over, once met; the threads stay free to use
