@@ -305,11 +305,12 @@ def runner_name_branches(source: str, filename: str) -> list[str]:
 
 def test_only_the_runners_table_branches_on_a_runner_name():
     """Adding a runner is a row of :data:`agentax.runners.RUNNERS` (and its launcher): no other module
-    picks behaviour by comparing a kind's name."""
-    table = PACKAGE_ROOT / "runners" / "__init__.py"
+    picks behaviour by comparing a kind's name. The run-folder migrations (``formats.py``) may: they
+    describe folders as older versions wrote them, whatever the table holds today."""
+    exempt = {PACKAGE_ROOT / "runners" / "__init__.py", PACKAGE_ROOT / "formats.py"}
     found = []
     for path in sorted(PACKAGE_ROOT.rglob("*.py")):
-        if path != table:
+        if path not in exempt:
             found += runner_name_branches(path.read_text(), str(path.relative_to(PACKAGE_ROOT.parent)))
     assert not found, "branches on a runner's name outside the table:\n" + "\n".join(found)
 

@@ -167,3 +167,21 @@ def test_a_format_1_folder_exports_the_policy_it_recorded(tmp_path):
     path = agentax.load(folder).export(tmp_path / "policy.stablehlo", format="stablehlo")
     obs = run_fixtures.observations("CartPole-v1")
     np.testing.assert_array_equal(export.load(path).run(obs), recorded(1, "ppo-host")["greedy_actions"])
+
+
+def test_format_1_kept_the_early_stop_in_the_algorithms_settings(tmp_path):
+    """Before 2026-12 DQN's per-seed early stop sat in the algorithm's config; a config that named
+    no runner was the compiled runner's. Read today, both are the compiled runner's settings."""
+    folder = copy_of(1, "dqn-compiled", tmp_path)
+    config = read_json(folder / "config.json")
+    del config["runner_kind"]
+    for name in ("freeze_at_return", "freeze_episodes"):
+        config["config"][name] = config["runner"].pop(name)
+    (folder / "config.json").write_text(json.dumps(config))
+    read = agentax.load(folder).config
+    assert read["runner_kind"] == "compiled" and read["runner"]["freeze_episodes"] == 8
+    assert "freeze_episodes" not in read["config"]
+    np.testing.assert_array_equal(
+        agentax.load(folder).policy(run_fixtures.observations("CartPole-v1"), jax.random.key(0)),
+        recorded(1, "dqn-compiled")["greedy_actions"],
+    )

@@ -32,7 +32,7 @@ from agentax.errors import UsageError
 from agentax.evaluate import EvalStats
 from agentax.policies import Policy
 from agentax.runfile import RunArgs, choose_preset
-from agentax.runners import algorithm_of, kind_for, kind_of, launch, resumes, runner_settings, upgraded
+from agentax.runners import algorithm_of, kind_for, kind_of, launch, resumes, runner_settings
 
 if TYPE_CHECKING:
     from agentax.agents.presets import Preset
@@ -174,7 +174,6 @@ def _restore_learned(
     """The greedy policy of a learning algorithm's run (its best seed), from its newest good checkpoint;
     ``stochastic``: its sampling head instead (:class:`agentax.export.SamplingAlgorithm`); ``conv``:
     its convolution backend (default: the run's entry point chooses)."""
-    config = upgraded(config)
     module, cfg = algorithm_of(config)
     if stochastic:
         from agentax.export import SamplingAlgorithm
@@ -228,7 +227,7 @@ def resume(run_dir: str | Path, progress: bool = True, *, quiet: bool = False) -
     from agentax import _xla, runs
 
     run_dir = Path(run_dir)
-    config = upgraded(runs.read_config(run_dir))
+    config = runs.read_config(run_dir)
     resume = resumes(run_dir, config)
     (module, cfg), algo, kind = algorithm_of(config), config["algo"], kind_of(config)
     _xla.enable_compilation_cache()

@@ -48,9 +48,23 @@ def _ppo_without_normalisation(state: Any, algo: str) -> Any:
 STATE_MIGRATIONS: dict[int, Callable[[Any, str], Any]] = {1: _ppo_without_normalisation}
 """``STATE_MIGRATIONS[v](state, algo)``: a checkpoint's state dict of format ``v`` in format ``v + 1``."""
 
-CONFIG_MIGRATIONS: dict[int, Callable[[dict[str, Any]], dict[str, Any]]] = {1: lambda config: config}
-"""``CONFIG_MIGRATIONS[v](config)``: a ``config.json`` of format ``v`` in format ``v + 1`` (1 → 2 only
-adds the version, which :func:`config_of` writes)."""
+
+def _runner_settings_out_of_config(config: dict[str, Any]) -> dict[str, Any]:
+    """1 → 2: a config.json that names no runner kind is the compiled runner's (written before
+    runners had kinds); DQN's per-seed early stop (``freeze_at_return``, ``freeze_episodes``), kept
+    in the algorithm's settings before 2026-12, is the compiled runner's setting (no other runner
+    had it, so elsewhere it goes)."""
+    config = {"runner_kind": "compiled", **config}
+    settings = config.get("config", {})
+    moved = {k: settings[k] for k in ("freeze_at_return", "freeze_episodes") if k in settings}
+    if not moved:
+        return config
+    runner = {**config.get("runner", {}), **(moved if config["runner_kind"] == "compiled" else {})}
+    return {**config, "config": {k: v for k, v in settings.items() if k not in moved}, "runner": runner}
+
+
+CONFIG_MIGRATIONS: dict[int, Callable[[dict[str, Any]], dict[str, Any]]] = {1: _runner_settings_out_of_config}
+"""``CONFIG_MIGRATIONS[v](config)``: a ``config.json`` of format ``v`` in format ``v + 1``."""
 
 
 def version_of(record: dict[str, Any]) -> int:

@@ -126,23 +126,6 @@ def runner_settings(config: dict[str, Any], where: str) -> Any:
         raise UsageError(f"{where} has no valid 'runner' settings ({error})") from None
 
 
-SETTINGS_ONCE_IN_CONFIG = ("freeze_at_return", "freeze_episodes")
-"""Settings that runs written before 2026-12 kept in the algorithm's config (DQN's per-seed early
-stop) and that now belong to the compiled runner's."""
-
-
-def upgraded(config: dict[str, Any]) -> dict[str, Any]:
-    """``config.json`` of an older run in today's layout (the runner's settings in "runner")."""
-    moved = {k: config["config"][k] for k in SETTINGS_ONCE_IN_CONFIG if k in config.get("config", {})}
-    if not moved:
-        return config
-    settings = {k: v for k, v in config["config"].items() if k not in moved}
-    runner = dict(config.get("runner", {}))
-    if RUNNERS[kind_of(config)].envs == "jax":  # the compiled runner's, where they now live
-        runner.update(moved)
-    return {**config, "config": settings, "runner": runner}
-
-
 def algorithm_of(config: dict[str, Any]) -> tuple[ModuleType, Any]:
     """``(module, cfg)``: the algorithm a run's config.json names, and its config."""
     from agentax.agents import algorithm, algorithm_config, config_from_dict
