@@ -247,3 +247,25 @@ def test_n_step_return_function():
     assert (float(ret), int(k)) == (6.0, 3)
     assert tuple(map(float, n_step_return(jnp.array([2.0, 4.0, 8.0]), yes, no, 0.5))) == (4.0, 2.0)
     assert tuple(map(float, n_step_return(jnp.array([2.0, 4.0, 8.0]), no, yes, 0.5))) == (4.0, 2.0)
+
+
+def test_a_full_disk_while_saving_the_replay_leaves_nothing_and_names_the_bytes(tmp_path, monkeypatch):
+    """By fault injection: the disk fills as the replay file is synced. StorageFull names the
+    bytes the arrays need; neither the replay file nor its temporary file is left."""
+    import errno
+    import os
+
+    from agentax.errors import StorageFull
+    from agentax.replay.files import save_replay
+    from agentax.replay.host import ReplayBuffer
+
+    buffer = ReplayBuffer(16, {"obs": np.zeros(3, np.float32), "reward": np.float32(0)})
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", full)
+    with pytest.raises(StorageFull) as raised:
+        save_replay(buffer, tmp_path / "replay-1.npz")
+    assert raised.value.needed == sum(np.asanyarray(a).nbytes for a in buffer.state_dict().values()) > 0
+    assert list(tmp_path.iterdir()) == []

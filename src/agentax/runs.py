@@ -25,6 +25,7 @@ This module is the store only: it reads and writes the folder. Drawing curve.png
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import datetime
@@ -33,8 +34,9 @@ import io
 import json
 import math
 import os
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import jax
 import numpy as np
@@ -89,21 +91,29 @@ def default_run_dir(algo: str, env_id: str, root: str | Path = "runs") -> Path:
     return candidate
 
 
-def write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary name in the same folder, then rename it over ``path``; on any
-    error the temporary file goes (a full disk is :class:`~agentax.errors.StorageFull`)."""
+@contextlib.contextmanager
+def atomic_file(path: Path, needed: int = 0) -> Iterator[BinaryIO]:
+    """A file to write ``path`` through: a temporary name in the same folder, fsynced and renamed
+    over ``path`` when the block ends; on any error the temporary file goes (a full disk is
+    :class:`~agentax.errors.StorageFull`, naming the ``needed`` bytes)."""
     tmp = path.with_name(f".{path.name}.tmp")
     try:
         with open(tmp, "wb") as f:
-            f.write(data)
+            yield f
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except OSError as error:
+    except BaseException as error:
         tmp.unlink(missing_ok=True)
-        if error.errno in NO_SPACE:
-            raise StorageFull(path, len(data)) from None
+        if isinstance(error, OSError) and error.errno in NO_SPACE:
+            raise StorageFull(path, needed) from None
         raise
+
+
+def write_atomic(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through :func:`atomic_file`: all of it, or nothing."""
+    with atomic_file(path, len(data)) as f:
+        f.write(data)
 
 
 NO_SPACE = (errno.ENOSPC, errno.EDQUOT)

@@ -3,42 +3,29 @@ and read without pickle. The frame buffer's own ``frames.load`` reads the same f
 
 from __future__ import annotations
 
-import errno
-import os
 import zipfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from agentax.errors import StorageFull
+from agentax.runs import atomic_file
 
 
 def save_replay(buffer: Any, path: str | Path, compresslevel: int = 1) -> Path:
     """Write a replay buffer's ``state_dict`` (a host buffer's or the frame buffer's) to ``path`` as
     a compressed ``.npz`` (deflate, no pickle: ``np.load`` reads it with ``allow_pickle=False``),
-    atomically: into a temporary file in the same folder, fsynced, then renamed over ``path``.
-    Holds the buffer's lock meanwhile (the actors wait). Level 1 deflate: frames compress about as
-    well as at level 6 for a fraction of the time."""
+    atomically (:func:`agentax.runs.atomic_file`). Holds the buffer's lock meanwhile (the actors
+    wait). Level 1 deflate: frames compress about as well as at level 6 for a fraction of the time."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    needed = 0  # at most: the arrays uncompressed
-    try:
-        with buffer.lock, open(tmp, "wb") as f:
-            arrays = {name: np.asanyarray(array) for name, array in buffer.state_dict().items()}
-            needed = sum(array.nbytes for array in arrays.values())
+    with buffer.lock:
+        arrays = {name: np.asanyarray(array) for name, array in buffer.state_dict().items()}
+        needed = sum(array.nbytes for array in arrays.values())  # at most: the arrays uncompressed
+        with atomic_file(path, needed) as f:
             with zipfile.ZipFile(f, "w", zipfile.ZIP_DEFLATED, compresslevel=compresslevel) as archive:
                 for name, array in arrays.items():
                     with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
                         np.lib.format.write_array(member, array, allow_pickle=False)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except OSError as error:
-        tmp.unlink(missing_ok=True)
-        if error.errno in (errno.ENOSPC, errno.EDQUOT):
-            raise StorageFull(path, needed) from None
-        raise
     return path
 
 

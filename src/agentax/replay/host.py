@@ -123,8 +123,8 @@ class ReplayBuffer(Dataset):
     """A host replay buffer (uniform or prioritized) that actor and learner threads can share.
 
     TF-Agents' vocabulary: ``add_batch`` (an observer of the Driver adds through it), ``sample``,
-    ``update_priorities``, and ``as_dataset(sample_batch_size)``, an iterator of sampled batches that
-    a background thread draws ahead. Every access holds one lock, so a sample never sees half a write.
+    ``update_priorities``, and ``as_dataset(sample_batch_size)``, an iterator of sampled batches
+    drawn ahead. Every access holds one lock, so a sample never sees half a write.
     """
 
     def __init__(
