@@ -12,7 +12,7 @@ from agentax.envs import make_jax
 from agentax.envs.gym import GymnasiumEnv
 from agentax.evaluate import host_episode_returns
 from agentax.runners import host, session
-from agentax.runners.compiled import RunnerConfig, compiled_program, train
+from agentax.runners.compiled import RunnerConfig, compiled_program, train_program
 from agentax.runs import Run, load_checkpoint, run_config
 
 # The tuned preset, cut down: 16 learning steps per 64 env steps instead of 128 per 256, the target
@@ -36,7 +36,7 @@ def test_dqn_improves_on_the_compiled_runner_and_freezes():
         seed=0, updates_per_chunk=32, eval_episodes=10, freeze_at_return=150.0, freeze_episodes=4
     )
     env = make_jax("CartPole-v1")
-    result = train(compiled_program(dqn, env, SMALL, runner), env, runner)
+    result = train_program(compiled_program(dqn, env, SMALL, runner), env, runner)
     first, last = result.rows[0], result.rows[-1]
     assert last["env_steps"] == pytest.approx(8_192)
     assert first["mean_return"] < 40  # ε is still high in the first 2,048 steps
@@ -78,7 +78,7 @@ def test_lecture_schedule_counts_episodes(tmp_path):
     """The lecture: one learning step at the end of each episode once 50 are done; nothing after the last."""
     cfg = dataclasses.replace(presets.preset("dqn", "lecture").config, max_episodes=55, total_steps=2_000)
     env = make_jax("CartPole-v0")
-    result = train(
+    result = train_program(
         compiled_program(dqn, env, cfg), env, RunnerConfig(seed=0, updates_per_chunk=2_000, eval_episodes=1)
     )
     state = result.state
@@ -115,8 +115,8 @@ def test_lecture_schedule_in_a_batch_learns_exactly_as_alone():
     )
     env = make_jax("CartPole-v0")
     runner = RunnerConfig(seed=0, num_seeds=3, updates_per_chunk=800, eval_episodes=1)
-    batch = train(compiled_program(dqn, env, cfg), env, runner).state
-    alone = train(
+    batch = train_program(compiled_program(dqn, env, cfg), env, runner).state
+    alone = train_program(
         compiled_program(dqn, env, cfg), env, dataclasses.replace(runner, seed=1, num_seeds=1)
     ).state
     assert [int(n) for n in batch.episodes.completed] == [12, 12, 12]

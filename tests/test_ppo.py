@@ -11,7 +11,7 @@ from agentax.agents import ppo, presets
 from agentax.envs import make_jax
 from agentax.errors import UsageError
 from agentax.nets import gaussian_entropy, gaussian_log_prob
-from agentax.runners.compiled import RunnerConfig, compiled_program, train
+from agentax.runners.compiled import RunnerConfig, compiled_program, train_program
 
 
 def test_clipped_surrogate_loss_hand_computed():
@@ -68,7 +68,7 @@ def test_one_update_moves_the_policy_and_reports_finite_losses():
 def test_ppo_learns_cartpole():
     env = make_jax("CartPole-v1")
     cfg = dataclasses.replace(presets.preset("ppo", "cartpole-fast").config, total_steps=30_720)
-    result = train(
+    result = train_program(
         compiled_program(ppo, env, cfg), env, RunnerConfig(seed=1, updates_per_chunk=30, eval_episodes=10)
     )
     first, last = result.rows[0], result.rows[-1]
