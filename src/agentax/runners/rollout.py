@@ -338,6 +338,59 @@ def example_action(agent: Agent, obs: jax.Array) -> jax.Array:
     return stored_action(jnp.zeros(action.shape[1:], action.dtype))
 
 
+def init_monitor(side_envs: VectorEnv, freeze: Freeze, key: jax.Array) -> GreedyMonitor:
+    """The greedy side episodes' monitor before any step: ``freeze.episodes`` envs just reset."""
+    obs, env_state = side_envs.reset(key)
+    zeros = jnp.zeros(freeze.episodes, jnp.float32)
+    return GreedyMonitor(env_state, obs.astype(jnp.float32), zeros, zeros, jnp.int32(0), jnp.bool_(False))
+
+
+def monitor_step(
+    agent: Agent,
+    side_envs: VectorEnv,
+    freeze: Freeze,
+    monitor: GreedyMonitor,
+    agent_state: Any,
+    key: jax.Array,
+) -> GreedyMonitor:
+    """One greedy step of every side env; freeze once every return in the ring reaches the mark."""
+    num = freeze.episodes
+    policy_keys = jax.random.split(jax.random.fold_in(key, 1), num)
+    action = jax.vmap(agent.greedy_policy(agent_state))(monitor.obs, policy_keys)
+    time_step, env_state, _ = side_envs.step(key, monitor.env_state, action)
+    running = monitor.running + time_step.reward
+    done = time_step.done
+    slot = (monitor.finished + jnp.cumsum(done) - 1) % num  # ring slots of this step's finished episodes
+    returns = monitor.returns.at[jnp.where(done, slot, num)].set(running, mode="drop")
+    finished = monitor.finished + done.sum(dtype=jnp.int32)
+    solved = (finished >= num) & (returns.min() >= freeze.at_return)
+    return GreedyMonitor(
+        env_state=env_state,
+        obs=time_step.obs.astype(jnp.float32),
+        running=jnp.where(done, 0.0, running),
+        returns=returns,
+        finished=finished,
+        frozen=monitor.frozen | solved,
+    )
+
+
+def learning_due(experience: OffPolicy, episodes_before: jax.Array, episodes: EpisodeStats) -> jax.Array:
+    """Whether a learning phase is due after a collection phase (per env's seed): by env steps once
+    ``learning_starts`` passed, or (``by_episode``) every ``train_frequency`` finished episodes."""
+    if experience.by_episode:
+        ended = episodes.completed > episodes_before
+        due = (
+            ended
+            & (episodes.completed % experience.train_frequency == 0)
+            & (episodes_before >= experience.learning_starts)
+        )
+    else:
+        due = episodes.env_steps >= experience.learning_starts
+    if experience.max_episodes:
+        due = due & (episodes_before < experience.max_episodes)
+    return due
+
+
 def off_policy_program(agent: Agent, envs: VectorEnv, freeze: Freeze | None = None) -> Program:
     experience: OffPolicy = agent.experience
     replay = replay_for(experience)
@@ -357,33 +410,7 @@ def off_policy_program(agent: Agent, envs: VectorEnv, freeze: Freeze | None = No
             obs=obs.astype(jnp.float32),
             episodes=EpisodeStats.create(envs.num_envs),
             key=key,
-            greedy=None if freeze is None else init_monitor(monitor_key),
-        )
-
-    def init_monitor(key: jax.Array) -> GreedyMonitor:
-        obs, env_state = side_envs.reset(key)
-        zeros = jnp.zeros(freeze.episodes, jnp.float32)
-        return GreedyMonitor(env_state, obs.astype(jnp.float32), zeros, zeros, jnp.int32(0), jnp.bool_(False))
-
-    def monitor_step(monitor: GreedyMonitor, agent_state: Any, key: jax.Array) -> GreedyMonitor:
-        """One greedy step of every side env; freeze once every return in the ring reaches the mark."""
-        num = freeze.episodes
-        policy_keys = jax.random.split(jax.random.fold_in(key, 1), num)
-        action = jax.vmap(agent.greedy_policy(agent_state))(monitor.obs, policy_keys)
-        time_step, env_state, _ = side_envs.step(key, monitor.env_state, action)
-        running = monitor.running + time_step.reward
-        done = time_step.done
-        slot = (monitor.finished + jnp.cumsum(done) - 1) % num  # ring slots of this step's finished episodes
-        returns = monitor.returns.at[jnp.where(done, slot, num)].set(running, mode="drop")
-        finished = monitor.finished + done.sum(dtype=jnp.int32)
-        solved = (finished >= num) & (returns.min() >= freeze.at_return)
-        return GreedyMonitor(
-            env_state=env_state,
-            obs=time_step.obs.astype(jnp.float32),
-            running=jnp.where(done, 0.0, running),
-            returns=returns,
-            finished=finished,
-            frozen=monitor.frozen | solved,
+            greedy=None if freeze is None else init_monitor(side_envs, freeze, monitor_key),
         )
 
     def collect_step(carry: OffPolicyCarry, _) -> tuple[OffPolicyCarry, dict[str, jax.Array]]:
@@ -414,7 +441,8 @@ def off_policy_program(agent: Agent, envs: VectorEnv, freeze: Freeze | None = No
             key=key,
         )
         if freeze is not None:
-            carry = carry.replace(greedy=monitor_step(carry.greedy, carry.agent, monitor_key))
+            greedy = monitor_step(agent, side_envs, freeze, carry.greedy, carry.agent, monitor_key)
+            carry = carry.replace(greedy=greedy)
         return carry, scalars(info)
 
     def learn_phase(carry: OffPolicyCarry) -> tuple[OffPolicyCarry, dict[str, jax.Array]]:
@@ -460,17 +488,7 @@ def off_policy_program(agent: Agent, envs: VectorEnv, freeze: Freeze | None = No
         episodes_before = carry.episodes.completed
         length = 1 if by_episode else experience.train_frequency
         carry, act_info = jax.lax.scan(collect_step, carry, length=length)
-        if by_episode:
-            ended = carry.episodes.completed > episodes_before
-            due = (
-                ended
-                & (carry.episodes.completed % experience.train_frequency == 0)
-                & (episodes_before >= experience.learning_starts)
-            )
-        else:
-            due = carry.episodes.env_steps >= experience.learning_starts
-        if experience.max_episodes:
-            due = due & (episodes_before < experience.max_episodes)
+        due = learning_due(experience, episodes_before, carry.episodes)
         extra = {}
         if freeze is not None:
             due = due & ~carry.greedy.frozen
