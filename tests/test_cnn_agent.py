@@ -48,7 +48,7 @@ def spec():
         env.close()
 
 
-@pytest.mark.long
+@pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_ppo_with_the_nature_cnn_learns_where_the_square_is():
     cfg = dataclasses.replace(
@@ -66,7 +66,7 @@ def test_ppo_with_the_nature_cnn_learns_where_the_square_is():
     assert result.eval["mean_return"] >= 0.9, [row["mean_return"] for row in result.rows]
 
 
-@pytest.mark.slow
+@pytest.mark.long  # (make test-long: ~50 s alone, ~140 s beside another worker in make test)
 @pytest.mark.timeout(240)
 def test_dqn_with_the_nature_cnn_and_frame_replay_learns_where_the_square_is():
     cfg = dataclasses.replace(
