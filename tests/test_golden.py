@@ -92,10 +92,8 @@ CASES: dict[str, dict[str, Any]] = {
         "num_steps": 16,
     },
     "pqn_host": {"algo": "pqn", "runner": "host", "total_steps": 6_144, "num_envs": 4, "num_steps": 16},
-    # the default preset's 10 phases a row (320 steps) on the compiled runner. The host cases replay
-    # with priorities, so each batch is drawn when it is learned from: uniform replay's batches are
-    # drawn ahead by a thread (as_dataset) while the runner adds transitions, so what they may hold
-    # depends on the threads' timing (their rows vary from run to run)
+    # the default preset's 10 phases a row (320 steps) on the compiled runner; the host cases replay
+    # with priorities (dqn_host pins uniform replay's batches drawn ahead by as_dataset)
     "sac_compiled": {"algo": "sac", "runner": "compiled", **OFF_POLICY, "total_steps": 1_280},
     "sac_host": {"algo": "sac", "runner": "host", **OFF_POLICY, "total_steps": 6_144, "prioritized": True},
     "td3_compiled": {"algo": "td3", "runner": "compiled", **OFF_POLICY, "total_steps": 1_280},
