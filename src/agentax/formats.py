@@ -27,7 +27,8 @@ FORMAT = 2
 """The format this agentax writes."""
 
 FORMATS: dict[int, str] = {
-    1: "agentax 0.1.0 up to 2026-12-06 (no version written): PPO's state without its normalisation fields",
+    1: "agentax 0.1.0 before run-folder versions (no version written, up to 2026-12-06): PPO's state "
+    "without its normalisation fields",
     2: "the version written in config.json and every checkpoint; PPO's state holds obs_stats, "
     "return_stats and discounted_return (None when normalisation is off)",
 }
