@@ -47,10 +47,3 @@ def resume_to_the_end(out, env: dict[str, str], timeout: float = 150) -> subproc
     )
     assert done.returncode == 0, done.stderr[-2000:]
     return done
-
-
-def pytest_collection_modifyitems(items):
-    """The grouped tests first (``xdist_group``: Ray's cluster, the golden rows, the sweeps; each
-    group runs on one worker), so the longest units start at once and no worker waits at the end of
-    the run on a group that began last. The order is otherwise kept (a stable sort)."""
-    items.sort(key=lambda item: item.get_closest_marker("xdist_group") is None)
