@@ -112,12 +112,11 @@ def agentax() -> list[str]:
 
 
 def keep_newest_checkpoint(run_dir: Path) -> None:
-    found = sorted((run_dir / "checkpoints").glob("ckpt-*.msgpack"), key=lambda p: int(p.stem[5:]))
-    for old in found[:-1]:
+    from agentax.runs import checkpoints, replay_beside
+
+    for old in checkpoints(run_dir)[:-1]:
         old.unlink()
-        old.with_name(old.name.replace("ckpt-", "replay-").replace(".msgpack", ".npz")).unlink(
-            missing_ok=True
-        )
+        replay_beside(old).unlink(missing_ok=True)
 
 
 def main() -> None:
