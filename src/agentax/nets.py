@@ -12,6 +12,7 @@ state-independent ``log_std`` for PPO and REINFORCE, a state-dependent bounded o
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from typing import Any
 
@@ -91,6 +92,80 @@ def nature_convolutions(frames: jax.Array, layer_norm: bool = False, conv: str =
 def is_image(obs_shape: Sequence[int]) -> bool:
     """Whether observations of this shape are stacked frames ``[C, H, W]`` (the Nature CNN's input)."""
     return len(obs_shape) == 3
+
+
+class Encoder(nn.Module):
+    """Packed observations ``[..., layout.size]`` (:mod:`agentax.envs.spaces`) → features ``[..., F]``:
+    one encoder per leaf, concatenated (the lecture's preprocessing layers and combiner).
+
+    Box vectors as they are (bytes scaled to [0, 1]); images through :class:`ImageEncoder`;
+    ``Discrete`` leaves one-hot, ``MultiDiscrete`` one one-hot per entry; ``MultiBinary`` as 0/1.
+    The ``action_mask`` leaf is not seen: it masks the actions (:func:`masked`).
+    """
+
+    layout: Any
+    """an :class:`agentax.envs.spaces.Layout`"""
+
+    @nn.compact
+    def __call__(self, packed: jax.Array) -> jax.Array:
+        parts = []
+        for leaf in self.layout.leaves:
+            x = packed[..., leaf.start : leaf.start + leaf.size]
+            if leaf.kind == "mask":
+                continue
+            if leaf.kind in ("discrete", "multi_discrete"):
+                ints = x.astype(jnp.int32)
+                parts += [jax.nn.one_hot(ints[..., i], n) for i, n in enumerate(leaf.categories)]
+            elif leaf.kind == "image":
+                parts.append(ImageEncoder(leaf.image_hwc, leaf.channels_first, leaf.scale)(x))
+            else:
+                parts.append(x.astype(jnp.float32) * leaf.scale)
+        return jnp.concatenate(parts, axis=-1)
+
+
+class ImageEncoder(nn.Module):
+    """One image leaf ``[..., H·W·C]`` → ``[..., 512]`` (Nature CNN's convolutions from 36 px) or
+    ``[..., 256]`` (two 3×3 convolutions, 16 and 32 channels, below), ReLU after each layer."""
+
+    hwc: tuple[int, int, int]
+    channels_first: bool = False
+    scale: float = 1.0
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        batch_shape = x.shape[:-1]
+        height, width, channels = self.hwc
+        x = x.astype(jnp.float32).reshape(
+            -1, *((channels, height, width) if self.channels_first else self.hwc)
+        )
+        if self.channels_first:
+            x = jnp.transpose(x, (0, 2, 3, 1))
+        x = x * self.scale
+        init = nn.initializers.orthogonal(jnp.sqrt(2.0))
+        large = min(height, width) >= 36
+        layers = ((32, 8, 4), (64, 4, 2), (64, 3, 1)) if large else ((16, 3, 1), (32, 3, 1))
+        for features, size, stride in layers:
+            x = nn.relu(nn.Conv(features, (size, size), (stride, stride), "VALID", kernel_init=init)(x))
+        x = nn.relu(nn.Dense(512 if large else 256, kernel_init=init)(x.reshape(x.shape[0], -1)))
+        return x.reshape(*batch_shape, -1)
+
+
+class Encoded(nn.Module):
+    """``net`` on the :class:`Encoder`'s features of packed observations: ``(obs, *args) →
+    net(Encoder(layout)(obs), *args)`` (the network of an env whose observations are packed)."""
+
+    layout: Any
+    net: nn.Module
+
+    @nn.compact
+    def __call__(self, obs: jax.Array, *args, **kwargs):
+        return self.net(Encoder(self.layout)(obs), *args, **kwargs)
+
+
+def with_encoder(net: nn.Module, layout: Any) -> nn.Module:
+    """``net`` itself for plain observations (``layout`` None: parameters as they always were), else
+    :class:`Encoded`."""
+    return net if layout is None else Encoded(layout, net)
 
 
 class PolicyNet(nn.Module):
@@ -321,24 +396,49 @@ def random_shift(key: jax.Array, frames: jax.Array, pad: int = 4) -> jax.Array:
     return jax.vmap(lambda f, o: shift(f, o[0], o[1], pad))(frames, offsets)
 
 
-def sample_action(key: jax.Array, logits: jax.Array) -> jax.Array:
-    """Sample actions ``[...]`` from logits ``[..., num_actions]`` (explore)."""
-    return jax.random.categorical(key, logits, axis=-1)
+def masked(logits: jax.Array, legal: jax.Array | None) -> jax.Array:
+    """Logits (or Q-values) ``[..., n]`` with the illegal actions' entries at -1e9, so that they are
+    never sampled, chosen or maximised over and take no probability (``legal`` None: all legal)."""
+    return logits if legal is None else jnp.where(legal, logits, -1e9)
 
 
-def greedy_action(logits: jax.Array) -> jax.Array:
-    """The most probable action ``[...]`` (exploit)."""
-    return jnp.argmax(logits, axis=-1)
+def split_logits(logits: jax.Array, nvec: tuple[int, ...]) -> list[jax.Array]:
+    """The logits ``[..., Σ nvec]`` of independent categoricals, one ``[..., nvec[i]]`` per entry."""
+    return jnp.split(logits, list(itertools.accumulate(nvec))[:-1], axis=-1)
 
 
-def log_prob(logits: jax.Array, action: jax.Array) -> jax.Array:
-    """``log pi(action | s)`` ``[...]`` from logits ``[..., num_actions]`` and integer actions ``[...]``."""
+def sample_action(key: jax.Array, logits: jax.Array, nvec: tuple[int, ...] | None = None) -> jax.Array:
+    """Sample actions ``[...]`` from logits ``[..., num_actions]`` (explore); with ``nvec`` (a
+    MultiDiscrete or MultiBinary action), one per entry, ``[..., len(nvec)]``."""
+    if nvec is None:
+        return jax.random.categorical(key, logits, axis=-1)
+    keys = jax.random.split(key, len(nvec))
+    parts = split_logits(logits, nvec)
+    return jnp.stack([jax.random.categorical(k, x) for k, x in zip(keys, parts, strict=True)], -1)
+
+
+def greedy_action(logits: jax.Array, nvec: tuple[int, ...] | None = None) -> jax.Array:
+    """The most probable action ``[...]`` (exploit); with ``nvec``, per entry ``[..., len(nvec)]``."""
+    if nvec is None:
+        return jnp.argmax(logits, axis=-1)
+    return jnp.stack([jnp.argmax(x, axis=-1) for x in split_logits(logits, nvec)], -1)
+
+
+def log_prob(logits: jax.Array, action: jax.Array, nvec: tuple[int, ...] | None = None) -> jax.Array:
+    """``log pi(action | s)`` ``[...]`` from logits ``[..., num_actions]`` and integer actions ``[...]``;
+    with ``nvec``, actions ``[..., len(nvec)]`` and the entries' log-probabilities summed."""
+    if nvec is not None:
+        parts = split_logits(logits, nvec)
+        return sum(log_prob(x, action[..., i]) for i, x in enumerate(parts))
     log_probs = jax.nn.log_softmax(logits, axis=-1)
     return jnp.take_along_axis(log_probs, action[..., None].astype(jnp.int32), axis=-1)[..., 0]
 
 
-def entropy(logits: jax.Array) -> jax.Array:
-    """Entropy ``[...]`` of the categorical given by logits ``[..., num_actions]``."""
+def entropy(logits: jax.Array, nvec: tuple[int, ...] | None = None) -> jax.Array:
+    """Entropy ``[...]`` of the categorical given by logits ``[..., num_actions]``; with ``nvec`` the
+    sum of the entries' entropies."""
+    if nvec is not None:
+        return sum(entropy(x) for x in split_logits(logits, nvec))
     log_probs = jax.nn.log_softmax(logits, axis=-1)
     return -(jnp.exp(log_probs) * log_probs).sum(axis=-1)
 

@@ -47,16 +47,29 @@ import optax
 from flax import struct
 
 from agentax import normalize as running
-from agentax.agents.protocol import Agent, EnvSpec, Loop, OnPolicy, check_fields, image_shape_for
-from agentax.envs.core import Box, Discrete
+from agentax.agents.protocol import (
+    Agent,
+    EnvSpec,
+    Loop,
+    OnPolicy,
+    action_nvec,
+    check_fields,
+    discrete_actions,
+    image_shape_for,
+)
+from agentax.envs.core import Box
 from agentax.errors import UsageError
 from agentax.nets import (
     ActorCritic,
     entropy,
     gaussian_entropy,
     gaussian_log_prob,
+    greedy_action,
     is_image,
     log_prob,
+    masked,
+    sample_action,
+    with_encoder,
 )
 from agentax.policies import Policy
 from agentax.replay import Transition
@@ -166,9 +179,10 @@ def is_continuous(spec: EnvSpec) -> bool:
 
 
 def action_dim(spec: EnvSpec) -> int:
-    """The number of actions (discrete) or the action vector's length (continuous, flat Box only)."""
-    if isinstance(spec.action_space, Discrete):
-        return spec.action_space.n
+    """The number of logits (Discrete: one per action; MultiDiscrete and MultiBinary: one per choice
+    of each entry) or the action vector's length (continuous, flat Box only)."""
+    if not is_continuous(spec):
+        return discrete_actions(spec, "ppo", multi=True)
     if len(spec.action_space.shape) != 1:
         raise UsageError(f"PPO needs flat Box actions, got shape {spec.action_space.shape}")
     return spec.action_space.shape[0]
@@ -178,9 +192,10 @@ def network(cfg: PPOConfig, spec: EnvSpec, conv: str = "xla") -> ActorCritic:
     """PPO's actor-critic for ``spec`` (on stacked frames the Nature CNN, its convolutions on ``conv``)."""
     cnn = is_image(spec.obs_shape)
     image_shape = image_shape_for(cfg.conv_torso, spec)
-    return ActorCritic(
+    net = ActorCritic(
         action_dim(spec), is_continuous(spec), tuple(cfg.hidden), cfg.activation, cnn, image_shape, conv
     )
+    return with_encoder(net, spec.layout)
 
 
 def optimizer(cfg: PPOConfig) -> optax.GradientTransformation:
@@ -234,24 +249,34 @@ def take_in(agent: PPOAgent, rollout: Transition, cfg: PPOConfig) -> tuple[PPOAg
     return agent, rollout
 
 
-def _log_prob_entropy(actor_out: Any, action: jax.Array, continuous: bool) -> tuple[jax.Array, jax.Array]:
-    if continuous:
+def _log_prob_entropy(actor_out: Any, action: jax.Array, spec: EnvSpec) -> tuple[jax.Array, jax.Array]:
+    """``(log π(action), entropy)`` ``[...]`` of the policy's output (logits already masked)."""
+    if is_continuous(spec):
         mean, log_std = actor_out
         return gaussian_log_prob(mean, log_std, action), gaussian_entropy(log_std)
-    return log_prob(actor_out, action), entropy(actor_out)
+    nvec = action_nvec(spec.action_space)
+    return log_prob(actor_out, action, nvec), entropy(actor_out, nvec)
+
+
+def policy_output(net: Any, params: Any, obs: jax.Array, spec: EnvSpec) -> tuple[Any, jax.Array]:
+    """The network's ``(actor_out, value)`` on ``obs``, with the illegal actions' logits masked
+    where the observations carry a mask (:meth:`EnvSpec.legal`)."""
+    actor_out, value = net.apply(params, obs)
+    legal = spec.legal(obs)
+    return (actor_out if legal is None else masked(actor_out, legal)), value
 
 
 def act(
     params: Any, obs: jax.Array, key: jax.Array, spec: EnvSpec, cfg: PPOConfig, conv: str = "xla"
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Sample actions for observations ``[E, *obs_shape]``: ``(action, log_prob [E], value [E])``."""
-    actor_out, value = network(cfg, spec, conv).apply(params, obs)
+    actor_out, value = policy_output(network(cfg, spec, conv), params, obs, spec)
     if is_continuous(spec):
         mean, log_std = actor_out
         action = mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape)
     else:
-        action = jax.random.categorical(key, actor_out)
-    return action, _log_prob_entropy(actor_out, action, is_continuous(spec))[0], value
+        action = sample_action(key, actor_out, action_nvec(spec.action_space))
+    return action, _log_prob_entropy(actor_out, action, spec)[0], value
 
 
 def env_action(action: jax.Array, spec: EnvSpec) -> jax.Array:
@@ -273,10 +298,10 @@ def greedy_policy(
     net = network(cfg, spec, conv)
 
     def policy(obs: jax.Array, key: jax.Array) -> jax.Array:
-        actor_out, _ = net.apply(params, observe(obs_stats, obs, cfg))
+        actor_out, _ = policy_output(net, params, observe(obs_stats, obs, cfg), spec)
         if is_continuous(spec):
             return env_action(actor_out[0], spec)
-        return jnp.argmax(actor_out, axis=-1).astype(jnp.int32)
+        return greedy_action(actor_out, action_nvec(spec.action_space)).astype(jnp.int32)
 
     return policy
 
@@ -307,8 +332,8 @@ def loss_fn(
 
     With ``batch["valid"]`` (bool ``[B]``) every mean runs over the valid entries only."""
     valid = batch.get("valid")
-    actor_out, value = network(cfg, spec, conv).apply(params, batch["obs"])
-    new_log_prob, entropies = _log_prob_entropy(actor_out, batch["action"], is_continuous(spec))
+    actor_out, value = policy_output(network(cfg, spec, conv), params, batch["obs"], spec)
+    new_log_prob, entropies = _log_prob_entropy(actor_out, batch["action"], spec)
     advantage = normalize(batch["advantage"], valid) if cfg.normalize_advantages else batch["advantage"]
     policy_loss = clipped_surrogate_loss(new_log_prob, batch["log_prob"], advantage, clip_eps, valid)
     value_loss = 0.5 * masked_mean((value - batch["target"]) ** 2, valid)
@@ -396,10 +421,9 @@ def make_agent(spec: EnvSpec, cfg: PPOConfig, *, loop: Loop = jax.lax.scan, conv
     is the Nature CNN's convolution backend (the entry point's choice)."""
     cfg.validate()
     action_dim(spec)  # a clear error for actions PPO cannot take
-    if cfg.normalize_observations and is_image(spec.obs_shape):
-        raise UsageError(
-            f"normalize_observations standardises flat observations, not frames {spec.obs_shape}"
-        )
+    if cfg.normalize_observations and (is_image(spec.obs_shape) or spec.layout is not None):
+        what = f"frames {spec.obs_shape}" if spec.layout is None else f"packed observations ({spec.layout})"
+        raise UsageError(f"normalize_observations standardises flat vector observations, not {what}")
 
     def act_with_info(state: PPOAgent, obs: jax.Array, key: jax.Array, progress: jax.Array):
         obs = observe(state.obs_stats, obs, cfg)

@@ -45,7 +45,8 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from agentax.envs.core import Box, Discrete
+from agentax.envs.core import Box
+from agentax.envs.spaces import Layout, is_plain, layout_of
 from agentax.errors import UsageError
 from agentax.policies import Policy
 
@@ -64,14 +65,18 @@ which backend it is on."""
 @dataclass(frozen=True)
 class EnvSpec:
     """What an agent needs to know of an env: one observation's shape and dtype, the action space,
-    and for a flat observation that is an image laid out flat, the image's shape."""
+    and how the observation is laid out where it is not a plain vector or frames."""
 
     obs_shape: tuple[int, ...]
-    action_space: Discrete | Box
+    action_space: Any
+    """Discrete, Box, MultiDiscrete or MultiBinary"""
     obs_dtype: Any = jnp.float32
     image_shape: tuple[int, ...] | None = None
     """``[H, W, C]`` when the flat observation is an image flattened (MinAtar's channels, the env's
     ``image_shape``): a network that wants the image reshapes the vector back; None otherwise"""
+    layout: Layout | None = None
+    """where the observation is composite, an image ``[H, W, C]``, Discrete or masked: how its leaves
+    are packed into the flat vector ``[layout.size]`` the env gives (:mod:`agentax.envs.spaces`)"""
 
     @classmethod
     def of(cls, env: Any, env_params: Any = None) -> EnvSpec:
@@ -82,28 +87,64 @@ class EnvSpec:
         else:
             obs_space, action_space = env.observation_space(), env.action_space()
         image_shape = getattr(env, "image_shape", None)
-        check_observations(obs_space, getattr(env, "id", None))
-        return cls(tuple(obs_space.shape), action_space, jnp.dtype(obs_space.dtype), image_shape)
+        layout = getattr(env, "layout", None)
+        if layout is None:
+            check_observations(obs_space, getattr(env, "id", None))
+        check_actions(action_space, getattr(env, "id", None))
+        return cls(tuple(obs_space.shape), action_space, jnp.dtype(obs_space.dtype), image_shape, layout)
+
+    def legal(self, obs: jax.Array) -> jax.Array | None:
+        """The legal actions ``bool [..., n]`` of observations ``[..., *obs_shape]`` (None: all)."""
+        return None if self.layout is None else self.layout.legal(obs)
 
 
-SMALLEST_FRAME = 36
-"""The least height and width of frames the Nature CNN takes: its VALID convolutions (8 stride 4,
-4 stride 2, 3 stride 1) leave 1×1 of a 36×36 frame and nothing of a smaller one."""
+def action_nvec(space: Any) -> tuple[int, ...] | None:
+    """The entries' sizes of a MultiDiscrete or MultiBinary action space; None for one Discrete choice."""
+    name = type(space).__name__
+    if name == "MultiBinary":
+        return (2,) * int(space.n)
+    if name == "MultiDiscrete":
+        return tuple(int(n) for n in space.nvec)
+    return None
+
+
+def num_logits(space: Any) -> int:
+    """The logits of a categorical policy over ``space``: ``n``, or ``Σ nvec`` for several choices."""
+    nvec = action_nvec(space)
+    return int(space.n) if nvec is None else sum(nvec)
+
+
+def check_actions(space: Any, env_id: str | None = None) -> None:
+    """A ``UsageError`` naming an action space agentax does not take."""
+    if type(space).__name__ not in ("Discrete", "Box", "MultiDiscrete", "MultiBinary"):
+        raise UsageError(
+            f"{env_id or 'the env'} has actions {space}, which agentax does not take; it takes Discrete, "
+            "Box, MultiDiscrete and MultiBinary actions"
+        )
+
+
+def discrete_actions(spec: EnvSpec, algorithm: str, multi: bool = False) -> int:
+    """The number of actions of a Discrete space (with ``multi``, the logits of a MultiDiscrete or
+    MultiBinary one too); a ``UsageError`` naming what fits for any other space."""
+    name = type(spec.action_space).__name__
+    if name == "Discrete" or (multi and name in ("MultiDiscrete", "MultiBinary")):
+        return num_logits(spec.action_space)
+    takes = "Discrete, MultiDiscrete and MultiBinary" if multi else "Discrete"
+    fits = "ppo and reinforce take MultiDiscrete and MultiBinary actions, sac and td3 Box ones"
+    raise UsageError(
+        f"{algorithm} takes {takes} actions, but this env's actions are {spec.action_space}; {fits}"
+    )
 
 
 def check_observations(space: Any, env_id: str | None = None) -> None:
-    """A ``UsageError`` naming an observation space no agent's network takes today: a ``Discrete``
-    one (an integer per state), or a Box other than a flat vector ``[n]`` or stacked frames
-    ``[C, H, W]`` (channels first) of at least ``SMALLEST_FRAME`` squared, such as an image ``[H, W, C]``."""
-    shape = tuple(getattr(space, "shape", ()))
-    frames = len(shape) == 3 and min(shape[1:]) >= SMALLEST_FRAME
-    if isinstance(space, Box) and (len(shape) == 1 or frames):
+    """A ``UsageError`` for an env whose observations are not plain (:func:`agentax.envs.spaces.is_plain`)
+    and come unpacked: naming the space where no encoder takes it, else how to pack them."""
+    if is_plain(space):
         return
-    side = SMALLEST_FRAME
+    layout_of(space, env_id)  # a space agentax cannot take at all is its own one-line error
     raise UsageError(
-        f"{env_id or 'the env'} has observations {space}, which agentax's agents do not take yet: they "
-        f"take a flat vector [n] or stacked frames [C, H, W] (channels first, at least {side}x{side}, "
-        "such as Atari's [4, 84, 84])"
+        f"{env_id or 'the env'} gives observations {space} unpacked; make it with agentax.envs.make "
+        "(or wrap it: agentax.envs.spaces.packed(env)), which packs them for the agents"
     )
 
 

@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from gymnasium.vector import AutoresetMode
 
+from agentax.envs import spaces
 from agentax.envs.core import Box, Discrete, Environment, EnvParams, TimeStep
 from agentax.errors import UsageError
 
@@ -90,21 +91,40 @@ def require_mujoco(env_id: str) -> ModuleType:
     return mujoco
 
 
-def from_gymnasium_space(space: gymnasium.Space) -> Discrete | Box:
-    """agentax's ``Discrete`` / ``Box`` for a Gymnasium space (others raise ``UsageError``)."""
+def from_gymnasium_space(space: gymnasium.Space) -> Any:
+    """agentax's space for a Gymnasium one: ``Discrete``, ``Box``, ``MultiDiscrete``, ``MultiBinary``,
+    and ``Dict`` / ``Tuple`` of them; others raise ``UsageError``."""
     if isinstance(space, gymnasium.spaces.Discrete):
         if int(space.start) != 0:
             raise UsageError(f"Discrete spaces must start at 0, this one starts at {space.start}")
         return Discrete(int(space.n))
     if isinstance(space, gymnasium.spaces.Box):
         return Box(space.low, space.high, tuple(space.shape), space.dtype)
-    raise UsageError(f"agentax handles Discrete and Box spaces, not {space}")
+    if isinstance(space, gymnasium.spaces.MultiDiscrete):
+        if np.any(space.start != 0):
+            raise UsageError(f"MultiDiscrete spaces must start at 0, this one starts at {space.start}")
+        return spaces.MultiDiscrete(tuple(int(n) for n in space.nvec.reshape(-1)))
+    if isinstance(space, gymnasium.spaces.MultiBinary):
+        return spaces.MultiBinary(int(np.prod(space.shape)))
+    if isinstance(space, gymnasium.spaces.Dict):
+        return spaces.Dict(tuple((key, from_gymnasium_space(sub)) for key, sub in space.spaces.items()))
+    if isinstance(space, gymnasium.spaces.Tuple):
+        return spaces.Tuple(tuple(from_gymnasium_space(sub) for sub in space.spaces))
+    raise UsageError(f"agentax does not take {space}; it takes {spaces.SUPPORTED}")
 
 
-def to_gymnasium_space(space: Discrete | Box) -> gymnasium.Space:
-    """The Gymnasium space for an agentax ``Discrete`` / ``Box``."""
+def to_gymnasium_space(space: Any) -> gymnasium.Space:
+    """The Gymnasium space for an agentax space (:func:`from_gymnasium_space`'s inverse)."""
     if isinstance(space, Discrete):
         return gymnasium.spaces.Discrete(space.n)
+    if isinstance(space, spaces.MultiDiscrete):
+        return gymnasium.spaces.MultiDiscrete(np.asarray(space.nvec))
+    if isinstance(space, spaces.MultiBinary):
+        return gymnasium.spaces.MultiBinary(space.n)
+    if isinstance(space, spaces.Dict):
+        return gymnasium.spaces.Dict({key: to_gymnasium_space(sub) for key, sub in space.spaces})
+    if isinstance(space, spaces.Tuple):
+        return gymnasium.spaces.Tuple(tuple(to_gymnasium_space(sub) for sub in space.spaces))
     dtype = np.dtype(space.dtype)
     low = np.broadcast_to(np.asarray(space.low, dtype), space.shape)
     high = np.broadcast_to(np.asarray(space.high, dtype), space.shape)
@@ -153,36 +173,77 @@ class GymnasiumEnv:
         self.num_envs: int = env.num_envs
         self.make_kwargs = make_kwargs
         try:
-            self._observation_space = from_gymnasium_space(env.single_observation_space)
+            self.original_space = from_gymnasium_space(env.single_observation_space)
             self._action_space = from_gymnasium_space(env.single_action_space)
+            mask = self._info_mask()
+            self._mask_in_info = mask is not None
+            self.layout = spaces.layout_of(self.original_space, self.id, mask)
         except UsageError as error:
             env.close()
             raise UsageError(f"{self.id} cannot run in agentax: {error}") from None
+        self._observation_space = self.original_space
         self._obs_dtype = None  # float64 observations (MuJoCo's) are handed on as float32
-        if isinstance(self._observation_space, Box) and np.dtype(self._observation_space.dtype) == np.float64:
+        if self.layout is not None:
+            self._observation_space = spaces.packed_space(self.layout)
+        elif np.dtype(self._observation_space.dtype) == np.float64:
             self._obs_dtype = np.float32
             self._observation_space = dataclasses.replace(self._observation_space, dtype=np.float32)
 
-    def observation_space(self, params: EnvParams | None = None) -> Discrete | Box:
+    def _info_mask(self) -> int | None:
+        """The number of actions where the env gives its legal actions as ``info["action_mask"]``
+        (Gymnasium's toy-text convention; seen in the info of one reset), else None."""
+        if not isinstance(self._action_space, Discrete) or (
+            isinstance(self.original_space, spaces.Dict)
+            and spaces.MASK_KEY in dict(self.original_space.spaces)
+        ):
+            return None
+        _, info = self.vector_env.reset(seed=0)
+        return self._action_space.n if spaces.MASK_KEY in info else None
+
+    def observation_space(self, params: EnvParams | None = None) -> Any:
         return self._observation_space
 
-    def action_space(self, params: EnvParams | None = None) -> Discrete | Box:
+    def action_space(self, params: EnvParams | None = None) -> Any:
         return self._action_space
+
+    def _observe(self, obs: Any, info: Mapping[str, Any]) -> np.ndarray:
+        """Observations ``[num_envs, ...]`` as agents take them: packed where there is a layout
+        (with ``info``'s action mask where the env gives it there), float32 for float64 ones."""
+        if self.layout is None:
+            return obs if self._obs_dtype is None else obs.astype(self._obs_dtype)
+        if self._mask_in_info:
+            obs = {"obs": obs, spaces.MASK_KEY: info[spaces.MASK_KEY]}
+        packed = self.layout.pack(obs)
+        if self.layout.mask is not None:
+            spaces.check_mask(self.layout.legal(packed), self.id)
+        return packed
 
     def reset(self, seed: int | None = None) -> np.ndarray:
         """First observations ``[num_envs, *obs_shape]``; sub-env ``i`` is seeded ``seed + i``."""
-        obs, _ = self.vector_env.reset(seed=seed)
-        return obs if self._obs_dtype is None else obs.astype(self._obs_dtype)
+        obs, info = self.vector_env.reset(seed=seed)
+        return self._observe(obs, info)
 
     def step(self, actions: Any) -> TimeStep:
         """One step of every sub-env; ``actions: [num_envs, *action_shape]``. Ended episodes auto-reset."""
         obs, reward, terminated, truncated, info = self.vector_env.step(np.asarray(actions))
-        if self._obs_dtype is not None:
-            obs = obs.astype(self._obs_dtype)
+        obs = self._observe(obs, info)
         final_obs = np.array(obs)
         for i in np.flatnonzero(info.get("_final_obs", ())):
-            final_obs[i] = info["final_obs"][i]
+            final_obs[i] = self._final_obs(info, i)
         return TimeStep(obs, reward.astype(np.float32), terminated, truncated, final_obs)
+
+    def _final_obs(self, info: Mapping[str, Any], i: int) -> Any:
+        """Sub-env ``i``'s observation really reached, from ``info["final_obs"]`` (packed where there
+        is a layout; its mask, where the env gives masks in the info, from ``info["final_info"]``,
+        all legal where that has none)."""
+        final = info["final_obs"][i]
+        if self.layout is None:
+            return final
+        if self._mask_in_info:
+            mask = info.get("final_info", {}).get(spaces.MASK_KEY)
+            legal = np.ones(self._action_space.n, np.int8) if mask is None else mask[i]
+            final = {"obs": final, spaces.MASK_KEY: legal}
+        return self.layout.pack(final)
 
     def close(self) -> None:
         self.vector_env.close()
