@@ -6,7 +6,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from agentax.envs import make_jax
 from agentax.envs.mdp import (
     MarkovChain,
     MDPEnv,
@@ -19,6 +18,7 @@ from agentax.envs.mdp import (
     improper_states,
     lecture_markov_chain,
     lecture_mdp,
+    lecture_mdp_env,
     taxi,
 )
 from agentax.errors import UsageError
@@ -163,7 +163,7 @@ def test_mdp_env_steps_like_gymnasium_on_deterministic_frozenlake():
 
 @pytest.mark.slow
 def test_mdp_env_impossible_action_is_a_no_op_and_time_limit_truncates():
-    env = make_jax("LectureMDP-v0")
+    env = lecture_mdp_env()  # unpacked: its integer states (agentax.envs.make packs them one-hot for agents)
     assert env.observation_space().n == 3 and env.action_space().n == 3
     params = env.default_params()
     step_env = jax.jit(env.step_env)

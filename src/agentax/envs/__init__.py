@@ -21,6 +21,7 @@ from agentax.envs.gym import (
 from agentax.envs.gymnax import factories as gymnax_envs
 from agentax.envs.mdp import lecture_mdp_env
 from agentax.envs.pendulum import MountainCarContinuous, Pendulum
+from agentax.envs.spaces import packed
 from agentax.envs.vacuum import Vacuum
 from agentax.errors import UsageError
 
@@ -36,10 +37,11 @@ JAX_ENVS: dict[str, Callable[[], Environment]] = {
 
 
 def make_jax(env_id: str) -> Environment:
-    """The JAX-native env registered as ``env_id``; a clear error for any other id."""
+    """The JAX-native env registered as ``env_id`` (its observations packed where they are composite,
+    :func:`agentax.envs.spaces.packed`); a clear error for any other id."""
     if env_id not in JAX_ENVS:
         raise UsageError(f"unknown JAX env {env_id!r}; choose from {', '.join(JAX_ENVS)}")
-    return JAX_ENVS[env_id]()
+    return packed(JAX_ENVS[env_id]())
 
 
 _made: dict[str, Environment] = {}
@@ -56,7 +58,7 @@ def make(env_id: str, num_envs: int = 1, **gymnasium_kwargs: Any) -> Environment
     name = env_id.removeprefix(f"{NAMESPACE}/")
     if name in JAX_ENVS:
         if name not in _made:  # one instance per id, so compiled functions keyed on the env are reused
-            _made[name] = JAX_ENVS[name]()
+            _made[name] = make_jax(name)
         return _made[name]
     if is_atari_id(env_id):
         return make_atari(env_id, num_envs, **gymnasium_kwargs)
