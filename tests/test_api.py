@@ -28,6 +28,7 @@ def trained(tmp_path_factory):
     return agentax.train("ppo", env="CartPole-v1", seeds=2, out=out, progress=False, **SMALL)
 
 
+@pytest.mark.xdist_group("api")  # one worker trains the shared run once
 @pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_train_then_load_scores_the_same(trained, capsys):
@@ -52,6 +53,7 @@ def test_train_then_load_scores_the_same(trained, capsys):
     assert len(run.final_eval["per_seed"]) == 2 and "iqm_ci" in run.final_eval
 
 
+@pytest.mark.xdist_group("api")  # one worker trains the shared run once
 @pytest.mark.slow
 def test_metrics_plot_and_video(trained, tmp_path):
     run = agentax.load(trained.path)
@@ -67,6 +69,7 @@ def test_metrics_plot_and_video(trained, tmp_path):
         run.video(tmp_path / "episode.avi")
 
 
+@pytest.mark.xdist_group("api")  # one worker trains the shared run once
 @pytest.mark.slow
 def test_the_cli_trains_on_the_same_path(trained, tmp_path, capsys):
     """`agentax train` with the same settings parses into the same call: the same numbers."""

@@ -96,6 +96,7 @@ def check_same_actions(path, policy, obs: np.ndarray, continuous: bool) -> np.nd
     return actions
 
 
+@pytest.mark.xdist_group("export")  # one worker trains the shared runs once
 @pytest.mark.slow
 @pytest.mark.timeout(300)
 @pytest.mark.parametrize("name", list(TINY))
@@ -141,6 +142,7 @@ def test_both_formats_act_as_the_agentax_policy(runs, name, capsys):
     assert json.loads(export.card_path(hlo_file).read_text())["platforms"] == ["cpu", "cuda"]
 
 
+@pytest.mark.xdist_group("export")  # one worker trains the shared runs once
 @pytest.mark.slow
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize("name", ["ppo-cartpole", "sac-pendulum"])
@@ -168,6 +170,7 @@ def test_the_stochastic_module_samples_as_the_agent_with_its_key(runs, name, tmp
     assert not np.array_equal(actions, agentax_actions(run.policy, obs))  # not the greedy actions
 
 
+@pytest.mark.xdist_group("export")  # one worker trains the shared runs once
 @pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_evaluate_policy_file_gives_the_runs_evaluation(runs, capsys):
@@ -198,6 +201,7 @@ def test_evaluate_policy_file_gives_the_runs_evaluation(runs, capsys):
                 assert of_file[stat] == pytest.approx(of_run[stat], rel=1e-6)
 
 
+@pytest.mark.xdist_group("export")  # one worker trains the shared runs once
 @pytest.mark.slow
 def test_export_of_a_cartpole_policy_through_the_cli(runs, tmp_path, capsys):
     """The command line's one line names the file, its size, the card and the time (measured, not
@@ -239,6 +243,7 @@ def no_checkpoint_run(runs, tmp_path):
         (["evaluate", "--policy", "{run}/policy.onnx", "--env", "Pendulum-v1"], "cannot read Pendulum-v1's"),
     ],
 )
+@pytest.mark.xdist_group("export")  # one worker trains the shared runs once
 def test_bad_input_is_one_line_and_exit_code_2(runs, tmp_path, argv, message, capsys):
     (tmp_path / "orphan.onnx").write_bytes(b"not a model")
     if not (runs["ppo-cartpole"] / "policy.onnx").is_file():
@@ -250,6 +255,7 @@ def test_bad_input_is_one_line_and_exit_code_2(runs, tmp_path, argv, message, ca
     assert err.count("\n") == 1 and err.startswith(f"agentax {argv[0]}: error: ") and message in err, err
 
 
+@pytest.mark.xdist_group("export")  # one worker trains the shared runs once
 def test_a_missing_export_extra_names_the_install_command(runs, tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "jax2onnx", None)  # import jax2onnx raises ImportError
     assert main(["export", str(runs["ppo-cartpole"]), "--out", str(tmp_path / "p.onnx")]) == 2

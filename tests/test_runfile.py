@@ -42,6 +42,7 @@ def by_flags(tmp_path_factory):
     return out
 
 
+@pytest.mark.xdist_group("runfile")  # one worker trains the shared run once
 @pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_a_preset_file_trains_as_the_flags_do(by_flags, tmp_path, capsys):
@@ -59,6 +60,7 @@ def test_a_preset_file_trains_as_the_flags_do(by_flags, tmp_path, capsys):
     assert config == flags
 
 
+@pytest.mark.xdist_group("runfile")  # one worker trains the shared run once
 @pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_a_run_folders_run_toml_repeats_the_run(by_flags, tmp_path):

@@ -23,6 +23,7 @@ def swept(tmp_path_factory):
     return sweep("ppo", grid={"learning_rate": "1e-3,3e-3", "num_envs": "4,8"}, out=out, **SMALL)
 
 
+@pytest.mark.xdist_group("ray")  # beside the two-worker test: one worker sweeps once
 @pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_traced_and_static_names_and_the_folder(swept):
@@ -47,6 +48,7 @@ def test_traced_and_static_names_and_the_folder(swept):
     assert best["iqm"] == max(row["iqm"] for row in swept.settings)
 
 
+@pytest.mark.xdist_group("ray")  # beside the two-worker test: one worker sweeps once
 @pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_a_setting_trained_alone_gives_the_sweeps_numbers(swept, tmp_path):
@@ -59,6 +61,7 @@ def test_a_setting_trained_alone_gives_the_sweeps_numbers(swept, tmp_path):
     assert [s["mean_return"] for s in run.final_eval["per_seed"]] == pytest.approx(setting["scores"])
 
 
+@pytest.mark.xdist_group("ray")  # beside the two-worker test: one worker sweeps once
 @pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_a_finished_sweep_is_read_back_and_another_request_is_refused(swept, monkeypatch):
