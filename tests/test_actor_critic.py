@@ -72,7 +72,7 @@ def test_discrete_envs_are_refused_naming_what_fits(algo):
     [
         (["train", "sac", "--env", "CartPole-v1"], "sac needs continuous (Box) actions"),
         (["train", "td3", "--env", "CartPole-v1"], "td3 needs continuous (Box) actions"),
-        (["train", "dqn", "--env", "Pendulum-v1"], "DQN needs a discrete action space"),
+        (["train", "dqn", "--env", "Pendulum-v1"], "dqn takes Discrete actions, but this env's actions are"),
         (["train", "sac", "--utd", "0"], "utd must be positive"),
         (["train", "td3", "--policy-delay", "0"], "policy_delay must be positive"),
     ],

@@ -187,10 +187,11 @@ def test_presets_and_validation():
         presets.preset("dqn", "nope")
     with pytest.raises(UsageError, match="discount_factor"):
         presets.preset("dqn", "default", discount_factor=1.5)
-    with pytest.raises(UsageError, match="discrete action space"):
+    with pytest.raises(UsageError, match="dqn takes Discrete actions, but this env's actions are Box"):
+        from agentax.agents.protocol import EnvSpec
         from agentax.envs.core import Box
 
-        dqn.num_actions_of(Box(-1.0, 1.0, (1,)))
+        dqn.make_agent(EnvSpec((4,), Box(-1.0, 1.0, (1,))), lecture)
     assert config_from_dict(dqn.DQNConfig, dataclasses.asdict(lecture)) == lecture
 
 

@@ -57,7 +57,7 @@ def test_train_dqn_with_every_flag_writes_a_run(tmp_path, capsys):
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["train", "dqn", "--env", "Pendulum-v1"], "DQN needs a discrete action space"),
+        (["train", "dqn", "--env", "Pendulum-v1"], "dqn takes Discrete actions, but this env's actions are"),
         (["train", "dqn", "--preset", "nope"], "choose from default, lecture"),
         (["train", "dqn", "--discount-factor", "1.5"], "discount_factor"),
     ],
@@ -69,7 +69,7 @@ def test_bad_input_is_one_line_and_exit_code_2(argv, message, capsys):
 
 
 def test_continuous_actions_are_refused_before_a_run_folder_exists(tmp_path, capsys):
-    """Gymnasium envs go to the host driver, which names the problem: DQN needs discrete actions."""
+    """Gymnasium envs go to the host driver, which names the problem: dqn takes Discrete actions."""
     out = tmp_path / "run"
     assert main(["train", "dqn", "--env", "Pendulum-v1", "--out", str(out)]) == 2
     assert "Box" in capsys.readouterr().err

@@ -102,7 +102,7 @@ def test_the_same_pqn_agent_learns_on_the_host_runner(tmp_path):
 
 
 def test_pqn_refuses_what_it_cannot_learn():
-    with pytest.raises(UsageError, match="PQN needs discrete actions"):
+    with pytest.raises(UsageError, match="pqn takes Discrete actions"):
         agentax.train("pqn", env="Pendulum-v1", runner="host", total_steps=512, progress=False)
     with pytest.raises(UsageError, match="must split into num_minibatches"):
         pqn.PQNConfig(num_envs=3, num_steps=5, num_minibatches=4).validate()

@@ -32,7 +32,7 @@ from agentax.runs import read_metrics
         (["train", "ppo", "--seeds", "0"], "--seeds must be at least 1"),
         (["train", "ppo", "--learning-rate", "-0.1"], "learning_rate must be positive"),
         (["train", "reinforce", "--stop-at-return", "lots"], "--stop-at-return must be a number"),
-        (["train", "pqn", "--env", "Pendulum-v1"], "PQN needs discrete actions, not Box"),
+        (["train", "pqn", "--env", "Pendulum-v1"], "pqn takes Discrete actions, but this env's actions are"),
         (
             ["train", "sac", "--env", "CartPole-v1"],
             "sac needs continuous (Box) actions, but this env's actions are Discrete(2)",

@@ -168,6 +168,17 @@ def with_encoder(net: nn.Module, layout: Any) -> nn.Module:
     return net if layout is None else Encoded(layout, net)
 
 
+def unwrapped(net: nn.Module) -> nn.Module:
+    """The network an :class:`Encoded` wraps (its settings: actions, atoms, noise); else ``net``."""
+    return net.net if isinstance(net, Encoded) else net
+
+
+def legal_actions(net: nn.Module, obs: jax.Array) -> jax.Array | None:
+    """The legal actions ``bool [..., n]`` of observations ``[..., *obs_shape]`` that ``net`` takes,
+    from its encoder's layout (None: no mask, every action legal)."""
+    return net.layout.legal(obs) if isinstance(net, Encoded) else None
+
+
 class PolicyNet(nn.Module):
     """Action logits ``[..., num_actions]`` from observations ``[..., obs_dim]``.
 
@@ -400,6 +411,14 @@ def masked(logits: jax.Array, legal: jax.Array | None) -> jax.Array:
     """Logits (or Q-values) ``[..., n]`` with the illegal actions' entries at -1e9, so that they are
     never sampled, chosen or maximised over and take no probability (``legal`` None: all legal)."""
     return logits if legal is None else jnp.where(legal, logits, -1e9)
+
+
+def legal_max(q: jax.Array, legal: jax.Array | None) -> jax.Array:
+    """``max_a Q[..., a]`` ``[...]`` over the legal actions (``legal`` None: all), read at the masked
+    argmax: an observation without a legal action (a final one) gives a finite value, not -1e9."""
+    if legal is None:
+        return q.max(axis=-1)
+    return jnp.take_along_axis(q, jnp.argmax(masked(q, legal), axis=-1)[..., None], axis=-1)[..., 0]
 
 
 def split_logits(logits: jax.Array, nvec: tuple[int, ...]) -> list[jax.Array]:

@@ -6,7 +6,9 @@ from replayed transitions by regressing ``Q(s, a)`` onto the TD target::
     y = r + γ^k · Q_target(s′, argmax_a Q_select(s′, a)) · (1 − terminated)
 
 ``k`` is 1, or the number of rewards summed by an n-step transition. Truncation by a time limit
-still bootstraps (from the observation the step really reached); only termination stops it.
+still bootstraps (from the observation the step really reached); only termination stops it. Where
+observations carry a legal-action mask (:meth:`~agentax.agents.protocol.EnvSpec.legal`), the argmax
+runs over the legal actions of ``s′`` and ε-greedy acts among the legal actions of ``s``.
 
 ==================  =============================  ==========================================
 variant             flag                           what changes
@@ -48,15 +50,25 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
 
-from agentax.agents.protocol import PRIORITY, Agent, EnvSpec, Loop, OffPolicy, check_fields
-from agentax.envs.core import Discrete
+from agentax.agents.protocol import PRIORITY, Agent, EnvSpec, Loop, OffPolicy, check_fields, discrete_actions
+from agentax.envs.spaces import Layout
 from agentax.errors import UsageError
-from agentax.nets import QNetwork, is_image, random_shift, support
+from agentax.nets import (
+    QNetwork,
+    is_image,
+    legal_actions,
+    masked,
+    random_shift,
+    support,
+    unwrapped,
+    with_encoder,
+)
 from agentax.policies import Policy, epsilon_greedy, linear_schedule
 from agentax.replay import ReplaySample
 from agentax.returns import bootstrap_discount
@@ -219,7 +231,8 @@ class DQNState:
     target_params: Any
     opt_state: Any
     step: jax.Array  # int32 []: learning steps so far
-    network: QNetwork = struct.field(pytree_node=False)
+    network: nn.Module = struct.field(pytree_node=False)
+    """the :class:`QNetwork`, behind its encoder where observations are packed (:func:`with_encoder`)"""
 
 
 def q_network(cfg: DQNConfig, num_actions: int, cnn: bool = False, conv: str = "xla") -> QNetwork:
@@ -239,16 +252,17 @@ def q_network(cfg: DQNConfig, num_actions: int, cnn: bool = False, conv: str = "
     )
 
 
-def forward(network: QNetwork, params: Any, obs: jax.Array, noise_key: jax.Array | None = None) -> jax.Array:
+def forward(network: nn.Module, params: Any, obs: jax.Array, noise_key: jax.Array | None = None) -> jax.Array:
     """The network's output (Q-values, or C51 logits ``[..., num_actions, num_atoms]``); a noisy network
     draws its noise from ``noise_key``, or uses its mean weights without one."""
-    if network.noisy and noise_key is not None:
+    if unwrapped(network).noisy and noise_key is not None:
         return network.apply(params, obs, deterministic=False, rngs={"noise": noise_key})
     return network.apply(params, obs)
 
 
-def q_values(network: QNetwork, output: jax.Array) -> jax.Array:
+def q_values(network: nn.Module, output: jax.Array) -> jax.Array:
     """Q-values ``[..., num_actions]`` from the network's output: itself, or ``Σ_i z_i p_i`` (C51)."""
+    network = unwrapped(network)
     if network.num_atoms is None:
         return output
     probs = jax.nn.softmax(output, axis=-1)  # (..., num_actions, num_atoms)
@@ -268,27 +282,23 @@ def optimizer(cfg: DQNConfig) -> optax.GradientTransformation:
     )
 
 
-def num_actions_of(action_space: Any) -> int:
-    """The number of actions of a discrete space (agentax's or Gymnasium's); ``UsageError`` otherwise."""
-    if isinstance(action_space, Discrete) or type(action_space).__name__ == "Discrete":
-        return int(action_space.n)
-    raise UsageError(
-        f"DQN needs a discrete action space, but this env's actions are {action_space}; "
-        "use an env with discrete actions or a continuous-control algorithm (ppo)"
-    )
-
-
 def init(
-    key: jax.Array, obs_example: jax.Array, num_actions: int, cfg: DQNConfig, conv: str = "xla"
+    key: jax.Array,
+    obs_example: jax.Array,
+    num_actions: int,
+    cfg: DQNConfig,
+    conv: str = "xla",
+    layout: Layout | None = None,
 ) -> DQNState:
     """A fresh learner for observations shaped like ``obs_example`` (one observation; stacked
-    frames ``[4, 84, 84]`` get the Nature CNN, its convolutions on backend ``conv``)."""
+    frames ``[4, 84, 84]`` get the Nature CNN, its convolutions on backend ``conv``; packed ones
+    ``[layout.size]`` an encoder per leaf, and their mask picks the legal actions)."""
     cnn = is_image(jnp.shape(obs_example))
     if cfg.augment != "none" and not cnn:
         raise UsageError(
             f"augment={cfg.augment!r} shifts image frames, not observations {jnp.shape(obs_example)}"
         )
-    network = q_network(cfg, num_actions, cnn=cnn, conv=conv)
+    network = with_encoder(q_network(cfg, num_actions, cnn=cnn, conv=conv), layout)
     params = network.init(key, jnp.asarray(obs_example)[None])
     return DQNState(
         params=params,
@@ -300,11 +310,13 @@ def init(
 
 
 def act(state: DQNState, obs: jax.Array, key: jax.Array, epsilon: jax.Array) -> jax.Array:
-    """ε-greedy actions ``[num_envs]`` for observations ``[num_envs, *obs_shape]``; a noisy network
-    draws fresh noise (one draw for all envs) from ``key``. When every env explores, the network is
-    not run (a ``lax.cond``; the same keys give the same actions, as SB3 skips it for a random one)."""
+    """ε-greedy actions ``[num_envs]`` for observations ``[num_envs, *obs_shape]``, greedy and random
+    ones among the legal actions where observations carry a mask; a noisy network draws fresh noise
+    (one draw for all envs) from ``key``. When every env explores, the network is not run (a
+    ``lax.cond``; the same keys give the same actions, as SB3 skips it for a random one)."""
+    legal = legal_actions(state.network, obs)  # (num_envs, num_actions) or None
     noise_key = None
-    if state.network.noisy:
+    if unwrapped(state.network).noisy:
         key, noise_key = jax.random.split(key)
     keys = jax.random.split(key, obs.shape[0])
 
@@ -312,7 +324,7 @@ def act(state: DQNState, obs: jax.Array, key: jax.Array, epsilon: jax.Array) -> 
         return q_values(state.network, forward(state.network, params, obs, noise_key))
 
     def actions(q):
-        return jax.vmap(epsilon_greedy, in_axes=(0, 0, None))(keys, q, epsilon)
+        return jax.vmap(epsilon_greedy, in_axes=(0, 0, None, 0))(keys, q, epsilon, legal)
 
     explores = jax.vmap(lambda k: jax.random.uniform(jax.random.split(k)[0]) < epsilon)(
         keys
@@ -327,8 +339,13 @@ def greedy_q(state: DQNState, obs: jax.Array) -> jax.Array:
 
 
 def greedy_policy(state: DQNState) -> Policy:
-    """The trained greedy policy ``(obs, key) -> action`` on one observation (for evaluation)."""
-    return lambda obs, key: jnp.argmax(greedy_q(state, obs)).astype(jnp.int32)
+    """The trained greedy policy ``(obs, key) -> action`` on one observation (for evaluation), the
+    best legal action where the observation carries a mask."""
+
+    def policy(obs: jax.Array, key: jax.Array) -> jax.Array:
+        return jnp.argmax(masked(greedy_q(state, obs), legal_actions(state.network, obs))).astype(jnp.int32)
+
+    return policy
 
 
 def td_error(
@@ -343,7 +360,8 @@ def td_error(
 
     q_tm1, q_t_value, q_t_selector: ``[num_actions]``; the rest scalars. ``discount_t`` already holds
     ``γ^k · (1 − terminated)``. Q-learning passes the target network's ``q_t`` as both value and
-    selector (a max); Double DQN passes the online network's as the selector. The target is a constant.
+    selector (a max); Double DQN passes the online network's as the selector; a mask puts -1e9 on the
+    selector's illegal actions (the value read stays finite without a legal one). The target is a constant.
     """
     target = r_t + discount_t * q_t_value[jnp.argmax(q_t_selector)]
     return jax.lax.stop_gradient(target) - q_tm1[a_tm1]
@@ -453,7 +471,9 @@ def make_learn(cfg: DQNConfig) -> Callable[..., tuple[DQNState, dict]]:
         out_tm1 = forward(network, params, obs, online_key)  # (batch, num_actions[, num_atoms])
         out_t_online = forward(network, params, next_obs, online_key)
         out_t_value = forward(network, target_params, next_obs, target_key) if use_target else out_t_online
-        q_t_selector = q_values(network, out_t_online if cfg.double else out_t_value)  # (batch, num_actions)
+        q_t_selector = masked(  # (batch, num_actions): the next action is a legal one of next_obs
+            q_values(network, out_t_online if cfg.double else out_t_value), legal_actions(network, next_obs)
+        )
         discount_t = bootstrap_discount(transition.terminated, transition.num_steps, cfg.discount_factor)
         losses, td = batched_loss(
             out_tm1, transition.action, transition.reward, discount_t, out_t_value, q_t_selector
@@ -516,7 +536,7 @@ def make_agent(spec: EnvSpec, cfg: DQNConfig, *, loop: Loop = jax.lax.scan, conv
     ``conv``: the Nature CNN's convolution backend (the entry point's choice).
     """
     cfg.validate()
-    num_actions = num_actions_of(spec.action_space)
+    num_actions = discrete_actions(spec, "dqn")
     learn_step = make_learn(cfg)
 
     def act_epsilon_greedy(state: DQNState, obs: jax.Array, key: jax.Array, progress: jax.Array):
@@ -540,7 +560,9 @@ def make_agent(spec: EnvSpec, cfg: DQNConfig, *, loop: Loop = jax.lax.scan, conv
     )
     return Agent(
         name="dqn",
-        init=lambda key: init(key, jnp.zeros(spec.obs_shape, spec.obs_dtype), num_actions, cfg, conv),
+        init=lambda key: init(
+            key, jnp.zeros(spec.obs_shape, spec.obs_dtype), num_actions, cfg, conv, spec.layout
+        ),
         act=act_epsilon_greedy,
         greedy_policy=greedy_policy,
         learn=learn_step,

@@ -12,8 +12,10 @@ the number of envs stepped side by side.
     loss = ½ E[(Q(s_t, a_t) − stop_gradient(G_t))²]
 
 The targets use the parameters of the learner at the start of the update (as purejaxql's and
-CleanRL's ``pqn.py``); a truncated step bootstraps from its final observation. PQN is on-policy in
-agentax's terms (``OnPolicy`` experience), so every runner that trains PPO trains it unchanged.
+CleanRL's ``pqn.py``); a truncated step bootstraps from its final observation. Where observations
+carry a legal-action mask (:meth:`~agentax.agents.protocol.EnvSpec.legal`), ε-greedy acts among the
+legal actions and ``max_a`` runs over those of ``s'_t``. PQN is on-policy in agentax's terms
+(``OnPolicy`` experience), so every runner that trains PPO trains it unchanged.
 
 On stacked frames (Atari) the Q-network is the Nature CNN with LayerNorm before every ReLU
 (purejaxql's ``pqn_atari``). A runner may mark steps that are no transitions of the game in
@@ -38,10 +40,17 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from agentax.agents.protocol import Agent, EnvSpec, Loop, OnPolicy, check_fields, image_shape_for
-from agentax.envs.core import Discrete
+from agentax.agents.protocol import (
+    Agent,
+    EnvSpec,
+    Loop,
+    OnPolicy,
+    check_fields,
+    discrete_actions,
+    image_shape_for,
+)
 from agentax.errors import UsageError
-from agentax.nets import MLP, MinAtarCNN, NatureCNN, is_image
+from agentax.nets import MLP, MinAtarCNN, NatureCNN, is_image, legal_max, masked, with_encoder
 from agentax.policies import Policy, epsilon_greedy, linear_schedule
 from agentax.replay import Transition
 from agentax.returns import masked_mean, q_lambda_returns
@@ -122,15 +131,15 @@ class PQNState:
 
 def q_network(cfg: PQNConfig, spec: EnvSpec, conv: str = "xla") -> nn.Module:
     """``obs [..., *obs_shape] -> Q [..., num_actions]`` with LayerNorm after every hidden layer: an
-    MLP of ``hidden`` on flat observations, the Nature CNN on stacked frames (its convolutions on
-    backend ``conv``), MinAtar's conv torso with ``conv_torso``."""
-    num_actions = num_actions_of(spec)
+    MLP of ``hidden`` on flat observations (packed ones through their encoder first), the Nature CNN
+    on stacked frames (its convolutions on backend ``conv``), MinAtar's conv torso with ``conv_torso``."""
+    num_actions = discrete_actions(spec, "pqn")
     if is_image(spec.obs_shape):
         return nn.Sequential([NatureCNN(layer_norm=True, conv=conv), nn.Dense(num_actions)])
     image_shape = image_shape_for(cfg.conv_torso, spec)
     if image_shape is not None:
         return nn.Sequential([MinAtarCNN(image_shape, layer_norm=True), nn.Dense(num_actions)])
-    return MLP(cfg.hidden, cfg.activation, out=num_actions, layer_norm=True)
+    return with_encoder(MLP(cfg.hidden, cfg.activation, out=num_actions, layer_norm=True), spec.layout)
 
 
 QValues = Callable[[Any, jax.Array], jax.Array]
@@ -156,12 +165,6 @@ def optimizer(cfg: PQNConfig) -> optax.GradientTransformation:
     return optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.radam(learning_rate))
 
 
-def num_actions_of(spec: EnvSpec) -> int:
-    if not isinstance(spec.action_space, Discrete):
-        raise UsageError(f"PQN needs discrete actions, not {spec.action_space}")
-    return spec.action_space.n
-
-
 def epsilon_at(cfg: PQNConfig, env_steps: jax.Array) -> jax.Array:
     duration = max(cfg.exploration_fraction * cfg.total_steps, 1.0)
     return linear_schedule(cfg.epsilon_start, cfg.epsilon_end, duration)(env_steps)
@@ -184,15 +187,20 @@ def learn(
     q_values: QValues,
     cfg: PQNConfig,
     loop: Loop = jax.lax.scan,
+    legal: Callable[[jax.Array], jax.Array | None] = lambda obs: None,
 ) -> tuple[PQNState, dict[str, jax.Array]]:
     """One PQN iteration on a rollout ``[T, E]``: Q(λ) targets, then epochs of minibatch SGD, run by
-    ``loop`` (``lax.scan``'s signature; the runner chooses it)."""
+    ``loop`` (``lax.scan``'s signature; the runner chooses it). ``legal``: the legal actions of
+    observations (:meth:`EnvSpec.legal`), the targets' maxima running over those of ``next_obs``."""
     tx = optimizer(cfg)
+
+    def max_q(obs: jax.Array) -> jax.Array:  # (...,): max_a Q(obs, a) over the legal actions
+        return legal_max(q_values(state.params, obs), legal(obs))
+
     if "valid" in rollout.info:  # next_obs[t] is obs[t + 1]: act's Q-values, and the last step's
-        last = q_values(state.params, rollout.next_obs[-1]).max(axis=-1)  # (E,)
-        next_q = jnp.concatenate([rollout.info["max_q"][1:], last[None]])  # (T, E)
+        next_q = jnp.concatenate([rollout.info["max_q"][1:], max_q(rollout.next_obs[-1])[None]])  # (T, E)
     else:
-        next_q = q_values(state.params, rollout.next_obs).max(axis=-1)  # (T, E)
+        next_q = max_q(rollout.next_obs)  # (T, E)
     done = rollout.terminated | rollout.truncated
     targets = q_lambda_returns(
         rollout.reward, next_q, rollout.terminated, done, cfg.discount_factor, cfg.q_lambda
@@ -236,20 +244,25 @@ def make_agent(spec: EnvSpec, cfg: PQNConfig, *, loop: Loop = jax.lax.scan, conv
         return PQNState(params, optimizer(cfg).init(params), jnp.int32(0))
 
     def act(state: PQNState, obs: jax.Array, key: jax.Array, progress: jax.Array):
-        q = q_values(state.params, obs)  # (E, num_actions)
+        q, legal = q_values(state.params, obs), spec.legal(obs)  # (E, num_actions), legal ones or None
         epsilon = epsilon_at(cfg, progress)
-        action = jax.vmap(epsilon_greedy, in_axes=(0, 0, None))(jax.random.split(key, q.shape[0]), q, epsilon)
-        return action, {"epsilon": jnp.full(q.shape[0], epsilon, jnp.float32), "max_q": q.max(axis=-1)}
+        keys = jax.random.split(key, q.shape[0])
+        action = jax.vmap(epsilon_greedy, in_axes=(0, 0, None, 0))(keys, q, epsilon, legal)
+        info = {"epsilon": jnp.full(q.shape[0], epsilon, jnp.float32), "max_q": legal_max(q, legal)}
+        return action, info
 
     def greedy_policy(state: PQNState) -> Policy:
-        return lambda obs, key: jnp.argmax(q_values(state.params, obs)).astype(jnp.int32)
+        def policy(obs: jax.Array, key: jax.Array) -> jax.Array:
+            return jnp.argmax(masked(q_values(state.params, obs), spec.legal(obs))).astype(jnp.int32)
+
+        return policy
 
     return Agent(
         name="pqn",
         init=init,
         act=act,
         greedy_policy=greedy_policy,
-        learn=lambda state, rollout, key: learn(state, rollout, key, q_values, cfg, loop),
+        learn=lambda state, rollout, key: learn(state, rollout, key, q_values, cfg, loop, spec.legal),
         experience=OnPolicy(cfg.num_envs, cfg.num_steps),
         total_steps=cfg.total_steps,
         learning_steps=lambda state: state.updates,

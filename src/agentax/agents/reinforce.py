@@ -16,7 +16,10 @@ and P weighted by the advantage, is exactly ``−log π(a|s) · advantage``. On 
 policy is PPO's diagonal Gaussian head (:class:`~agentax.nets.GaussianPolicyNet`: a mean network and
 a state-independent ``log_std``; ``sigmoid_head`` does not apply); the env gets the sampled action
 clipped to its bounds, the greedy policy the mean. With other than two discrete actions the head is a
-softmax over one logit per action, whatever ``sigmoid_head`` says (Acrobot's three).
+softmax over one logit per action, whatever ``sigmoid_head`` says (Acrobot's three); MultiDiscrete
+and MultiBinary actions are independent categoricals, one per entry, their log-probabilities summed.
+Packed observations (:mod:`agentax.envs.spaces`) go through an encoder per leaf before the MLPs;
+where they carry a legal-action mask, illegal actions get no probability.
 
 On the compiled runner the episodes of an iteration run side by side for ``max_steps`` steps;
 steps after an episode's end are masked out.
@@ -32,10 +35,32 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from agentax.agents.protocol import Agent, EnvSpec, Episodes, Loop, check_fields, flat_observations
-from agentax.envs.core import Box, Discrete
+from agentax.agents.protocol import (
+    Agent,
+    EnvSpec,
+    Episodes,
+    Loop,
+    action_nvec,
+    check_fields,
+    discrete_actions,
+    flat_observations,
+    num_logits,
+)
+from agentax.envs.core import Box
+from agentax.envs.spaces import Layout
 from agentax.errors import UsageError
-from agentax.nets import MLP, GaussianPolicyNet, PolicyNet, gaussian_log_prob, log_prob
+from agentax.nets import (
+    MLP,
+    GaussianPolicyNet,
+    PolicyNet,
+    gaussian_log_prob,
+    greedy_action,
+    legal_actions,
+    log_prob,
+    masked,
+    sample_action,
+    with_encoder,
+)
 from agentax.policies import Policy
 from agentax.replay import Transition
 from agentax.returns import discounted_returns, normalize
@@ -88,26 +113,42 @@ class ReinforceAgent:
     opt_state: Any
 
 
-Actions = int | Box
-"""What the policy chooses among: the number of discrete actions, or the Box of continuous ones."""
+Actions = Any
+"""What the policy chooses among: the number of discrete actions, a MultiDiscrete or MultiBinary
+space (one choice per entry), or the Box of continuous ones."""
 
 
-def policy_network(cfg: ReinforceConfig, actions: Actions) -> PolicyNet | GaussianPolicyNet:
+def policy_network(cfg: ReinforceConfig, actions: Actions, layout: Layout | None = None) -> Any:
+    """The policy ``obs -> logits [..., n]`` (or a Gaussian's ``(mean, log_std)``), behind an
+    encoder where observations are packed by ``layout``."""
     if isinstance(actions, Box):
-        return GaussianPolicyNet(actions.shape[0], tuple(cfg.hidden), cfg.activation)
-    return PolicyNet(actions, tuple(cfg.hidden), cfg.activation, cfg.sigmoid_head and actions == 2)
+        net = GaussianPolicyNet(actions.shape[0], tuple(cfg.hidden), cfg.activation)
+    else:
+        n = actions if isinstance(actions, int) else num_logits(actions)
+        sigmoid = cfg.sigmoid_head and n == 2 and action_nvec(actions) is None
+        net = PolicyNet(n, tuple(cfg.hidden), cfg.activation, sigmoid)
+    return with_encoder(net, layout)
+
+
+def policy_output(net: Any, params: Any, obs: jax.Array) -> Any:
+    """The policy network's output on ``obs``, the illegal actions' logits masked where the
+    observations carry a mask."""
+    out, legal = net.apply(params, obs), legal_actions(net, obs)
+    return out if legal is None else masked(out, legal)
 
 
 def action_log_prob(out: Any, action: jax.Array, actions: Actions) -> jax.Array:
     """``log π(a|s)`` ``[...]`` from the policy network's output."""
-    return gaussian_log_prob(*out, action) if isinstance(actions, Box) else log_prob(out, action)
+    if isinstance(actions, Box):
+        return gaussian_log_prob(*out, action)
+    return log_prob(out, action, action_nvec(actions))
 
 
 def sample(out: Any, key: jax.Array, actions: Actions) -> jax.Array:
     if isinstance(actions, Box):
         mean, log_std = out
         return mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape)
-    return jax.random.categorical(key, out)
+    return sample_action(key, out, action_nvec(actions))
 
 
 def env_action(action: jax.Array, actions: Actions) -> jax.Array:
@@ -115,31 +156,41 @@ def env_action(action: jax.Array, actions: Actions) -> jax.Array:
     return jnp.clip(action, actions.low, actions.high) if isinstance(actions, Box) else action
 
 
-def value_network(cfg: ReinforceConfig) -> MLP:
-    return MLP(tuple(cfg.baseline_hidden), cfg.activation, out=1)
+def value_network(cfg: ReinforceConfig, layout: Layout | None = None) -> Any:
+    return with_encoder(MLP(tuple(cfg.baseline_hidden), cfg.activation, out=1), layout)
 
 
 def init(
-    key: jax.Array, obs_shape: tuple[int, ...], actions: Actions, cfg: ReinforceConfig
+    key: jax.Array,
+    obs_shape: tuple[int, ...],
+    actions: Actions,
+    cfg: ReinforceConfig,
+    layout: Layout | None = None,
 ) -> ReinforceAgent:
     policy_key, value_key = jax.random.split(key)
     obs = jnp.zeros(obs_shape, jnp.float32)
-    params = {"policy": policy_network(cfg, actions).init(policy_key, obs)}
+    params = {"policy": policy_network(cfg, actions, layout).init(policy_key, obs)}
     if cfg.baseline:
-        params["value"] = value_network(cfg).init(value_key, obs)
+        params["value"] = value_network(cfg, layout).init(value_key, obs)
     return ReinforceAgent(params, optax.adam(cfg.learning_rate).init(params))
 
 
-def loss_fn(params: Any, batch: dict[str, jax.Array], actions: Actions, cfg: ReinforceConfig):
+def loss_fn(
+    params: Any,
+    batch: dict[str, jax.Array],
+    actions: Actions,
+    cfg: ReinforceConfig,
+    layout: Layout | None = None,
+):
     """REINFORCE's loss over the valid steps of ``[T, N]`` arrays; returns ``(loss, metrics)``."""
     valid = batch["valid"].astype(jnp.float32)
     count = jnp.maximum(valid.sum(), 1.0)
-    out = policy_network(cfg, actions).apply(params["policy"], batch["obs"])
+    out = policy_output(policy_network(cfg, actions, layout), params["policy"], batch["obs"])
     log_probs = action_log_prob(out, batch["action"], actions)
     returns = batch["returns"]
     metrics = {}
     if cfg.baseline:
-        values = value_network(cfg).apply(params["value"], batch["obs"])[..., 0]
+        values = value_network(cfg, layout).apply(params["value"], batch["obs"])[..., 0]
         advantage = normalize(returns - jax.lax.stop_gradient(values), valid)
         value_loss = (((values - returns) ** 2) * valid).sum() / count
         metrics["value_loss"] = value_loss
@@ -151,36 +202,44 @@ def loss_fn(params: Any, batch: dict[str, jax.Array], actions: Actions, cfg: Rei
     return policy_loss + value_loss, metrics
 
 
-def learn(agent: ReinforceAgent, batch: dict[str, jax.Array], actions: Actions, cfg: ReinforceConfig):
-    grads, metrics = jax.grad(loss_fn, has_aux=True)(agent.params, batch, actions, cfg)
+def learn(
+    agent: ReinforceAgent,
+    batch: dict[str, jax.Array],
+    actions: Actions,
+    cfg: ReinforceConfig,
+    layout: Layout | None = None,
+):
+    grads, metrics = jax.grad(loss_fn, has_aux=True)(agent.params, batch, actions, cfg, layout)
     updates, opt_state = optax.adam(cfg.learning_rate).update(grads, agent.opt_state, agent.params)
     return ReinforceAgent(optax.apply_updates(agent.params, updates), opt_state), metrics
 
 
-def greedy_policy(params: Any, actions: Actions, cfg: ReinforceConfig) -> Policy:
-    """The most probable action: the logits' argmax, or the Gaussian's mean clipped to the bounds."""
-    net = policy_network(cfg, actions)
+def greedy_policy(
+    params: Any, actions: Actions, cfg: ReinforceConfig, layout: Layout | None = None
+) -> Policy:
+    """The most probable (legal) action, one per entry of a MultiDiscrete or MultiBinary space, or
+    the Gaussian's mean clipped to the bounds."""
+    net = policy_network(cfg, actions, layout)
 
     def policy(obs: jax.Array, key: jax.Array) -> jax.Array:
-        out = net.apply(params["policy"], obs)
+        out = policy_output(net, params["policy"], obs)
         if isinstance(actions, Box):
             return env_action(out[0], actions)
-        return jnp.argmax(out, axis=-1).astype(jnp.int32)
+        return greedy_action(out, action_nvec(actions)).astype(jnp.int32)
 
     return policy
 
 
 def actions_of(spec: EnvSpec) -> Actions:
-    """The number of discrete actions, or the flat Box; a ``UsageError`` for what this REINFORCE
-    cannot take."""
+    """The number of discrete actions, the MultiDiscrete or MultiBinary space, or the flat Box; a
+    ``UsageError`` for what this REINFORCE cannot take."""
     space = spec.action_space
     if isinstance(space, Box):
         if len(space.shape) != 1:
             raise UsageError(f"REINFORCE needs flat Box actions, got shape {space.shape}")
         return space
-    if not isinstance(space, Discrete):
-        raise UsageError(f"REINFORCE needs discrete or Box actions, not {space}")
-    return space.n
+    n = discrete_actions(spec, "reinforce", multi=True)
+    return space if action_nvec(space) is not None else n
 
 
 def returns_to_go(reward: jax.Array, ended: jax.Array, discount_factor: float) -> jax.Array:
@@ -199,10 +258,10 @@ def make_agent(spec: EnvSpec, cfg: ReinforceConfig, *, loop: Loop = jax.lax.scan
     cfg.validate()
     actions = actions_of(spec)
     flat_observations(spec, "reinforce")
-    net = policy_network(cfg, actions)
+    net = policy_network(cfg, actions, spec.layout)
 
     def act(state: ReinforceAgent, obs: jax.Array, key: jax.Array, progress: jax.Array):
-        return sample(net.apply(state.params["policy"], obs), key, actions), {}
+        return sample(policy_output(net, state.params["policy"], obs), key, actions), {}
 
     def learn_episodes(state: ReinforceAgent, trajectory: Transition, key: jax.Array):
         valid = trajectory.info["valid"]
@@ -214,13 +273,13 @@ def make_agent(spec: EnvSpec, cfg: ReinforceConfig, *, loop: Loop = jax.lax.scan
             "valid": valid,
             "returns": returns_to_go(reward, ended, cfg.discount_factor),
         }
-        return learn(state, batch, actions, cfg)
+        return learn(state, batch, actions, cfg, spec.layout)
 
     return Agent(
         name="reinforce",
-        init=lambda key: init(key, spec.obs_shape, actions, cfg),
+        init=lambda key: init(key, spec.obs_shape, actions, cfg, spec.layout),
         act=act,
-        greedy_policy=lambda state: greedy_policy(state.params, actions, cfg),
+        greedy_policy=lambda state: greedy_policy(state.params, actions, cfg, spec.layout),
         learn=learn_episodes,
         experience=Episodes(cfg.episodes_per_update, cfg.max_steps),
         total_steps=cfg.total_steps,

@@ -38,7 +38,7 @@ from agentax.agents.protocol import (
     scale_action,
 )
 from agentax.errors import UsageError
-from agentax.nets import SquashedGaussianActor, TwinQ, polyak, sample_squashed
+from agentax.nets import SquashedGaussianActor, TwinQ, polyak, sample_squashed, with_encoder
 from agentax.policies import Policy
 from agentax.replay import ReplaySample
 
@@ -81,17 +81,21 @@ def make_agent(spec: EnvSpec, cfg: SACConfig, *, loop: Loop = jax.lax.scan, conv
     """SAC's pure functions for every runner (see ``agentax.agents.protocol``).
 
     ``act``'s ``progress`` counts env steps (uniform actions before ``learning_starts``); ``learn`` is
-    one learning step, so ``loop`` goes unused, and so does ``conv`` (no convolutions). Actions live
-    in ``[-1, 1]^d``: the replay stores them so, ``env_action`` and the greedy policy rescale them to
-    the env's bounds.
+    one learning step, so ``loop`` goes unused, and so does ``conv`` (an image leaf's encoder uses
+    XLA's). Actions live in ``[-1, 1]^d``: the replay stores them so, ``env_action`` and the greedy
+    policy rescale them to the env's bounds. Packed observations (:mod:`agentax.envs.spaces`) go
+    through an encoder per leaf, the actor's and the critics' own; stacked frames are refused.
     """
     cfg.validate()
     action_dim = continuous_action_dim(spec, "sac")
     flat_observations(spec, "sac")
-    actor = SquashedGaussianActor(
-        action_dim, tuple(cfg.hidden), cfg.activation, cfg.log_std_min, cfg.log_std_max
+    actor = with_encoder(
+        SquashedGaussianActor(
+            action_dim, tuple(cfg.hidden), cfg.activation, cfg.log_std_min, cfg.log_std_max
+        ),
+        spec.layout,
     )
-    critic = TwinQ(tuple(cfg.hidden), cfg.activation)
+    critic = with_encoder(TwinQ(tuple(cfg.hidden), cfg.activation), spec.layout)
     tx = optax.adam(cfg.learning_rate)
     target_entropy = -cfg.target_entropy_scale * action_dim
 

@@ -33,7 +33,7 @@ from agentax.agents.protocol import (
     flat_observations,
     scale_action,
 )
-from agentax.nets import MLP, TwinQ, polyak
+from agentax.nets import MLP, TwinQ, polyak, with_encoder
 from agentax.policies import Policy
 from agentax.replay import ReplaySample
 
@@ -79,15 +79,16 @@ def make_agent(spec: EnvSpec, cfg: TD3Config, *, loop: Loop = jax.lax.scan, conv
     """TD3's pure functions for every runner (see ``agentax.agents.protocol``).
 
     ``act``'s ``progress`` counts env steps (uniform actions before ``learning_starts``); ``learn`` is
-    one learning step, so ``loop`` goes unused, and so does ``conv`` (no convolutions). Actions live
-    in ``[-1, 1]^d``: the replay stores them so, ``env_action`` and the greedy policy rescale them to
-    the env's bounds.
+    one learning step, so ``loop`` goes unused, and so does ``conv`` (an image leaf's encoder uses
+    XLA's). Actions live in ``[-1, 1]^d``: the replay stores them so, ``env_action`` and the greedy
+    policy rescale them to the env's bounds. Packed observations (:mod:`agentax.envs.spaces`) go
+    through an encoder per leaf, the actor's and the critics' own; stacked frames are refused.
     """
     cfg.validate()
     action_dim = continuous_action_dim(spec, "td3")
     flat_observations(spec, "td3")
-    actor = MLP(tuple(cfg.hidden), cfg.activation, out=action_dim)
-    critic = TwinQ(tuple(cfg.hidden), cfg.activation)
+    actor = with_encoder(MLP(tuple(cfg.hidden), cfg.activation, out=action_dim), spec.layout)
+    critic = with_encoder(TwinQ(tuple(cfg.hidden), cfg.activation), spec.layout)
     tx = optax.adam(cfg.learning_rate)
 
     def mu(actor_params: Any, obs: jax.Array) -> jax.Array:
