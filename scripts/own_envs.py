@@ -27,7 +27,7 @@ class _Matching(gymnasium.Env):
 
     def render(self):
         """The target's entries as lit cells of a strip, 16 pixels each."""
-        cells = np.asarray(self.target).reshape(-1)
+        cells = np.asarray(self.target, np.int64).reshape(-1)
         if cells.size == 1:
             cells = np.eye(self.action_space.n)[int(cells[0])]
         strip = np.repeat(np.repeat(np.minimum(cells[None, :, None] * 80 + 40, 255), 16, 0), 16, 1)

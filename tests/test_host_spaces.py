@@ -20,6 +20,7 @@ from agentax.cli import main
 from agentax.envs import make
 from agentax.envs.gym import GymnasiumEnv
 from agentax.errors import UsageError
+from agentax.evaluate import HostPolicy, host_episode_returns
 from scripts import own_envs
 
 OWN = "scripts.own_envs:"
@@ -180,3 +181,18 @@ def test_an_exported_masked_dict_policy_takes_the_packed_vector_and_acts_as_the_
     np.testing.assert_array_equal(actions, expected)
     assert np.all(batch["action_mask"][np.arange(512), actions] == 1)  # every action legal
     assert len(np.unique(actions)) > 1
+
+
+def test_evaluation_cuts_an_episode_that_never_ends():
+    """An env without a time limit (as CliffWalking-v1) under a policy that never finishes: each of
+    the 2 sub-envs plays one episode, cut at ``max_steps`` = 5, and plays no more."""
+    if "Endless-v0" not in gymnasium.registry:
+        gymnasium.register("Endless-v0", entry_point=own_envs.Spaces)
+    env = GymnasiumEnv("Endless-v0", num_envs=2)
+    try:
+        policy = HostPolicy(lambda obs, rng: np.zeros(len(obs), np.int64))
+        returns, lengths = host_episode_returns(env, policy, num_episodes=4, max_steps=5)
+    finally:
+        env.close()
+    np.testing.assert_array_equal(lengths, [5, 5])
+    np.testing.assert_array_equal(returns, [0.0, 0.0])
