@@ -63,7 +63,7 @@ def test_host_evaluation_counts_the_first_episodes_started():
     # counted are the first 7 to start, ordered by start step then sub-env -- worked out here by
     # running 3 independent Gymnasium envs and listing every episode's start step.
     num_envs, num_episodes, seed = 3, 7, 11
-    rule = lambda obs: (np.asarray(obs) * 7 + 1) % 4  # noqa: E731
+    rule = lambda obs: (np.asarray(obs, np.int64).reshape(-1) * 7 + 1) % 4  # noqa: E731  (packed [n, 1])
     returns, lengths = host_episode_returns(
         GymnasiumEnv("FrozenLake-v1", num_envs=num_envs),
         HostPolicy(lambda obs, rng: rule(obs)),
@@ -78,7 +78,7 @@ def test_host_evaluation_counts_the_first_episodes_started():
         for _ in range(num_episodes):
             start, total, done = step, 0.0, False
             while not done:
-                obs, reward, terminated, truncated, _ = env.step(int(rule(obs)))
+                obs, reward, terminated, truncated, _ = env.step(int(rule(obs)[0]))
                 step, total, done = step + 1, total + reward, terminated or truncated
             started.append((start, i, total, step - start))
             obs, _ = env.reset()

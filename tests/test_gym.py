@@ -106,7 +106,7 @@ def test_make_returns_jax_where_it_can_and_gymnasium_otherwise():
     for env_id, obs_space, action_space in [
         ("MountainCar-v0", Box, Discrete(3)),
         ("Acrobot-v1", Box, Discrete(3)),
-        ("FrozenLake-v1", Discrete, Discrete(4)),
+        ("FrozenLake-v1", Box, Discrete(4)),  # its Discrete(16) states packed into a vector [1]
     ]:
         env = make(env_id)
         assert isinstance(env, GymnasiumEnv) and env.id == env_id and env.num_envs == 1
@@ -148,7 +148,7 @@ def test_gymnasium_env_steps_like_a_plain_gymnasium_loop():
 def test_gymnasium_env_wraps_a_single_env_and_checks_a_vector_envs_autoreset_mode():
     env = GymnasiumEnv(gymnasium.make("FrozenLake-v1"))
     assert env.id == "FrozenLake-v1" and env.num_envs == 1
-    assert env.reset(seed=0).shape == (1,)
+    assert env.original_space == Discrete(16) and env.reset(seed=0).shape == (1, 1)
     next_step = gymnasium.make_vec("CartPole-v1", 2, vectorization_mode="sync")
     with pytest.raises(UsageError, match="SAME_STEP"):
         GymnasiumEnv(next_step)
@@ -161,9 +161,11 @@ def test_space_conversions_round_trip():
     assert to_gymnasium_space(ours) == box
     assert from_gymnasium_space(gymnasium.spaces.Discrete(5)) == Discrete(5)
     assert to_gymnasium_space(Discrete(5)) == gymnasium.spaces.Discrete(5)
-    with pytest.raises(UsageError, match="Discrete and Box"):
-        from_gymnasium_space(gymnasium.spaces.MultiDiscrete([2, 3]))
+    multi = gymnasium.spaces.MultiDiscrete([2, 3])
+    assert to_gymnasium_space(from_gymnasium_space(multi)) == multi
+    blackjack = gymnasium.spaces.Tuple((gymnasium.spaces.Discrete(32), gymnasium.spaces.Discrete(11)))
+    assert to_gymnasium_space(from_gymnasium_space(blackjack)) == blackjack
     with pytest.raises(
-        UsageError, match=r"Blackjack-v1 cannot run in agentax: agentax handles Discrete and Box"
+        UsageError, match=r"Text\(1, 4, .*\) is no space agentax takes; it takes Box, Discrete"
     ):
-        make("Blackjack-v1")  # observations: a Tuple of three Discrete spaces
+        from_gymnasium_space(gymnasium.spaces.Text(4))

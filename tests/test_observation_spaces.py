@@ -1,7 +1,7 @@
-"""Observation spaces no agent takes yet (issue 39): Discrete observations (FrozenLake, CliffWalking)
-and an image laid out ``[H, W, C]`` are one line and exit code 2 before anything is written, while
-the observations agentax takes (flat vectors, Atari's stacked frames, MinAtar's flat images) still
-make a spec."""
+"""Observation spaces agents take since issue 41: Discrete observations (FrozenLake, CliffWalking, the
+lecture's MDP) and images laid out ``[H, W, C]`` are packed (:mod:`agentax.envs.spaces`) and train,
+flat vectors and stacked frames still go in as they are, and an env that hands composite
+observations to an agent unpacked is one line saying how to pack them."""
 
 import gymnasium
 import numpy as np
@@ -23,52 +23,66 @@ class Picture(gymnasium.Env):
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
-        return np.zeros((48, 48, 3), np.uint8), {}
+        return np.full((48, 48, 3), 7, np.uint8), {}
 
     def step(self, action):
-        return np.zeros((48, 48, 3), np.uint8), 1.0, False, False, {}
+        return np.full((48, 48, 3), 9, np.uint8), 1.0, False, False, {}
 
 
-gymnasium.register(id="Picture48-v0", entry_point=Picture, max_episode_steps=20)
+if "Bytes48-v0" not in gymnasium.registry:
+    gymnasium.register(id="Bytes48-v0", entry_point=Picture, max_episode_steps=20)
 
-REFUSED = {
-    "FrozenLake-v1": "FrozenLake-v1 has observations Discrete(16), which agentax's agents do not take yet",
-    "CliffWalking-v1": "CliffWalking-v1 has observations Discrete(48), which agentax's agents do not",
-    "Picture48-v0": "Picture48-v0 has observations Box(shape=(48, 48, 3), low=0, high=255), which",
+PACKED = {
+    # env id: (the layout's one line, packed size, dtype, the first observation packed, worked by hand)
+    "FrozenLake-v1": ("discrete [] [16]", 1, "float32", [0.0]),  # the start, state 0
+    "CliffWalking-v1": ("discrete [] [48]", 1, "float32", [36.0]),  # bottom-left: row 3 x 12 columns
+    "Bytes48-v0": ("image [48, 48, 3]", 6912, "uint8", [7] * 6912),  # kept as bytes, 48*48*3
 }
 
 
-@pytest.mark.parametrize("algo", ["ppo", "dqn"])
-@pytest.mark.parametrize("env_id", list(REFUSED))
-def test_an_observation_space_no_agent_takes_is_one_line_and_nothing_written(algo, env_id, capsys, tmp_path):
-    out = tmp_path / "run"
-    assert (
-        main(["train", algo, "--env", env_id, "--total-steps", "500", "--out", str(out), "--no-progress"])
-        == 2
-    )
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and REFUSED[env_id] in err, err
-    assert "stacked frames [C, H, W] (channels first, at least 36x36, such as Atari's [4, 84, 84])" in err
-    assert not out.exists()
+@pytest.mark.parametrize("env_id", list(PACKED))
+def test_discrete_and_image_observations_are_packed_into_a_spec(env_id):
+    layout, size, dtype, first = PACKED[env_id]
+    env = make_host_env(env_id, 1)
+    try:
+        spec = EnvSpec.of(env)
+        assert str(spec.layout) == layout and spec.obs_shape == (size,) and spec.obs_dtype == np.dtype(dtype)
+        assert spec.legal(np.zeros(size)) is None  # no mask: every action legal
+        np.testing.assert_array_equal(env.reset(seed=0), np.asarray([first], dtype))
+    finally:
+        env.close()
 
 
-def test_the_spaces_agentax_takes_still_make_a_spec():
-    assert EnvSpec.of(make_jax("CartPole-v1")).obs_shape == (4,)
+def test_the_lecture_mdp_states_are_packed_one_hot_for_agents():
+    spec = EnvSpec.of(make_jax("LectureMDP-v0"))
+    assert str(spec.layout) == "discrete [] [3]" and spec.obs_shape == (1,)
+
+
+def test_plain_observations_keep_no_layout():
+    assert EnvSpec.of(make_jax("CartPole-v1")).layout is None
     minatar = EnvSpec.of(make_jax("gymnax/Breakout-MinAtar"))  # a flat image, its shape kept beside
-    assert len(minatar.obs_shape) == 1 and minatar.image_shape == (10, 10, 4)
+    assert len(minatar.obs_shape) == 1 and minatar.image_shape == (10, 10, 4) and minatar.layout is None
     frames = Box(np.zeros((4, 84, 84), np.uint8), np.full((4, 84, 84), 255, np.uint8), (4, 84, 84), np.uint8)
     check_observations(frames, "Breakout-v5")  # Atari's stacked frames
     check_observations(Box(np.zeros((3, 36, 36)), np.ones((3, 36, 36)), (3, 36, 36)))  # the least frame
-    with pytest.raises(UsageError, match=r"observations Box\(shape=\(3, 35, 36\)"):
-        check_observations(Box(np.zeros((3, 35, 36)), np.ones((3, 35, 36)), (3, 35, 36)))
-    with pytest.raises(UsageError, match=r"LectureMDP-v0 has observations Discrete\(3\)"):
-        EnvSpec.of(make_jax("LectureMDP-v0"))
-    env = make_host_env("Picture48-v0", 1)
-    try:
-        with pytest.raises(UsageError, match="Picture48-v0 has observations"):
-            EnvSpec.of(env)
-    finally:
-        env.close()
+
+
+def test_composite_observations_handed_over_unpacked_are_one_line_saying_how_to_pack():
+    image = Box(np.zeros((3, 35, 36)), np.ones((3, 35, 36)), (3, 35, 36))  # smaller than a Nature CNN frame
+    with pytest.raises(UsageError, match=r"gives observations Box\(shape=\(3, 35, 36\).* unpacked; make it"):
+        check_observations(image, "Mine-v0")
+    with pytest.raises(UsageError, match=r"Discrete\(5\) unpacked; make it with agentax.envs.make"):
+        check_observations(Discrete(5), "Mine-v0")
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("env_id", ["FrozenLake-v1", "CliffWalking-v1"])
+def test_discrete_observations_train_ppo_from_the_command_line(env_id, tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["train", "ppo", "--env", env_id, "--total-steps", "1024", "--out", str(out), "--no-progress"]
+    assert main(argv) == 0, capsys.readouterr().err
+    assert (out / "eval.json").is_file()
 
 
 @pytest.mark.parametrize("algo", ["sac", "td3", "reinforce"])

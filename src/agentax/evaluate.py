@@ -94,14 +94,25 @@ def host_actor(policy: Policy | HostPolicy, seed: int) -> Callable[[np.ndarray],
     return act
 
 
+MAX_EPISODE_STEPS = 10_000
+"""Where an episode of a host env is cut in evaluation: envs without a time limit of their own
+(CliffWalking-v1) would otherwise never end under a policy that never reaches the goal."""
+
+
 def host_episode_returns(
-    env: GymnasiumEnv, policy: Policy | HostPolicy, num_episodes: int, seed: int = 0
+    env: GymnasiumEnv,
+    policy: Policy | HostPolicy,
+    num_episodes: int,
+    seed: int = 0,
+    max_steps: int = MAX_EPISODE_STEPS,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Returns and lengths ``[num_episodes]`` of the first ``num_episodes`` episodes started in ``env``.
 
     Each sub-env plays episodes one after another (sub-env ``i`` seeded ``seed + i``); an episode
     counts if it is among the first ``num_episodes`` to start (ties in slot order), whatever its
-    length, so short episodes are not over-represented. Episodes are listed in order of start.
+    length, so short episodes are not over-represented. Episodes are listed in order of start. An
+    episode still going after ``max_steps`` steps ends there, and its sub-env plays no more (a vector
+    env resets sub-envs only as they end): fewer than ``num_episodes`` may then be returned.
     """
     act = host_actor(policy, seed)
     obs = env.reset(seed=seed)
@@ -116,8 +127,9 @@ def host_episode_returns(
         lengths[episode[counted]] += 1
         for i in np.flatnonzero(counted & (ts.terminated | ts.truncated)):
             episode[i], started = (started, started + 1) if started < num_episodes else (-1, started)
+        episode[counted & (episode >= 0) & (lengths[np.maximum(episode, 0)] >= max_steps)] = -1  # cut
         obs = ts.obs
-    return returns, lengths
+    return returns[:started], lengths[:started]
 
 
 def check_policy_fits(env: Environment | GymnasiumEnv, policy: Policy | HostPolicy, env_id: str = "") -> None:

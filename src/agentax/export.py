@@ -13,6 +13,14 @@ and returns what the env takes:
   threefry key (``jax.random.key_data(jax.random.key(seed))``), split into one key per row: the
   agent's collect policy (``act``, at the end of its exploration schedule) then ``env_action``.
 
+Where the env's observations are composite (a Dict or Tuple, an action mask, Discrete states, an
+image ``[H, W, C]``), agentax packs them into one flat vector (:mod:`agentax.envs.spaces`) and the
+file takes that packed vector, mask included, so it acts only among the legal actions it is given.
+The model card's ``layout`` (and the ONNX file's metadata entry ``agentax_layout``, the same JSON)
+says where each leaf lies in it: :attr:`Exported.layout` packs a batch of observations as the env
+gives them (``exported.run(exported.layout.pack(obs))``), and docs/howto/spaces.md shows how to pack
+by hand without agentax.
+
 What lies between the env's observation and the network (casts, the Nature CNN's division by 255,
 normalization statistics an agent keeps in its state) is inside the file, because the function is
 the agent's own ``greedy_policy(state)`` (or ``act``) closed over the trained state: nothing here
@@ -33,6 +41,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import json
 import logging
 from collections.abc import Callable
 from importlib.metadata import PackageNotFoundError, version
@@ -45,6 +54,7 @@ import numpy as np
 
 from agentax.agents.protocol import Agent, AgentState
 from agentax.envs import Box, Discrete, make
+from agentax.envs.spaces import Layout, Leaf, MultiBinary, MultiDiscrete
 from agentax.errors import UsageError
 from agentax.policies import Policy
 from agentax.runs import read_json, write_atomic, write_json
@@ -143,8 +153,15 @@ def batched(
     return f, action
 
 
-def to_onnx(f: Callable, obs: jax.ShapeDtypeStruct, name: str = "agentax_policy") -> bytes:
-    """The ONNX model (opset jax2onnx's default) of the greedy ``f``, input ``obs`` ``[N, ...]``."""
+def to_onnx(
+    f: Callable,
+    obs: jax.ShapeDtypeStruct,
+    name: str = "agentax_policy",
+    metadata: dict[str, str] | None = None,
+) -> bytes:
+    """The ONNX model (opset jax2onnx's default) of the greedy ``f``, input ``obs`` ``[N, ...]``;
+    ``metadata``: entries of the model's ``metadata_props`` (what onnxruntime's ``custom_metadata_map``
+    reads back)."""
     from jax2onnx import to_onnx as convert
 
     spec = jax.ShapeDtypeStruct((BATCH, *obs.shape), obs.dtype)
@@ -155,6 +172,9 @@ def to_onnx(f: Callable, obs: jax.ShapeDtypeStruct, name: str = "agentax_policy"
         model = convert(f, [spec], model_name=name, input_names=[OBS], output_names=[ACTION])
     finally:
         serde.setLevel(level)
+    for key, value in (metadata or {}).items():
+        entry = model.metadata_props.add()
+        entry.key, entry.value = key, value
     return model.SerializeToString()
 
 
@@ -171,9 +191,14 @@ def to_stablehlo(f: Callable, obs: jax.ShapeDtypeStruct, stochastic: bool = Fals
 # The model card.
 
 
-def space_card(space: Discrete | Box) -> dict[str, Any]:
-    """A space as JSON: ``{"type": "Discrete", "n"}`` or ``{"type": "Box", "shape", "dtype", "low",
-    "high"}`` (a bound equal everywhere as one number)."""
+def space_card(space: Any) -> dict[str, Any]:
+    """A space as JSON: ``{"type": "Discrete", "n"}``, ``{"type": "MultiDiscrete", "nvec"}``,
+    ``{"type": "MultiBinary", "n"}`` or ``{"type": "Box", "shape", "dtype", "low", "high"}`` (a
+    bound equal everywhere as one number)."""
+    if isinstance(space, MultiDiscrete | MultiBinary):
+        size = {"nvec": list(space.nvec)} if isinstance(space, MultiDiscrete) else {"n": int(space.n)}
+        kind = type(space).__name__
+        return {"type": kind, **size, "shape": list(space.shape), "dtype": _dtype(space.dtype)}
     if isinstance(space, Discrete):
         return {
             "type": "Discrete",
@@ -200,6 +225,56 @@ def space_card(space: Discrete | Box) -> dict[str, Any]:
     }
 
 
+LAYOUT_METADATA = "agentax_layout"
+"""The ONNX metadata entry that holds the packed observation's layout (JSON, as the card's)."""
+
+
+def layout_card(layout: Layout | None) -> dict[str, Any] | None:
+    """A layout as JSON: the packed vector's ``size``, ``dtype`` and ``structure`` (single, dict or
+    tuple), and each leaf's key, kind, shape and ``[start, start + size)`` (with a Discrete or
+    MultiDiscrete leaf's ``categories``, an image's ``channels_first`` and ``scale``); None without one."""
+    if layout is None:
+        return None
+    return {
+        "size": layout.size,
+        "dtype": layout.dtype,
+        "structure": layout.structure,
+        "leaves": [
+            {
+                "key": leaf.key,
+                "kind": leaf.kind,
+                "shape": list(leaf.shape),
+                "start": leaf.start,
+                "size": leaf.size,
+                **({"categories": list(leaf.categories)} if leaf.categories else {}),
+                **({"channels_first": True} if leaf.channels_first else {}),
+                **({"scale": leaf.scale} if leaf.scale != 1.0 else {}),
+            }
+            for leaf in layout.leaves
+        ],
+    }
+
+
+def layout_from_card(card: dict[str, Any] | None) -> Layout | None:
+    """The :class:`~agentax.envs.spaces.Layout` of a card's ``layout`` (:func:`layout_card`'s inverse)."""
+    if card is None:
+        return None
+    leaves = tuple(
+        Leaf(
+            leaf["key"],
+            leaf["kind"],
+            tuple(leaf["shape"]),
+            leaf["start"],
+            leaf["size"],
+            tuple(leaf.get("categories", ())),
+            leaf.get("channels_first", False),
+            leaf.get("scale", 1.0),
+        )
+        for leaf in card["leaves"]
+    )
+    return Layout(leaves, card["dtype"], card["structure"])
+
+
 def _dtype(dtype: Any) -> str:
     return np.dtype(dtype).name
 
@@ -212,14 +287,16 @@ def model_card(
     format: str,
     file: Path,
     env_id: str,
-    spaces: tuple[Discrete | Box, Discrete | Box],
+    spaces: tuple[Discrete | Box, Any],
     obs: jax.ShapeDtypeStruct,
     action: jax.ShapeDtypeStruct,
     stochastic: bool,
     run: dict[str, Any],
+    layout: Layout | None = None,
 ) -> dict[str, Any]:
-    """What ``FILE.json`` holds: the format, env and spaces, the inputs and output, the run it came
-    from (``run``: its algo, folder, final evaluation and evaluation settings) and the versions."""
+    """What ``FILE.json`` holds: the format, env and spaces, the inputs and output, the layout of a
+    packed observation (null where the env's observations are plain), the run it came from (``run``:
+    its algo, folder, final evaluation and evaluation settings) and the versions."""
     inputs = [_tensor(OBS, obs.shape, obs.dtype)]
     if stochastic:
         inputs.append(_tensor(KEY, (2,), jnp.uint32, batch=False))
@@ -233,6 +310,7 @@ def model_card(
         "env": env_id,
         "observation_space": space_card(spaces[0]),
         "action_space": space_card(spaces[1]),
+        "layout": layout_card(layout),
         "inputs": inputs,
         "outputs": [_tensor(ACTION, action.shape, action.dtype)],
         **({"platforms": list(STABLEHLO_PLATFORMS)} if format == "stablehlo" else {}),
@@ -272,11 +350,12 @@ def card_path(path: str | Path) -> Path:
     return Path(f"{path}.json")
 
 
-def env_spaces(env_id: str) -> tuple[Discrete | Box, Discrete | Box]:
-    """``(observation_space, action_space)`` of one ``env_id`` env, as agentax makes it."""
+def env_spaces(env_id: str) -> tuple[Discrete | Box, Any, Layout | None]:
+    """``(observation_space, action_space, layout)`` of one ``env_id`` env, as agentax makes it (the
+    observation space that of its packed vectors where it has a layout)."""
     env = make(env_id, 1)
     try:
-        return env.observation_space(), env.action_space()
+        return env.observation_space(), env.action_space(), getattr(env, "layout", None)
     finally:
         if hasattr(env, "close"):
             env.close()
@@ -300,13 +379,25 @@ def export_run(
     path = Path(out) if out is not None else run_dir / f"{name}{FORMATS[format]}"
     if path.is_dir() or not path.parent.is_dir():
         raise UsageError(f"--out {path}: give a file in an existing folder")
-    spaces = env_spaces(config["env"])
+    *spaces, layout = env_spaces(config["env"])
     obs = jax.ShapeDtypeStruct(tuple(spaces[0].shape), jnp.dtype(spaces[0].dtype))
     f, action = batched(restore(), obs, stochastic)
-    data = to_onnx(f, obs) if format == "onnx" else to_stablehlo(f, obs, stochastic)
+    if format == "onnx":
+        metadata = {} if layout is None else {LAYOUT_METADATA: json.dumps(layout_card(layout))}
+        data = to_onnx(f, obs, metadata=metadata)
+    else:
+        data = to_stablehlo(f, obs, stochastic)
     write_atomic(path, data)
     card = model_card(
-        format, path, config["env"], spaces, obs, action, stochastic, run_summary(run_dir, config)
+        format,
+        path,
+        config["env"],
+        tuple(spaces),
+        obs,
+        action,
+        stochastic,
+        run_summary(run_dir, config),
+        layout,
     )
     write_json(card_path(path), card)
     return path
@@ -331,6 +422,11 @@ class Exported:
     def obs(self) -> jax.ShapeDtypeStruct:
         spec = self.card["inputs"][0]
         return jax.ShapeDtypeStruct(tuple(spec["shape"][1:]), np.dtype(spec["dtype"]))
+
+    @property
+    def layout(self) -> Layout | None:
+        """How the env's observations are packed into the file's input (None: they go in as they are)."""
+        return layout_from_card(self.card.get("layout"))
 
     @property
     def action(self) -> jax.ShapeDtypeStruct:

@@ -121,7 +121,13 @@ def _first_frame(gym_env: gymnasium.Env, env_id: str, gl: str | None) -> np.ndar
     """``gym_env.render()`` of the reset state; for MuJoCo (``gl`` its backend) a failing OpenGL
     becomes one line that says what to install."""
     if gl is None:
-        return gym_env.render()
+        frame = gym_env.render()
+        if np.ndim(frame) != 3:
+            gym_env.close()
+            raise UsageError(
+                f"cannot draw {env_id!r}: its render() gave no RGB frame with render_mode='rgb_array'"
+            )
+        return frame
     try:
         return gym_env.render()
     except Exception as error:  # GLFW, EGL, OSMesa and PyOpenGL each fail with errors of their own
@@ -145,7 +151,10 @@ def _record_gymnasium(
     """One episode of a Gymnasium env, drawing only the frames kept: every ``stride``-th step (and
     the last), the stride the smallest that keeps at most ``max_frames`` over the env's time limit
     and at most :data:`MAX_FPS` in real time (a MuJoCo frame costs ~0.1 s in software OpenGL)."""
-    env_id, kwargs = (env, {}) if isinstance(env, str) else (env.id, env.make_kwargs)
+    if isinstance(env, str):  # made once to learn how its observations are packed for the policy
+        env = GymnasiumEnv(env, 1)
+        env.close()
+    env_id, kwargs = env.id, env.make_kwargs
     gl = _mujoco_gl(env_id) if is_mujoco_id(env_id) else None
     try:
         gym_env = gymnasium.make(env_id, render_mode="rgb_array", **(MUJOCO_FRAME if gl else {}), **kwargs)
@@ -154,16 +163,17 @@ def _record_gymnasium(
             gym_env = gymnasium.make(
                 env_id, render_mode="rgb_array", camera_name="track", **MUJOCO_FRAME, **kwargs
             )
-    except gymnasium.error.Error as error:
-        raise UsageError(f"cannot draw {env_id!r}: {error}") from error
+    except (gymnasium.error.Error, TypeError) as error:  # TypeError: an env that takes no render_mode
+        reason = " ".join(str(error).split())
+        raise UsageError(f"cannot draw {env_id!r} (it needs render_mode='rgb_array'): {reason}") from None
     horizon = gym_env.spec.max_episode_steps if gym_env.spec and gym_env.spec.max_episode_steps else max_steps
     fps = float(gym_env.metadata.get("render_fps") or 30)
     stride = max(math.ceil((min(horizon, max_steps) + 1) / max_frames), math.ceil(fps / MAX_FPS))
     act = host_actor(policy, seed)
-    obs, _ = gym_env.reset(seed=seed)
+    obs, info = gym_env.reset(seed=seed)
     frames, total_return, length = [_with_time_bar(_first_frame(gym_env, env_id, gl), 0, horizon)], 0.0, 0
     while length < max_steps:
-        obs, reward, terminated, truncated, _ = gym_env.step(act(np.asarray(obs)[None])[0])
+        obs, reward, terminated, truncated, info = gym_env.step(act(env.observe(obs, info)[None])[0])
         total_return, length = total_return + float(reward), length + 1
         done = terminated or truncated or length == max_steps
         if length % stride == 0 or done:

@@ -91,6 +91,18 @@ def require_mujoco(env_id: str) -> ModuleType:
     return mujoco
 
 
+BOX2D_EXTRA = "pip install 'agentax[box2d]'"
+"""What installs Box2D for Gymnasium's LunarLander, BipedalWalker and CarRacing."""
+
+ACTION_SPACES = (
+    gymnasium.spaces.Discrete,
+    gymnasium.spaces.Box,
+    gymnasium.spaces.MultiDiscrete,
+    gymnasium.spaces.MultiBinary,
+)
+"""The Gymnasium action spaces agentax's agents take."""
+
+
 def from_gymnasium_space(space: gymnasium.Space) -> Any:
     """agentax's space for a Gymnasium one: ``Discrete``, ``Box``, ``MultiDiscrete``, ``MultiBinary``,
     and ``Dict`` / ``Tuple`` of them; others raise ``UsageError``."""
@@ -110,7 +122,7 @@ def from_gymnasium_space(space: gymnasium.Space) -> Any:
         return spaces.Dict(tuple((key, from_gymnasium_space(sub)) for key, sub in space.spaces.items()))
     if isinstance(space, gymnasium.spaces.Tuple):
         return spaces.Tuple(tuple(from_gymnasium_space(sub) for sub in space.spaces))
-    raise UsageError(f"agentax does not take {space}; it takes {spaces.SUPPORTED}")
+    raise UsageError(f"{space} is no space agentax takes; it takes {spaces.SUPPORTED}")
 
 
 def to_gymnasium_space(space: Any) -> gymnasium.Space:
@@ -156,6 +168,10 @@ class GymnasiumEnv:
                     vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP},
                     **make_kwargs,
                 )
+            except gymnasium.error.DependencyNotInstalled as error:
+                if "box2d" not in str(error).lower():
+                    raise UsageError(f"cannot make Gymnasium env {self.id!r}: {error}") from error
+                raise UsageError(f"{env} needs Box2D, which is not installed: {BOX2D_EXTRA}") from None
             except gymnasium.error.Error as error:
                 raise UsageError(f"cannot make Gymnasium env {self.id!r}: {error}") from error
         elif isinstance(env, gymnasium.Env):
@@ -173,14 +189,22 @@ class GymnasiumEnv:
         self.num_envs: int = env.num_envs
         self.make_kwargs = make_kwargs
         try:
+            if not isinstance(env.single_action_space, ACTION_SPACES):
+                raise UsageError(
+                    f"its actions {env.single_action_space} are no space agentax takes; it takes "
+                    "Discrete, Box, MultiDiscrete and MultiBinary actions"
+                )
             self.original_space = from_gymnasium_space(env.single_observation_space)
             self._action_space = from_gymnasium_space(env.single_action_space)
             mask = self._info_mask()
             self._mask_in_info = mask is not None
             self.layout = spaces.layout_of(self.original_space, self.id, mask)
+            if self.layout is not None and self.layout.mask is not None:
+                self.reset(seed=0)  # a first mask with no legal action is refused before a run starts
         except UsageError as error:
             env.close()
-            raise UsageError(f"{self.id} cannot run in agentax: {error}") from None
+            reason = str(error).removeprefix(f"{self.id} ")
+            raise UsageError(f"{self.id} cannot run in agentax: {reason}") from None
         self._observation_space = self.original_space
         self._obs_dtype = None  # float64 observations (MuJoCo's) are handed on as float32
         if self.layout is not None:
@@ -206,9 +230,10 @@ class GymnasiumEnv:
     def action_space(self, params: EnvParams | None = None) -> Any:
         return self._action_space
 
-    def _observe(self, obs: Any, info: Mapping[str, Any]) -> np.ndarray:
-        """Observations ``[num_envs, ...]`` as agents take them: packed where there is a layout
-        (with ``info``'s action mask where the env gives it there), float32 for float64 ones."""
+    def observe(self, obs: Any, info: Mapping[str, Any]) -> np.ndarray:
+        """Observations ``[num_envs, ...]`` (or one sub-env's, as its own Gymnasium env gives it) as
+        agents take them: packed where there is a layout (with ``info``'s action mask where the env
+        gives it there), float32 for float64 ones."""
         if self.layout is None:
             return obs if self._obs_dtype is None else obs.astype(self._obs_dtype)
         if self._mask_in_info:
@@ -221,12 +246,12 @@ class GymnasiumEnv:
     def reset(self, seed: int | None = None) -> np.ndarray:
         """First observations ``[num_envs, *obs_shape]``; sub-env ``i`` is seeded ``seed + i``."""
         obs, info = self.vector_env.reset(seed=seed)
-        return self._observe(obs, info)
+        return self.observe(obs, info)
 
     def step(self, actions: Any) -> TimeStep:
         """One step of every sub-env; ``actions: [num_envs, *action_shape]``. Ended episodes auto-reset."""
         obs, reward, terminated, truncated, info = self.vector_env.step(np.asarray(actions))
-        obs = self._observe(obs, info)
+        obs = self.observe(obs, info)
         final_obs = np.array(obs)
         for i in np.flatnonzero(info.get("_final_obs", ())):
             final_obs[i] = self._final_obs(info, i)
