@@ -80,7 +80,7 @@ lint: $(STAMP)
 lock:
 	rm -rf .lockenv && $(PYTHON) -m venv .lockenv
 	.lockenv/bin/pip install --quiet --upgrade pip
-	.lockenv/bin/pip install --quiet -e '.[dev,atari,ray,sweep,gymnax,onednn,mujoco,export]' setuptools
+	.lockenv/bin/pip install --quiet -e '.[dev,atari,ray,sweep,gymnax,onednn,mujoco,export,box2d]' setuptools
 	.lockenv/bin/pip freeze --all --exclude-editable | grep -v "^pip==" > requirements.lock
 	rm -rf .lockenv
 
