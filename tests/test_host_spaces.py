@@ -107,8 +107,8 @@ def test_packed_host_observations_and_their_layouts():
         (OWN + "Match-MultiBinary-v0", "host"),
         (OWN + "Picture48-v0", "host"),
         (OWN + "Masked-Dict-v0", "parallel"),
-        (OWN + "Picture48-v0", "parallel"),
-        ("Taxi-v4", "parallel"),
+        pytest.param(OWN + "Picture48-v0", "parallel", marks=pytest.mark.long),  # as host's, in actors
+        pytest.param("Taxi-v4", "parallel", marks=pytest.mark.long),  # the info mask, in actors
     ],
 )
 def test_ppo_trains_evaluates_and_plays_on_packed_host_observations(env_id, runner, tmp_path, capsys):
