@@ -23,12 +23,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from agentax.agents.memory import check_learning_fits
 from agentax.agents.protocol import EnvSpec
 from agentax.envs import make_host_env, make_jax
 from agentax.errors import UsageError
 from agentax.policies import Policy
 from agentax.runners import RUNNERS, kind_of
-from agentax.runners.memory import check_learning_fits
 from agentax.runners.session import TrainResult
 from agentax.runs import Run
 
