@@ -216,7 +216,7 @@ def test_compiled_ppo_on_hopper_two_updates(tmp_path):
     assert all(np.isfinite(r["mean_return"]) and r["mean_return"] > 0 for r in rows)  # alive: +1 a step
     assert json.loads((tmp_path / "run" / "eval.json").read_text())["episodes"] == 1
     obs = jnp.asarray(np.random.default_rng(0).normal(size=(3, 11)), jnp.float32)
-    policy = host.restore_policy(tmp_path / "run", agent)
+    policy = host.restore(tmp_path / "run", {}, agent)
     np.testing.assert_array_equal(
         policy(obs, jax.random.key(0)), agent.greedy_policy(result.state)(obs, None)
     )

@@ -156,13 +156,6 @@ def check_fits(algorithm: Program, runner: RunnerConfig) -> None:
         )
 
 
-def freeze_of(runner: RunnerConfig) -> Freeze | None:
-    """The per-seed early stop the runner asks of the program (None: none)."""
-    if runner.freeze_at_return is None:
-        return None
-    return Freeze(runner.freeze_at_return, runner.freeze_episodes)
-
-
 def seeds_of(runner: RunnerConfig) -> np.ndarray:
     """The seeds of the runner's agents ``[num_settings × num_seeds]``: agent k uses ``seed + k``
     (``seed + k % num_seeds`` in a sweep), alone or in a batch."""
@@ -256,7 +249,7 @@ def train_program(
 
     stats = jax.device_get(state.episodes)
     counts = Counts(int(meta["updates"]), int(meta["evaluations"]), float(np.mean(stats.env_steps)))
-    counts.solved_env_steps, counts.solved_seconds = meta.get("solved_env_steps"), meta.get("solved_seconds")
+    counts.solved_env_steps, counts.solved_seconds = (meta.get(name) for name in SOLVED)
     schedule = ChunkSchedule(
         algorithm.num_updates,
         runner.updates_per_chunk,
@@ -365,8 +358,11 @@ def best_seed(run_dir: str | Path) -> int:
 
 def program_of(agent: Agent, env: Environment, runner: RunnerConfig | None = None) -> Program:
     """The program of ``agent`` on the JAX env ``env``, with ``runner``'s per-seed early stop if given."""
+    freeze = None
+    if runner is not None and runner.freeze_at_return is not None:
+        freeze = Freeze(runner.freeze_at_return, runner.freeze_episodes)
     try:
-        return program(agent, env, freeze=None if runner is None else freeze_of(runner))
+        return program(agent, env, freeze=freeze)
     except ValueError as error:
         raise UsageError(f"--freeze-at-return: {error}") from None
 

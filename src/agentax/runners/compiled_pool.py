@@ -30,7 +30,7 @@ the third, its envs seeded ``actor_seed(seed, 0, updates)``, an act key per step
 actor's), the same rows
 (:func:`~agentax.runners.session.row_of`: ``mean_return`` is the mean true score of the whole games
 finished since the last row — every life, raw rewards), the same checkpoints (``(agent state,
-learner key)``, so :func:`agentax.runners.host.restore_policy` loads them and a resumed run restarts
+learner key)``, so :func:`agentax.runners.host.restore` loads them and a resumed run restarts
 its pool from a new seed), the same final evaluation (:class:`~agentax.runners.host.Evaluator`:
 whole games on the host adapter, greedy with 1 % random actions).
 """
@@ -40,7 +40,6 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import jax
@@ -60,7 +59,6 @@ from agentax.envs.envpool_xla import (
     track,
 )
 from agentax.errors import UsageError
-from agentax.policies import Policy
 from agentax.returns import EpisodeStats
 from agentax.runners import host
 from agentax.runners.rollout import OnPolicyCarry, on_policy_rollout
@@ -119,9 +117,8 @@ def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[Config, str]:
     return runner, f"compiled, EnvPool inside the program, policy lag {runner.policy_lag}"
 
 
-def restore(run_dir: Path, config: dict[str, Any], agent: Agent) -> Policy:
-    """The greedy policy of the run's newest checkpoint (the host runner's ``(agent state, learner key)``)."""
-    return host.restore_policy(run_dir, agent)
+restore = host.restore
+"""its checkpoints are the host runner's ``(agent state, learner key)``"""
 
 
 @struct.dataclass

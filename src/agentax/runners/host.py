@@ -447,12 +447,8 @@ def train(
     return session.finish(state, actor.steps.count, updates)
 
 
-def restore_policy(run_dir: Path, agent: Agent) -> Policy:
-    """The greedy policy of a host or parallel run's newest loadable checkpoint."""
+def restore(run_dir: Path, config: dict[str, Any], agent: Agent) -> Policy:
+    """The greedy policy of the newest loadable checkpoint of a run of the runners that checkpoint
+    ``(agent state, learner key)`` (host, parallel, Ray, compiled EnvPool)."""
     (state, _), _, _ = load_checkpoint(run_dir, checkpoint_target(agent))
     return agent.greedy_policy(state)
-
-
-def restore(run_dir: Path, config: dict[str, Any], agent: Agent) -> Policy:
-    """The greedy policy of a run of the runners that checkpoint ``(agent state, learner key)``."""
-    return restore_policy(run_dir, agent)

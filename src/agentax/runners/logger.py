@@ -217,10 +217,6 @@ class RunLogger:
         self.last_checkpoint, self.last_checkpoint_time = path.name, now
         return True
 
-    def finish(self, returns: np.ndarray, lengths: np.ndarray, **extra: Any) -> dict[str, Any]:
-        """The final evaluation into the logger's run (:func:`finish_run`)."""
-        return finish_run(self.run, returns, lengths, **extra)
-
 
 def finish_run(run: Run | None, returns: np.ndarray, lengths: np.ndarray, **extra: Any) -> dict[str, Any]:
     """The final evaluation (returns ``[num_seeds, episodes]``): eval.json and curve.png if there is

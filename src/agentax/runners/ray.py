@@ -43,7 +43,6 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import jax
@@ -62,7 +61,7 @@ from agentax.runners.parallel import algorithm_config as actors_algorithm_config
 from agentax.runners.parallel import train as train_parallel
 from agentax.runners.ray_cluster import ray_session
 from agentax.runners.session import TrainResult
-from agentax.runs import Run
+from agentax.runs import Run, checkpoints
 
 CHECK_SECONDS = 1.0
 """how often a replacement collector that waits to start checks that the cluster still holds the run"""
@@ -316,7 +315,7 @@ def ray_fleet(agent: Agent, make_agent: Callable[[], Agent], env_id: str, runner
         return version, ray.put(jax.device_get(acting_view(state)))
 
     def make(coordinator: Coordinator, updates: int, done_steps: int, actors_key: jax.Array) -> Fleet:
-        check_resources(ray, runner)
+        check_cpus(ray, runner)
 
         def spawn(index: int, restarts: int) -> Any:
             seed = actor_seed(runner.seed, index, updates) + RESTART_SEED_STRIDE * restarts
@@ -334,7 +333,7 @@ def ray_fleet(agent: Agent, make_agent: Callable[[], Agent], env_id: str, runner
                 coordinator,
                 done_steps // runner.actors,
                 runner.max_actor_restarts,
-                functools.partial(check_not_lost, ray, runner),
+                functools.partial(check_cpus, ray, runner, started=True),
             )
             for i in range(runner.actors)
         ]
@@ -360,27 +359,23 @@ def ray_fleet(agent: Agent, make_agent: Callable[[], Agent], env_id: str, runner
     return make
 
 
-def check_resources(ray: Any, runner: RayRunnerConfig) -> None:
-    """A ``UsageError`` when the cluster has fewer CPUs than the actors reserve (they would wait forever)."""
+def check_cpus(ray: Any, runner: RayRunnerConfig, started: bool = False) -> None:
+    """A ``UsageError`` when the cluster has fewer CPUs than the actors reserve (they would wait
+    forever); once ``started``, a :class:`~agentax.errors.NodeLost`: a node was lost, and a
+    replacement collector would wait for it forever."""
     cpus = ray.cluster_resources().get("CPU", 0)
     wanted = runner.actors * runner.cpus_per_actor
-    if wanted > cpus:
-        raise UsageError(
-            f"{runner.actors} actors × {runner.cpus_per_actor:g} CPU need {wanted:g} CPUs, the Ray cluster "
-            f"has {cpus:g}: join more nodes, or set --cpus-per-actor {cpus / runner.actors:.2g}"
-        )
-
-
-def check_not_lost(ray: Any, runner: RayRunnerConfig) -> None:
-    """A :class:`~agentax.errors.NodeLost` once the cluster's live nodes no longer have the CPUs the
-    run's actors reserve: a node was lost, and a replacement collector would wait for it forever."""
-    cpus = ray.cluster_resources().get("CPU", 0)
-    wanted = runner.actors * runner.cpus_per_actor
-    if wanted > cpus:
+    if wanted <= cpus:
+        return
+    if started:
         raise NodeLost(
             f"a Ray node was lost and with it the CPUs of the run's actors ({runner.actors} actors × "
             f"{runner.cpus_per_actor:g} CPU, {cpus:g} CPUs left): join a node"
         )
+    raise UsageError(
+        f"{runner.actors} actors × {runner.cpus_per_actor:g} CPU need {wanted:g} CPUs, the Ray cluster "
+        f"has {cpus:g}: join more nodes, or set --cpus-per-actor {cpus / runner.actors:.2g}"
+    )
 
 
 RESUME_HINT_CODE = """import os, shlex, sys
@@ -440,11 +435,6 @@ def end_quiet_watcher(pid: int, seconds: float = 10.0) -> None:
         time.sleep(0.01)
 
 
-def has_checkpoint(run: Run | None) -> bool:
-    checkpoints = None if run is None else Path(run.path) / "checkpoints"
-    return checkpoints is not None and checkpoints.is_dir() and any(checkpoints.iterdir())
-
-
 def train(
     agent: Agent,
     env_id: str,
@@ -463,7 +453,7 @@ def train(
         try:
             return train_parallel(agent, env_id, runner, run, resume=resume, progress=progress, fleet=fleet)
         except NodeLost as lost:
-            if has_checkpoint(run):
+            if run is not None and checkpoints(run.path):
                 lost.run_dir = str(run.path)  # the CLI adds: continue with agentax train --resume DIR
             elif run is not None:
                 lost.args = (f"{lost}; the run had saved no checkpoint yet: start it again",)
