@@ -1,6 +1,6 @@
 """The compiled runner: the whole training of a JAX env under ``jit`` + ``lax.scan``, vmapped over seeds.
 
-**The program** is built from the agent by :func:`agentax.runners.rollout.program`, the same
+**The program** is built from the agent by :func:`program_of`, the same
 for every algorithm: a :class:`~agentax.runners.rollout.Program` whose ``init(key)`` gives one
 seed's carry (agent state, env states, replay if any, key, and an ``episodes`` field, an
 :class:`agentax.returns.EpisodeStats` updated at every env step) and whose ``update(carry) ->
@@ -39,7 +39,7 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
-from agentax.agents.protocol import Agent, EnvSpec
+from agentax.agents.protocol import Agent, EnvSpec, Episodes, OffPolicy
 from agentax.curves import preload_plotting
 from agentax.envs import make_jax
 from agentax.envs.core import Environment
@@ -49,7 +49,8 @@ from agentax.replay.frames import available_memory
 from agentax.runners import algorithm_of, programs, workers
 from agentax.runners.launch import agent_maker
 from agentax.runners.programs import CHUNK_COMPILER_OPTIONS, init_from_seeds
-from agentax.runners.rollout import Freeze, Program, program
+from agentax.runners.replay_program import Freeze, off_policy_program
+from agentax.runners.rollout import Program, VectorEnv, episodes_program, on_policy_program
 from agentax.runners.session import (
     SOLVED,
     TIMINGS,
@@ -357,14 +358,22 @@ def best_seed(run_dir: str | Path) -> int:
 
 
 def program_of(agent: Agent, env: Environment, runner: RunnerConfig | None = None) -> Program:
-    """The program of ``agent`` on the JAX env ``env``, with ``runner``'s per-seed early stop if given."""
-    freeze = None
-    if runner is not None and runner.freeze_at_return is not None:
-        freeze = Freeze(runner.freeze_at_return, runner.freeze_episodes)
-    try:
-        return program(agent, env, freeze=freeze)
-    except ValueError as error:
-        raise UsageError(f"--freeze-at-return: {error}") from None
+    """The program of ``agent`` on the JAX env ``env`` for its kind of experience, with ``runner``'s
+    per-seed early stop if given (off-policy agents only)."""
+    experience = agent.experience
+    envs = VectorEnv(env, env.default_params(), experience.num_envs)
+    freeze_at = None if runner is None else runner.freeze_at_return
+    if isinstance(experience, OffPolicy):
+        freeze = None if freeze_at is None else Freeze(freeze_at, runner.freeze_episodes)
+        return off_policy_program(agent, envs, freeze)
+    if freeze_at is not None:
+        raise UsageError(
+            "--freeze-at-return: freezing seeds needs an off-policy agent's learning gates, "
+            f"not {agent.name}'s"
+        )
+    if isinstance(experience, Episodes):
+        return episodes_program(agent, envs)
+    return on_policy_program(agent, envs)
 
 
 def compiled_program(module: Any, env: Environment, cfg: Any, runner: RunnerConfig | None = None) -> Program:
