@@ -47,7 +47,7 @@ from agentax.errors import UsageError
 from agentax.policies import Policy
 from agentax.replay.frames import available_memory
 from agentax.runners import algorithm_of, programs, workers
-from agentax.runners.launch import agent_maker
+from agentax.runners.launch import agent_maker, parse_return
 from agentax.runners.programs import CHUNK_COMPILER_OPTIONS, init_from_seeds
 from agentax.runners.replay_program import Freeze, off_policy_program
 from agentax.runners.rollout import Program, VectorEnv, episodes_program, on_policy_program
@@ -396,7 +396,9 @@ def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[RunnerConfig, s
         num_seeds=run_args.seeds,
         **schedule_of(preset),
         stop_at_return=stop,
-        freeze_at_return=_freeze(run_args.freeze_at_return, preset),
+        freeze_at_return=parse_return(
+            "--freeze-at-return", run_args.freeze_at_return, preset.freeze_at_return
+        ),
         freeze_episodes=run_args.freeze_episodes,
         workers=run_args.workers or workers.default_for(run_args.seeds, agent.total_steps, stop),
         ray_address=run_args.ray_address,
@@ -414,13 +416,6 @@ def schedule_of(preset: Any) -> dict[str, int]:
     """What a :class:`RunnerConfig` takes of a preset: its chunks and evaluations."""
     names = ("updates_per_chunk", "eval_every_chunks", "eval_episodes")
     return {name: getattr(preset, name) for name in names}
-
-
-def _freeze(value: str, preset: Any) -> float | None:
-    """``--freeze-at-return``: a number, 'none', or 'auto' (the preset's)."""
-    if value == "none":
-        return None
-    return preset.freeze_at_return if value == "auto" else float(value)
 
 
 def train(

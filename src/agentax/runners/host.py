@@ -45,6 +45,7 @@ from agentax.runners.driver import (
     TrajectoryObserver,
     first_time_step,
 )
+from agentax.runners.replay_program import example_action
 from agentax.runners.rollout import scalars
 from agentax.runners.session import Session, TrainResult, checkpoint_target
 from agentax.runs import Run, load_checkpoint
@@ -143,16 +144,13 @@ def record_returns(returns: FinishedReturns, trajectory: Transition, episodes: b
     """Feed a trajectory ``[T, E]`` to a returns tracker; returns the env steps it holds. With
     ``episodes`` only each env's first episode counts (``info["valid"]``), ended by the step limit."""
     reward, terminated, truncated = trajectory.reward, trajectory.terminated, trajectory.truncated
-    valid = trajectory.info["valid"] if episodes else np.ones(reward.shape, bool)
-    last = len(reward) - 1
-    for t in range(last + 1):
-        if episodes:
-            returns(
-                _Ends(reward[t] * valid[t], terminated[t] & valid[t], (truncated[t] | (t == last)) & valid[t])
-            )
-        else:
-            returns(_Ends(reward[t], terminated[t], truncated[t]))
-    return int(valid.sum())
+    if episodes:
+        valid = trajectory.info["valid"]
+        reward, terminated = reward * valid, terminated & valid
+        truncated = (truncated | (np.arange(len(reward)) == len(reward) - 1)[:, None]) & valid
+    for t in range(len(reward)):
+        returns(_Ends(reward[t], terminated[t], truncated[t]))
+    return int(trajectory.info["valid"].sum()) if episodes else reward.size
 
 
 def act_and_split(act):
@@ -271,9 +269,7 @@ def replay_for(agent: Agent, obs_shape: tuple[int, ...], seed: int) -> Any:
             seed=seed,
         )
     obs = np.zeros(obs_shape, np.float32)
-    state = jax.eval_shape(agent.init, jax.random.key(0))
-    action, _ = jax.eval_shape(agent.act, state, obs[None], jax.random.key(0), 0)
-    one = jax.device_get(example_transition(obs, np.zeros(action.shape[1:], action.dtype)))
+    one = jax.device_get(example_transition(obs, example_action(agent, obs[None])))
     return ReplayBuffer(
         experience.capacity,
         one,
@@ -344,7 +340,7 @@ def collection_over(agent: Agent, env_steps: int, episodes: int, updates: int = 
     experience = agent.experience
     if not isinstance(experience, OffPolicy):
         return updates >= num_updates(agent)
-    max_episodes = getattr(experience, "max_episodes", 0)
+    max_episodes = experience.max_episodes
     return env_steps >= agent.total_steps or bool(max_episodes and episodes >= max_episodes)
 
 

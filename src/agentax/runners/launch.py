@@ -58,18 +58,17 @@ def agent_maker(module: Any, spec: Any, cfg: Any, conv: str | None = None) -> Ca
     return functools.partial(module.make_agent, spec, cfg, loop=loop, conv=conv)
 
 
-def parse_stop(value: str, preset: Any, env: Any) -> float | None:
-    """``--stop-at-return``: a number, 'none', or 'auto' (the env's solved threshold in a solving
-    preset)."""
+def parse_return(flag: str, value: str, auto: float | None) -> float | None:
+    """A return flag's value (``--stop-at-return``, ``--freeze-at-return``): a number, 'none', or
+    'auto' (then ``auto``)."""
     if value == "none":
         return None
     if value == "auto":
-        solved = getattr(env, "reward_threshold", None)
-        return float(solved) if preset.stop_at_solved and solved is not None else None
+        return auto
     try:
         return float(value)
     except ValueError:
-        raise UsageError(f"--stop-at-return must be a number, 'none' or 'auto', got {value!r}") from None
+        raise UsageError(f"{flag} must be a number, 'none' or 'auto', got {value!r}") from None
 
 
 def env_specs(kind: str, env_id: str, backend: str = "auto", sticky_actions: float = 0.25) -> tuple[Any, Any]:
@@ -94,10 +93,10 @@ def prepare(module: Any, run_args: Any, cfg: Any, preset: Any, kind: str) -> Lau
     remake = agent_maker(module, spec, cfg)
     agent = remake()  # refuses what the agent cannot train before anything is written
     check_learning_fits(module.make_agent(spec, cfg), spec, run_args.seeds)  # (plain: see its docstring)
-    # every configure reads stop_at_return resolved to a number or None
-    run_args = dataclasses.replace(
-        run_args, stop_at_return=parse_stop(run_args.stop_at_return, preset, solved_by)
-    )
+    solved = getattr(solved_by, "reward_threshold", None)  # 'auto': the env's, in a solving preset
+    auto = float(solved) if preset.stop_at_solved and solved is not None else None
+    stop = parse_return("--stop-at-return", run_args.stop_at_return, auto)
+    run_args = dataclasses.replace(run_args, stop_at_return=stop)  # what every configure reads
     runner, where = runner_module.configure(run_args, agent, preset)
     return _launch(runner_module, agent, remake, run_args.env, runner, where)
 
