@@ -22,13 +22,9 @@ it and waits. So
   raised *inside* a collector (a bug, a broken env) ends the run with that error, and so does a
   learner error; the actors are then killed.
 
-Where it runs: ``ray_address`` joins an existing cluster (``auto``, or ``HOST:PORT`` of ``ray start
---head``, sending this machine's token as ``auto`` does; a refused token is one line at once: both in
-:mod:`agentax.runners.ray_cluster`); without it the run starts a local Ray (no
-dashboard, Ray's token authentication, as many CPUs as the machine has; Ray 2.60 listens on the
-machine's address, it cannot be held to loopback) and shuts it down at the end, also after Ctrl-C
-(at the learner's next safe point) or an error. A process already connected to Ray (``ray.init``
-before the call, as the tests do) keeps its connection. Every node needs agentax installed (the same
+Where it runs: :func:`~agentax.runners.ray_cluster.ray_session` joins the cluster at
+``ray_address``, else starts a local Ray for the run and shuts it down at the end, also after Ctrl-C
+(at the learner's next safe point) or an error. Every node needs agentax installed (the same
 version); the learner stays in this process.
 """
 
@@ -36,10 +32,8 @@ from __future__ import annotations
 
 import collections
 import functools
-import os
-import signal
+import subprocess
 import sys
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -85,8 +79,8 @@ Config = RayRunnerConfig
 REMAKES_AGENT = True
 """its actors build the agent again in their processes: :func:`train` takes ``make_agent``"""
 algorithm_config = actors_algorithm_config
-restore = parallel.restore
 """the parallel runner's: ``--envs-per-actor`` sets the algorithm's envs"""
+restore = parallel.restore
 
 
 def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[RayRunnerConfig, str]:
@@ -401,38 +395,20 @@ def hint_if_ray_ends_this_process(run: Run | None) -> Iterator[None]:
     if run is None:
         yield
         return
-    read_end, write_end = os.pipe()  # the write end stays here (not inherited), the watcher reads
-    watcher = os.posix_spawn(  # no fork of this multithreaded process (JAX, Ray)
-        sys.executable,
+    watcher = subprocess.Popen(  # fork_exec in C: no Python runs in a fork of this multithreaded process
         [sys.executable, "-I", "-S", "-c", RESUME_HINT_CODE, str(run.path)],
-        os.environ,
-        file_actions=[
-            (os.POSIX_SPAWN_DUP2, read_end, 0),
-            (os.POSIX_SPAWN_OPEN, 1, os.devnull, os.O_WRONLY, 0),
-        ],
-        setsid=True,  # Ctrl-C in the terminal is the run's, not the watcher's
+        stdin=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        start_new_session=True,  # Ctrl-C in the terminal is the run's, not the watcher's
     )
-    os.close(read_end)
     try:
         yield
     finally:
         try:
-            os.write(write_end, b"done")
-        except OSError:  # the watcher is gone (killed): nothing to say it
-            pass
-        os.close(write_end)
-        end_quiet_watcher(watcher)
-
-
-def end_quiet_watcher(pid: int, seconds: float = 10.0) -> None:
-    """Reap the watcher, which ends once it has read "done"; killed if it has not after ``seconds``."""
-    deadline = time.monotonic() + seconds
-    while os.waitpid(pid, os.WNOHANG) == (0, 0):
-        if time.monotonic() > deadline:
-            os.kill(pid, signal.SIGKILL)
-            os.waitpid(pid, 0)
-            return
-        time.sleep(0.01)
+            watcher.communicate(b"done", timeout=10)  # the watcher ends once it has read "done"
+        except subprocess.TimeoutExpired:
+            watcher.kill()
+            watcher.wait()
 
 
 def train(
