@@ -83,12 +83,12 @@ class OffPolicyCarry:
 
 @dataclass(frozen=True)
 class Replay:
-    """The jittable replay an ``OffPolicy`` experience asks for: uniform or prioritized, one call shape."""
+    """The jittable replay an ``OffPolicy`` experience asks for: uniform or prioritized, one call
+    shape (prioritized replay's ``update_priorities`` is called where the experience is prioritized)."""
 
     init: Callable  # (capacity, example) -> state
     add: Callable  # (state, batch, valid) -> state
     sample: Callable  # (state, key, batch_size, beta) -> ReplaySample
-    update_priorities: Callable  # (state, indices, priority) -> state
 
 
 def replay_for(experience: OffPolicy) -> Replay:
@@ -97,13 +97,11 @@ def replay_for(experience: OffPolicy) -> Replay:
             init=functools.partial(prioritized.init, priority_exponent=experience.priority_exponent),
             add=prioritized.add,
             sample=prioritized.sample,
-            update_priorities=prioritized.update_priorities,
         )
     return Replay(
         init=uniform.init,
         add=uniform.add,
         sample=lambda state, key, batch_size, beta: uniform.sample(state, key, batch_size),
-        update_priorities=lambda state, indices, priority: state,
     )
 
 
@@ -187,7 +185,7 @@ def learning_phase(
         sample = replay.sample(replay_state, sample_key, experience.batch_size, beta)
         agent_state, metrics = agent.learn(agent_state, sample, learn_key)
         if experience.prioritized:
-            replay_state = replay.update_priorities(replay_state, sample.indices, metrics[PRIORITY])
+            replay_state = prioritized.update_priorities(replay_state, sample.indices, metrics[PRIORITY])
         return (agent_state, replay_state, key), scalars(metrics)
 
     key, learn_key = jax.random.split(carry.key)
