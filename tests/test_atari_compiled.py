@@ -253,7 +253,7 @@ def test_short_run_writes_the_run_folder_loads_and_resumes(tmp_path):
     agent = _ppo_agent(probe, total_steps=128, **overrides)
     probe.close()
     runner = compiled_pool.Config(log_every_steps=64, eval_episodes=1, sticky_actions=0.0)
-    config = run_config("ppo", BREAKOUT, "atari", compiled_pool.RUNNER_KIND, runner, {})
+    config = run_config("ppo", BREAKOUT, "atari", "compiled-atari", runner, {})
     run = Run.create(tmp_path / "run", config)
     result = compiled_pool.train(agent, BREAKOUT, runner, run)
     assert result.updates == 2 and result.env_steps == 128
@@ -341,7 +341,7 @@ def test_policy_lag_1_on_a_real_pool_learns_the_first_update_as_lag_0_and_then_g
     losses = {}
     for lag in (0, 1):
         runner = Config(log_every_steps=64, eval_episodes=1, sticky_actions=0.0, policy_lag=lag)
-        config = run_config("ppo", BREAKOUT, "atari", compiled_pool.RUNNER_KIND, runner, {})
+        config = run_config("ppo", BREAKOUT, "atari", "compiled-atari", runner, {})
         result = compiled_pool.train(agent, BREAKOUT, runner, Run.create(tmp_path / f"lag{lag}", config))
         assert result.updates == 2 and result.env_steps == 128
         losses[lag] = np.array(

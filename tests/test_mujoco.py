@@ -206,7 +206,7 @@ def test_compiled_ppo_on_hopper_two_updates(tmp_path):
     pool.close()
     agent = _ppo_agent(spec, total_steps=512, num_envs=4, num_steps=64)
     runner = compiled_pool.Config(log_every_steps=256, eval_episodes=1, policy_lag=1)
-    kind = compiled_pool.MUJOCO_RUNNER_KIND
+    kind = "compiled-mujoco"
     run = Run.create(tmp_path / "run", run_config("ppo", "Hopper-v5", "default", kind, runner, {}))
     result = compiled_pool.train(agent, "Hopper-v5", runner, run)
     assert result.updates == 2 and result.env_steps == 512

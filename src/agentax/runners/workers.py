@@ -329,20 +329,3 @@ def resume_or_restart(folder: Path, config: dict[str, Any], resume: bool = True)
     if folder.exists():
         shutil.rmtree(folder)
     return Run.create(folder, config), False
-
-
-__all__ = [
-    "FINAL_RETURNS",
-    "announced",
-    "default_for",
-    "map_processes",
-    "map_ray",
-    "merge_rows",
-    "node",
-    "resume_or_restart",
-    "split",
-    "train",
-    "train_worker",
-    "worker_dir",
-    "worker_of",
-]
