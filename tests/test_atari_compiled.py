@@ -4,7 +4,7 @@ Checked: the reset-step bookkeeping by hand (:func:`agentax.envs.envpool_xla.tra
 learns nothing from masked steps; on a real pool, that every reset step follows a done step; the
 in-program pool against the host adapter on the same seed and actions (frames, learning view, whole
 games' scores and lengths); and a short run's folder, loaded back by the host runner's
-``restore_policy`` and resumed.
+``host.restore`` and resumed.
 """
 
 from __future__ import annotations
@@ -244,7 +244,7 @@ def test_refuses_what_it_cannot_run():
 @pytest.mark.timeout(150)
 def test_short_run_writes_the_run_folder_loads_and_resumes(tmp_path):
     """Two iterations of 2 envs x 32 steps: metrics rows, a checkpoint that the host runner's
-    ``restore_policy`` loads into the trained greedy policy, eval.json and curve.png; resumed with a
+    ``host.restore`` loads into the trained greedy policy, eval.json and curve.png; resumed with a
     longer budget it continues from iteration 2."""
     from agentax.runners import compiled_pool, host
 
@@ -265,7 +265,7 @@ def test_short_run_writes_the_run_folder_loads_and_resumes(tmp_path):
     assert evaluation["episodes"] == 1 and evaluation["mean_return"] >= 0
     assert (tmp_path / "run" / "curve.png").is_file()
 
-    policy = host.restore_policy(tmp_path / "run", agent)
+    policy = host.restore(tmp_path / "run", {}, agent)
     obs = jnp.asarray(np.random.default_rng(0).integers(0, 256, (5, 4, 84, 84)), jnp.uint8)
     np.testing.assert_array_equal(
         policy(obs, jax.random.key(0)), agent.greedy_policy(result.state)(obs, None)
