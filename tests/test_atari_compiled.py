@@ -4,7 +4,7 @@ Checked: the reset-step bookkeeping by hand (:func:`agentax.envs.envpool_xla.tra
 learns nothing from masked steps; on a real pool, that every reset step follows a done step; the
 in-program pool against the host adapter on the same seed and actions (frames, learning view, whole
 games' scores and lengths); and a short run's folder, loaded back by the host runner's
-``restore_policy`` and resumed.
+``host.restore`` and resumed.
 """
 
 from __future__ import annotations
@@ -244,7 +244,7 @@ def test_refuses_what_it_cannot_run():
 @pytest.mark.timeout(150)
 def test_short_run_writes_the_run_folder_loads_and_resumes(tmp_path):
     """Two iterations of 2 envs x 32 steps: metrics rows, a checkpoint that the host runner's
-    ``restore_policy`` loads into the trained greedy policy, eval.json and curve.png; resumed with a
+    ``host.restore`` loads into the trained greedy policy, eval.json and curve.png; resumed with a
     longer budget it continues from iteration 2."""
     from agentax.runners import compiled_pool, host
 
@@ -253,7 +253,7 @@ def test_short_run_writes_the_run_folder_loads_and_resumes(tmp_path):
     agent = _ppo_agent(probe, total_steps=128, **overrides)
     probe.close()
     runner = compiled_pool.Config(log_every_steps=64, eval_episodes=1, sticky_actions=0.0)
-    config = run_config("ppo", BREAKOUT, "atari", compiled_pool.RUNNER_KIND, runner, {})
+    config = run_config("ppo", BREAKOUT, "atari", "compiled-atari", runner, {})
     run = Run.create(tmp_path / "run", config)
     result = compiled_pool.train(agent, BREAKOUT, runner, run)
     assert result.updates == 2 and result.env_steps == 128
@@ -265,7 +265,7 @@ def test_short_run_writes_the_run_folder_loads_and_resumes(tmp_path):
     assert evaluation["episodes"] == 1 and evaluation["mean_return"] >= 0
     assert (tmp_path / "run" / "curve.png").is_file()
 
-    policy = host.restore_policy(tmp_path / "run", agent)
+    policy = host.restore(tmp_path / "run", {}, agent)
     obs = jnp.asarray(np.random.default_rng(0).integers(0, 256, (5, 4, 84, 84)), jnp.uint8)
     np.testing.assert_array_equal(
         policy(obs, jax.random.key(0)), agent.greedy_policy(result.state)(obs, None)
@@ -341,7 +341,7 @@ def test_policy_lag_1_on_a_real_pool_learns_the_first_update_as_lag_0_and_then_g
     losses = {}
     for lag in (0, 1):
         runner = Config(log_every_steps=64, eval_episodes=1, sticky_actions=0.0, policy_lag=lag)
-        config = run_config("ppo", BREAKOUT, "atari", compiled_pool.RUNNER_KIND, runner, {})
+        config = run_config("ppo", BREAKOUT, "atari", "compiled-atari", runner, {})
         result = compiled_pool.train(agent, BREAKOUT, runner, Run.create(tmp_path / f"lag{lag}", config))
         assert result.updates == 2 and result.env_steps == 128
         losses[lag] = np.array(

@@ -9,11 +9,10 @@ import sys
 import jax
 import pytest
 
-from agentax.agents import algorithm, algorithm_config
+from agentax.agents import algorithm, algorithm_config, memory
 from agentax.agents.protocol import EnvSpec
 from agentax.cli import main
 from agentax.envs import make_jax
-from agentax.runners import memory
 
 
 @pytest.mark.parametrize(
@@ -95,7 +94,7 @@ def test_the_check_leaves_jax_without_a_cpu_client():
         "from jax._src import xla_bridge\n"
         "from agentax.agents import algorithm, algorithm_config\n"
         "from agentax.runners.launch import env_specs\n"
-        "from agentax.runners.memory import check_learning_fits\n"
+        "from agentax.agents.memory import check_learning_fits\n"
         "for algo in ('dqn', 'ppo', 'reinforce'):\n"
         "    spec, _ = env_specs('host', 'Acrobot-v1')\n"
         "    check_learning_fits(algorithm(algo).make_agent(spec, algorithm_config(algo)()), spec)\n"

@@ -206,7 +206,7 @@ def test_compiled_ppo_on_hopper_two_updates(tmp_path):
     pool.close()
     agent = _ppo_agent(spec, total_steps=512, num_envs=4, num_steps=64)
     runner = compiled_pool.Config(log_every_steps=256, eval_episodes=1, policy_lag=1)
-    kind = compiled_pool.MUJOCO_RUNNER_KIND
+    kind = "compiled-mujoco"
     run = Run.create(tmp_path / "run", run_config("ppo", "Hopper-v5", "default", kind, runner, {}))
     result = compiled_pool.train(agent, "Hopper-v5", runner, run)
     assert result.updates == 2 and result.env_steps == 512
@@ -216,7 +216,7 @@ def test_compiled_ppo_on_hopper_two_updates(tmp_path):
     assert all(np.isfinite(r["mean_return"]) and r["mean_return"] > 0 for r in rows)  # alive: +1 a step
     assert json.loads((tmp_path / "run" / "eval.json").read_text())["episodes"] == 1
     obs = jnp.asarray(np.random.default_rng(0).normal(size=(3, 11)), jnp.float32)
-    policy = host.restore_policy(tmp_path / "run", agent)
+    policy = host.restore(tmp_path / "run", {}, agent)
     np.testing.assert_array_equal(
         policy(obs, jax.random.key(0)), agent.greedy_policy(result.state)(obs, None)
     )

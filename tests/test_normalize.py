@@ -189,7 +189,7 @@ def _observations(n: int = 5) -> jax.Array:
 @pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_host_checkpoint_saves_and_restores_the_stats(tmp_path):
-    from agentax.runners.host import restore_policy
+    from agentax.runners.host import restore
     from agentax.runners.session import checkpoint_target
     from agentax.runs import load_checkpoint
 
@@ -220,7 +220,7 @@ def test_host_checkpoint_saves_and_restores_the_stats(tmp_path):
     loaded = jax.vmap(agentax.load(run.path).policy, in_axes=(0, None))(obs, jax.random.key(0))
     np.testing.assert_array_equal(loaded, jax.vmap(agent.greedy_policy(state), in_axes=(0, None))(obs, None))
     np.testing.assert_array_equal(
-        loaded, jax.vmap(restore_policy(run.path, agent), in_axes=(0, None))(obs, None)
+        loaded, jax.vmap(restore(run.path, {}, agent), in_axes=(0, None))(obs, None)
     )
     fresh_stats = state.replace(obs_stats=running.init((3,)))
     assert not np.allclose(loaded, jax.vmap(agent.greedy_policy(fresh_stats), in_axes=(0, None))(obs, None))

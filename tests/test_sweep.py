@@ -153,7 +153,7 @@ def test_sacs_utd_is_traced_and_a_traced_count_loops_that_many_times():
     from agentax.agents import presets, sac
     from agentax.envs import make_jax
     from agentax.runners.compiled import compiled_program
-    from agentax.runners.rollout import traced_count_loop
+    from agentax.runners.replay_program import traced_count_loop
     from agentax.runners.sweep import traceable
 
     env, base = make_jax("Pendulum-v1"), presets.preset("sac", "pendulum").config

@@ -91,7 +91,7 @@ def test_the_chosen_split_is_announced_in_one_line(monkeypatch):
     def prepared(**given):
         run_args = runfile.RunArgs(**{"seeds": 4, "stop_at_return": "none", **given}).check()
         cfg = dataclasses.replace(preset.config, total_steps=steps)
-        return launch.prepare("ppo", algorithm("ppo"), run_args, cfg, preset, "compiled")
+        return launch.prepare(algorithm("ppo"), run_args, cfg, preset, "compiled")
 
     chosen = prepared()
     assert chosen.runner.workers == 2

@@ -214,7 +214,7 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Preset, *, quiet: bool
     _xla.enable_compilation_cache()
     out = Path(run_args.out) if run_args.out else runs.default_run_dir(algo, run_args.env)
     kind = kind_for(run_args.runner, run_args.env)
-    ready = launch.prepare(algo, algorithm(algo), run_args, cfg, preset, kind)
+    ready = launch.prepare(algorithm(algo), run_args, cfg, preset, kind)
     run = _create(out, algo, run_args, cfg, kind, ready.runner)
     _announce(f"training {algo} on {run_args.env} ({ready.where}) into {out}", quiet)
     return _trained(ready, run, resume=False, progress=run_args.progress)

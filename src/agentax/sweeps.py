@@ -101,6 +101,21 @@ def parse_range(text: str) -> tuple[str, tuple[float, float, bool]]:
     return name, (low, high, len(parts) == 3 and parts[2] == "log")
 
 
+def _settings(method: str, grid, ranges, random: int, seed: int, fields, base) -> list[dict[str, Any]]:
+    """The settings of a grid or random sweep, each validated before anything runs (none for Optuna:
+    its settings are asked batch by batch)."""
+    if method == "grid":
+        axes = {n: parse_values(fields[n], text, n) for n, text in grid.items()}
+        settings = [dict(zip(axes, combo, strict=True)) for combo in itertools.product(*axes.values())]
+    elif method == "random":
+        settings = random_settings(ranges, fields, random, seed)
+    else:
+        settings = []
+    for setting in settings:
+        _validated(base, setting)
+    return settings
+
+
 def sweep(
     algo: str,
     env: str,
@@ -161,16 +176,7 @@ def sweep(
             f"--method optuna suggests traced values only (one program a batch); {static[0]} sets a shape "
             "or a branch of the program: fix it with --preset or sweep it with --grid"
         )
-    if method == "grid":
-        axes = {n: parse_values(fields[n], text, n) for n, text in grid.items()}
-        settings = [dict(zip(axes, combo, strict=True)) for combo in itertools.product(*axes.values())]
-    elif method == "random":
-        settings = random_settings(ranges, fields, random, seed)
-    else:
-        settings = []  # asked batch by batch
-    for setting in settings:  # every setting validated before anything runs
-        _validated(base, setting)
-
+    settings = _settings(method, grid, ranges, random, seed, fields, base)
     path = Path(out) if out is not None else _default_sweep_dir(algo, env)
     if workers is None:  # a resumed sweep's own; else every core once the sweep is long enough to gain
         members = len(settings) or trials

@@ -1,6 +1,7 @@
 """What the off-policy actor-critics for continuous actions (SAC, TD3) share: the replay and schedule
-settings of their configs, the experience they ask runners for, the uniform warm-up, the twin
-critics' clipped double-Q loss and the ``Agent`` they make.
+settings of their configs, the experience they ask runners for, the learner's state, the setup (the
+twin critics and one Adam), the uniform warm-up, the twin critics' clipped double-Q loss and the
+``Agent`` they make.
 
 Both act in ``[-1, 1]^d`` (the env receives actions rescaled to its bounds by ``env_action``), learn
 one step per ``learn`` call, and take ``utd · train_frequency · num_envs`` learning steps per phase.
@@ -15,10 +16,20 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import optax
+from flax import struct
 
-from agentax.agents.protocol import Agent, EnvSpec, OffPolicy, check_fields, scale_action
+from agentax.agents.protocol import (
+    Agent,
+    EnvSpec,
+    OffPolicy,
+    check_fields,
+    continuous_action_dim,
+    flat_observations,
+    scale_action,
+)
 from agentax.errors import UsageError
-from agentax.nets import TwinQ
+from agentax.nets import TwinQ, with_encoder
 from agentax.policies import linear_schedule
 from agentax.replay import ReplaySample
 from agentax.returns import bootstrap_discount
@@ -107,6 +118,34 @@ class ReplayConfig:
         )
 
 
+@struct.dataclass
+class ActorCriticState:
+    """The learner of SAC or TD3: ``params`` {"actor", "critic", ...}, the target networks, one
+    optimizer state per entry of ``params``, learning steps taken."""
+
+    params: Any
+    target_params: Any
+    opt_state: Any
+    step: jax.Array  # int32 []
+
+
+def actor_critic_setup(name: str, spec: EnvSpec, cfg: ReplayConfig) -> tuple[int, TwinQ, Any]:
+    """``(action_dim, critic, tx)`` of actor-critic ``name`` on ``spec``: the twin critics (behind an
+    encoder of packed observations) and one Adam for every network, once ``cfg`` is valid and the env
+    has flat observations and continuous actions."""
+    cfg.validate()
+    action_dim = continuous_action_dim(spec, name)
+    flat_observations(spec, name)
+    critic = with_encoder(TwinQ(tuple(cfg.hidden), cfg.activation), spec.layout)
+    return action_dim, critic, optax.adam(cfg.learning_rate)
+
+
+def adam_step(tx: Any, name: str, params: dict, opt_state: dict, grads: Any) -> tuple[Any, Any]:
+    """``(params[name], opt_state[name])`` after one step of ``tx`` on ``grads``."""
+    updates, new_opt_state = tx.update(grads, opt_state[name], params[name])
+    return optax.apply_updates(params[name], updates), new_opt_state
+
+
 def warm_up(action: jax.Array, key: jax.Array, progress: jax.Array, learning_starts: int) -> jax.Array:
     """``action`` ``[E, d]``, or uniform actions in ``[-1, 1]`` while ``progress < learning_starts``."""
     uniform = jax.random.uniform(key, action.shape, minval=-1.0, maxval=1.0)
@@ -141,4 +180,12 @@ def continuous_agent(name: str, spec: EnvSpec, cfg: ReplayConfig, **functions: C
     )
 
 
-__all__ = ["ReplayConfig", "continuous_agent", "twin_q_loss", "warm_up"]
+__all__ = [
+    "ActorCriticState",
+    "ReplayConfig",
+    "actor_critic_setup",
+    "adam_step",
+    "continuous_agent",
+    "twin_q_loss",
+    "warm_up",
+]

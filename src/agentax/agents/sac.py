@@ -20,25 +20,28 @@ weights the critic loss by ``w`` and takes the mean |TD error| of the two critic
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import jax
 import jax.numpy as jnp
-import optax
-from flax import struct
 
-from agentax.agents.off_policy import ReplayConfig, continuous_agent, twin_q_loss, warm_up
+from agentax.agents.off_policy import (
+    ActorCriticState,
+    ReplayConfig,
+    actor_critic_setup,
+    adam_step,
+    continuous_agent,
+    twin_q_loss,
+    warm_up,
+)
 from agentax.agents.protocol import (
     PRIORITY,
     Agent,
     EnvSpec,
     Loop,
-    continuous_action_dim,
-    flat_observations,
     scale_action,
 )
 from agentax.errors import UsageError
-from agentax.nets import SquashedGaussianActor, TwinQ, polyak, sample_squashed, with_encoder
+from agentax.nets import SquashedGaussianActor, polyak, sample_squashed, with_encoder
 from agentax.policies import Policy
 from agentax.replay import ReplaySample
 
@@ -66,15 +69,9 @@ class SACConfig(ReplayConfig):
         return self
 
 
-@struct.dataclass
-class SACState:
-    """The learner: ``params`` {"actor", "critic", "log_alpha"}, the target critics, the optimizers'
-    states, learning steps taken."""
-
-    params: Any
-    target_params: Any
-    opt_state: Any
-    step: jax.Array  # int32 []
+SACState = ActorCriticState
+"""The learner: ``params`` {"actor", "critic", "log_alpha"}, the target critics, the optimizers'
+states, learning steps taken."""
 
 
 def make_agent(spec: EnvSpec, cfg: SACConfig, *, loop: Loop = jax.lax.scan, conv: str = "xla") -> Agent:
@@ -86,17 +83,13 @@ def make_agent(spec: EnvSpec, cfg: SACConfig, *, loop: Loop = jax.lax.scan, conv
     policy rescale them to the env's bounds. Packed observations (:mod:`agentax.envs.spaces`) go
     through an encoder per leaf, the actor's and the critics' own; stacked frames are refused.
     """
-    cfg.validate()
-    action_dim = continuous_action_dim(spec, "sac")
-    flat_observations(spec, "sac")
+    action_dim, critic, tx = actor_critic_setup("sac", spec, cfg)
     actor = with_encoder(
         SquashedGaussianActor(
             action_dim, tuple(cfg.hidden), cfg.activation, cfg.log_std_min, cfg.log_std_max
         ),
         spec.layout,
     )
-    critic = with_encoder(TwinQ(tuple(cfg.hidden), cfg.activation), spec.layout)
-    tx = optax.adam(cfg.learning_rate)
     target_entropy = -cfg.target_entropy_scale * action_dim
 
     def init(key: jax.Array) -> SACState:
@@ -143,24 +136,20 @@ def make_agent(spec: EnvSpec, cfg: SACConfig, *, loop: Loop = jax.lax.scan, conv
     def alpha_loss(log_alpha, log_prob: jax.Array):
         return -(log_alpha * jax.lax.stop_gradient(log_prob + target_entropy)).mean()
 
-    def step_of(name: str, params: dict, opt_state: dict, grads: Any) -> tuple[Any, Any]:
-        updates, new_opt_state = tx.update(grads, opt_state[name], params[name])
-        return optax.apply_updates(params[name], updates), new_opt_state
-
     def learn(state: SACState, sample: ReplaySample, key: jax.Array) -> tuple[SACState, dict]:
         critic_key, actor_key = jax.random.split(key)
         params, opt_state = dict(state.params), dict(state.opt_state)
         (q_loss, (q_mean, priority)), grads = jax.value_and_grad(critic_loss, has_aux=True)(
             params["critic"], state, sample, critic_key
         )
-        params["critic"], opt_state["critic"] = step_of("critic", params, opt_state, grads)
+        params["critic"], opt_state["critic"] = adam_step(tx, "critic", params, opt_state, grads)
         (pi_loss, log_prob), grads = jax.value_and_grad(actor_loss, has_aux=True)(
             params["actor"], params["critic"], params["log_alpha"], sample.transition.obs, actor_key
         )
-        params["actor"], opt_state["actor"] = step_of("actor", params, opt_state, grads)
+        params["actor"], opt_state["actor"] = adam_step(tx, "actor", params, opt_state, grads)
         if cfg.autotune:
             a_loss, grads = jax.value_and_grad(alpha_loss)(params["log_alpha"], log_prob)
-            params["log_alpha"], opt_state["log_alpha"] = step_of("log_alpha", params, opt_state, grads)
+            params["log_alpha"], opt_state["log_alpha"] = adam_step(tx, "log_alpha", params, opt_state, grads)
         else:
             a_loss = jnp.float32(0.0)
         target_params = polyak(state.target_params, params["critic"], cfg.tau)

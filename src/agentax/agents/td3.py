@@ -21,19 +21,24 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import optax
-from flax import struct
 
-from agentax.agents.off_policy import ReplayConfig, continuous_agent, twin_q_loss, warm_up
+from agentax.agents.off_policy import (
+    ActorCriticState,
+    ReplayConfig,
+    actor_critic_setup,
+    adam_step,
+    continuous_agent,
+    twin_q_loss,
+    warm_up,
+)
 from agentax.agents.protocol import (
     PRIORITY,
     Agent,
     EnvSpec,
     Loop,
-    continuous_action_dim,
-    flat_observations,
     scale_action,
 )
-from agentax.nets import MLP, TwinQ, polyak, with_encoder
+from agentax.nets import MLP, polyak, with_encoder
 from agentax.policies import Policy
 from agentax.replay import ReplaySample
 
@@ -64,15 +69,9 @@ class TD3Config(ReplayConfig):
         return self
 
 
-@struct.dataclass
-class TD3State:
-    """The learner: ``params`` and ``target_params`` {"actor", "critic"}, the optimizers' states,
-    learning steps taken."""
-
-    params: Any
-    target_params: Any
-    opt_state: Any
-    step: jax.Array  # int32 []
+TD3State = ActorCriticState
+"""The learner: ``params`` and ``target_params`` {"actor", "critic"}, the optimizers' states,
+learning steps taken."""
 
 
 def make_agent(spec: EnvSpec, cfg: TD3Config, *, loop: Loop = jax.lax.scan, conv: str = "xla") -> Agent:
@@ -84,12 +83,8 @@ def make_agent(spec: EnvSpec, cfg: TD3Config, *, loop: Loop = jax.lax.scan, conv
     policy rescale them to the env's bounds. Packed observations (:mod:`agentax.envs.spaces`) go
     through an encoder per leaf, the actor's and the critics' own; stacked frames are refused.
     """
-    cfg.validate()
-    action_dim = continuous_action_dim(spec, "td3")
-    flat_observations(spec, "td3")
+    action_dim, critic, tx = actor_critic_setup("td3", spec, cfg)
     actor = with_encoder(MLP(tuple(cfg.hidden), cfg.activation, out=action_dim), spec.layout)
-    critic = with_encoder(TwinQ(tuple(cfg.hidden), cfg.activation), spec.layout)
-    tx = optax.adam(cfg.learning_rate)
 
     def mu(actor_params: Any, obs: jax.Array) -> jax.Array:
         return jnp.tanh(actor.apply(actor_params, obs.astype(jnp.float32)))
@@ -136,8 +131,7 @@ def make_agent(spec: EnvSpec, cfg: TD3Config, *, loop: Loop = jax.lax.scan, conv
         (q_loss, (q_mean, priority)), grads = jax.value_and_grad(critic_loss, has_aux=True)(
             params["critic"], state, sample, key
         )
-        updates, opt_state["critic"] = tx.update(grads, opt_state["critic"], params["critic"])
-        params["critic"] = optax.apply_updates(params["critic"], updates)
+        params["critic"], opt_state["critic"] = adam_step(tx, "critic", params, opt_state, grads)
 
         step = state.step + 1
         obs = sample.transition.obs

@@ -22,6 +22,7 @@ import sys
 import time
 from dataclasses import dataclass
 from functools import partial
+from typing import Any
 
 import imageio.v3 as imageio
 import jax
@@ -199,6 +200,20 @@ def search_vacuum(args: VacuumArgs) -> int:
     return 0
 
 
+def _population_search(args: CartPoleArgs, net: NetConfig) -> tuple[Any, Any]:
+    """``(module, config)``: the genetic algorithm or the cross-entropy method as the flags set it."""
+    common = dict(
+        population_size=args.population, generations=args.generations, num_episodes=args.episodes, net=net
+    )
+    if args.elite_fraction is not None:
+        common["elite_fraction"] = args.elite_fraction
+    if args.method == "ga":
+        scale = {} if args.mutation_scale is None else {"mutation_scale": args.mutation_scale}
+        return genetic, genetic.GAConfig(**common, **scale)
+    scale = {} if args.mutation_scale is None else {"extra_noise": args.mutation_scale}
+    return cem, cem.CEMConfig(**common, **scale)
+
+
 def search_cartpole(args: CartPoleArgs) -> int:
     if args.method not in NEURAL_METHODS:
         raise UsageError(f"unknown method {args.method!r}; choose from {', '.join(NEURAL_METHODS)}")
@@ -207,19 +222,7 @@ def search_cartpole(args: CartPoleArgs) -> int:
             raise UsageError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     net = NetConfig(hidden=tuple(args.hidden))
     env = make_env(args.env, net)
-    common = dict(
-        population_size=args.population, generations=args.generations, num_episodes=args.episodes, net=net
-    )
-    if args.elite_fraction is not None:
-        common["elite_fraction"] = args.elite_fraction
-    if args.method == "ga":
-        algorithm = genetic
-        scale = {} if args.mutation_scale is None else {"mutation_scale": args.mutation_scale}
-        config = genetic.GAConfig(**common, **scale)
-    else:
-        algorithm = cem
-        scale = {} if args.mutation_scale is None else {"extra_noise": args.mutation_scale}
-        config = cem.CEMConfig(**common, **scale)
+    algorithm, config = _population_search(args, net)
     out = run_folder(args.out, args.method, env.id)
     write_json(
         out / "config.json",

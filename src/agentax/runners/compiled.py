@@ -1,30 +1,22 @@
 """The compiled runner: the whole training of a JAX env under ``jit`` + ``lax.scan``, vmapped over seeds.
 
-**The program** is built from the agent by :func:`agentax.runners.rollout.program`, the same
-for every algorithm: a :class:`~agentax.runners.rollout.Program` whose ``init(key)`` gives one
-seed's carry (agent state, env states, replay if any, key, and an ``episodes`` field, an
-:class:`agentax.returns.EpisodeStats` updated at every env step) and whose ``update(carry) ->
-(carry, metrics)`` is one collect-then-learn iteration, ``num_updates`` of them a training.
-
-**The runner** compiles one program, ``jax.jit(jax.vmap(chunk))``
-(:func:`agentax.runners.programs.build`), where ``chunk`` scans ``update`` ``updates_per_chunk``
-times (a shared, unbatched count discards the updates past the end in a last, shorter chunk, so no
-second program is compiled) and then, when asked, evaluates the greedy policy on fresh evaluation
-keys — inside the same program. Seed ``k`` of a batch starting at ``seed`` uses
-``jax.random.key(seed + k)``, so seed ``k`` run alone gives the same numbers as inside a batch;
-:mod:`agentax.runners.programs` keeps the programs on disk, so a repeated run neither traces nor
-compiles them.
+**The program**, one seed's :class:`~agentax.runners.rollout.Program`, is built from the agent by
+:func:`program_of`, the same for every algorithm. The runner compiles ``jax.jit(jax.vmap(chunk))``
+(:func:`agentax.runners.programs.build`, kept on disk so a repeated run neither traces nor compiles
+it), where ``chunk`` scans ``update`` ``updates_per_chunk`` times (a shared, unbatched count
+discards the updates past the end in a last, shorter chunk, so no second program is compiled) and
+then, when asked, evaluates the greedy policy on fresh evaluation keys. Seed ``k`` of a batch
+starting at ``seed`` uses ``jax.random.key(seed + k)``, so seed ``k`` run alone gives the same
+numbers as inside a batch.
 
 Between chunks (:class:`ChunkSchedule`), back in Python, it logs a row through the session's pieces
-(:mod:`agentax.runners.session`: metrics.csv, TensorBoard, a rich progress bar), checkpoints the
-whole carry (so a resumed run continues exactly), and stops early once every seed's evaluation mean
-reaches ``stop_at_return`` (solved means solved on every seed). At the end it evaluates the greedy
-policies once more on fresh keys into eval.json and curve.png (:func:`~agentax.runners.session.conclude`).
+(:mod:`agentax.runners.session`), checkpoints the whole carry (so a resumed run continues exactly),
+and stops early once every seed's evaluation mean reaches ``stop_at_return``. At the end it
+evaluates the greedy policies once more on fresh keys (:func:`~agentax.runners.session.conclude`).
 With ``workers > 1`` :func:`train` splits the seeds over processes (:mod:`agentax.runners.workers`).
 
 ``import agentax`` has jax create its CPU client on one CPU (:mod:`agentax._xla`), the cure for
-the XLA CPU hang this program, called over and over, once met; the threads stay free to use
-every core afterwards, as the host and parallel runners need.
+the XLA CPU hang this program, called over and over, once met.
 """
 
 from __future__ import annotations
@@ -39,17 +31,18 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
-from agentax.agents.protocol import Agent, EnvSpec
+from agentax.agents.memory import check_seeds_fit
+from agentax.agents.protocol import Agent, EnvSpec, Episodes, OffPolicy
 from agentax.curves import preload_plotting
 from agentax.envs import make_jax
 from agentax.envs.core import Environment
 from agentax.errors import UsageError
 from agentax.policies import Policy
-from agentax.replay.frames import available_memory
 from agentax.runners import algorithm_of, programs, workers
-from agentax.runners.launch import agent_maker
+from agentax.runners.launch import agent_maker, parse_return
 from agentax.runners.programs import CHUNK_COMPILER_OPTIONS, init_from_seeds
-from agentax.runners.rollout import Freeze, Program, program
+from agentax.runners.replay_program import Freeze, off_policy_program
+from agentax.runners.rollout import Program, VectorEnv, episodes_program, on_policy_program
 from agentax.runners.session import (
     SOLVED,
     TIMINGS,
@@ -146,21 +139,7 @@ def check_fits(algorithm: Program, runner: RunnerConfig) -> None:
         return
     one_seed = jax.eval_shape(init_from_seeds(algorithm), np.zeros(1, np.int32))
     per_seed = sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(one_seed) if hasattr(x, "dtype"))
-    need, have = 2 * per_seed * agents, available_memory()
-    if have is not None and need > have:
-        fitting = max(have // max(2 * per_seed, 1), 0)
-        raise UsageError(
-            f"--seeds {runner.num_seeds:,} needs about {need / 1e9:,.1f} GB for the agents' training "
-            f"state ({per_seed:,} bytes a seed, twice), but only {have / 1e9:.1f} GB of memory is "
-            f"available; at most about {fitting:,} seeds fit"
-        )
-
-
-def freeze_of(runner: RunnerConfig) -> Freeze | None:
-    """The per-seed early stop the runner asks of the program (None: none)."""
-    if runner.freeze_at_return is None:
-        return None
-    return Freeze(runner.freeze_at_return, runner.freeze_episodes)
+    check_seeds_fit(runner.num_seeds, 2 * per_seed, "the agents' training state, twice", agents)
 
 
 def seeds_of(runner: RunnerConfig) -> np.ndarray:
@@ -256,7 +235,7 @@ def train_program(
 
     stats = jax.device_get(state.episodes)
     counts = Counts(int(meta["updates"]), int(meta["evaluations"]), float(np.mean(stats.env_steps)))
-    counts.solved_env_steps, counts.solved_seconds = meta.get("solved_env_steps"), meta.get("solved_seconds")
+    counts.solved_env_steps, counts.solved_seconds = (meta.get(name) for name in SOLVED)
     schedule = ChunkSchedule(
         algorithm.num_updates,
         runner.updates_per_chunk,
@@ -364,11 +343,22 @@ def best_seed(run_dir: str | Path) -> int:
 
 
 def program_of(agent: Agent, env: Environment, runner: RunnerConfig | None = None) -> Program:
-    """The program of ``agent`` on the JAX env ``env``, with ``runner``'s per-seed early stop if given."""
-    try:
-        return program(agent, env, freeze=None if runner is None else freeze_of(runner))
-    except ValueError as error:
-        raise UsageError(f"--freeze-at-return: {error}") from None
+    """The program of ``agent`` on the JAX env ``env`` for its kind of experience, with ``runner``'s
+    per-seed early stop if given (off-policy agents only)."""
+    experience = agent.experience
+    envs = VectorEnv(env, env.default_params(), experience.num_envs)
+    freeze_at = None if runner is None else runner.freeze_at_return
+    if isinstance(experience, OffPolicy):
+        freeze = None if freeze_at is None else Freeze(freeze_at, runner.freeze_episodes)
+        return off_policy_program(agent, envs, freeze)
+    if freeze_at is not None:
+        raise UsageError(
+            "--freeze-at-return: freezing seeds needs an off-policy agent's learning gates, "
+            f"not {agent.name}'s"
+        )
+    if isinstance(experience, Episodes):
+        return episodes_program(agent, envs)
+    return on_policy_program(agent, envs)
 
 
 def compiled_program(module: Any, env: Environment, cfg: Any, runner: RunnerConfig | None = None) -> Program:
@@ -391,7 +381,9 @@ def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[RunnerConfig, s
         num_seeds=run_args.seeds,
         **schedule_of(preset),
         stop_at_return=stop,
-        freeze_at_return=_freeze(run_args.freeze_at_return, preset),
+        freeze_at_return=parse_return(
+            "--freeze-at-return", run_args.freeze_at_return, preset.freeze_at_return
+        ),
         freeze_episodes=run_args.freeze_episodes,
         workers=run_args.workers or workers.default_for(run_args.seeds, agent.total_steps, stop),
         ray_address=run_args.ray_address,
@@ -409,13 +401,6 @@ def schedule_of(preset: Any) -> dict[str, int]:
     """What a :class:`RunnerConfig` takes of a preset: its chunks and evaluations."""
     names = ("updates_per_chunk", "eval_every_chunks", "eval_episodes")
     return {name: getattr(preset, name) for name in names}
-
-
-def _freeze(value: str, preset: Any) -> float | None:
-    """``--freeze-at-return``: a number, 'none', or 'auto' (the preset's)."""
-    if value == "none":
-        return None
-    return preset.freeze_at_return if value == "auto" else float(value)
 
 
 def train(

@@ -24,15 +24,11 @@ progress bar, ``total_steps``) are the pool's steps, reset steps included; ``mas
 in metrics.csv is their share.
 
 **The rest is the host runner's** (:mod:`agentax.runners.host`), so the two compare number for
-number where they can: the same settings (:class:`Config` has the host runner's fields), the same keys (the
-agent from ``agent_keys(seed)``'s first key, the learner's chain from the second, the actor's from
-the third, its envs seeded ``actor_seed(seed, 0, updates)``, an act key per step as the host
-actor's), the same rows
-(:func:`~agentax.runners.session.row_of`: ``mean_return`` is the mean true score of the whole games
-finished since the last row — every life, raw rewards), the same checkpoints (``(agent state,
-learner key)``, so :func:`agentax.runners.host.restore_policy` loads them and a resumed run restarts
-its pool from a new seed), the same final evaluation (:class:`~agentax.runners.host.Evaluator`:
-whole games on the host adapter, greedy with 1 % random actions).
+number where they can: the same settings, keys (:func:`~agentax.runners.session.agent_keys`; the pool
+seeded as the host actor's envs, an act key per step as the host actor's), rows (``mean_return``:
+the true score of the whole games finished since the last row), checkpoints (a resumed run restarts
+its pool from a new seed) and final evaluation (whole games on the host adapter, greedy with 1 %
+random actions).
 """
 
 from __future__ import annotations
@@ -40,14 +36,13 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 
-from agentax import _xla, kernel_choice
+from agentax import kernel_choice
 from agentax.agents.protocol import Agent, OnPolicy
 from agentax.envs.atari import FRAME_SKIP, is_atari_id
 from agentax.envs.core import TimeStep
@@ -60,17 +55,11 @@ from agentax.envs.envpool_xla import (
     track,
 )
 from agentax.errors import UsageError
-from agentax.policies import Policy
 from agentax.returns import EpisodeStats
-from agentax.runners import host
+from agentax.runners import host, kind_for
 from agentax.runners.rollout import OnPolicyCarry, on_policy_rollout
-from agentax.runners.session import Session, TrainResult
+from agentax.runners.session import TrainResult
 from agentax.runs import Run
-
-RUNNER_KIND = "compiled-atari"
-"""config.json's ``runner_kind`` of these runs on Atari; their ``runner`` is a :class:`Config`."""
-MUJOCO_RUNNER_KIND = "compiled-mujoco"
-"""config.json's ``runner_kind`` of these runs on EnvPool's MuJoCo tasks."""
 
 XlaPool = XlaAtari | XlaMujoco
 
@@ -105,23 +94,17 @@ class Config:
     learning on rollout k, with the parameters that learning starts from"""
 
 
-def kind_of_env(env_id: str) -> str:
-    """config.json's ``runner_kind`` of a run of ``env_id`` on this runner."""
-    return RUNNER_KIND if is_atari_id(env_id) else MUJOCO_RUNNER_KIND
-
-
 def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[Config, str]:
     """The runner's settings for a run (:mod:`agentax.runners.launch`), refused where the program
     cannot step the env or train the agent."""
-    common = host.one_seed_settings(run_args, preset, kind_of_env(run_args.env))
+    common = host.one_seed_settings(run_args, preset, kind_for("compiled", run_args.env))
     runner = Config(**common, policy_lag=run_args.policy_lag)
     check(agent, run_args.env, runner, run_args.seeds)
     return runner, f"compiled, EnvPool inside the program, policy lag {runner.policy_lag}"
 
 
-def restore(run_dir: Path, config: dict[str, Any], agent: Agent) -> Policy:
-    """The greedy policy of the run's newest checkpoint (the host runner's ``(agent state, learner key)``)."""
-    return host.restore_policy(run_dir, agent)
+restore = host.restore
+"""its checkpoints are the host runner's ``(agent state, learner key)``"""
 
 
 @struct.dataclass
@@ -295,15 +278,12 @@ def train(
     *,
     resume: bool = False,
     progress: bool = False,
-    num_seeds: int = 1,
 ) -> TrainResult:
     """Train an on-policy ``agent`` (PPO) on an Atari game or EnvPool's MuJoCo task, env and learning
     in one program per iteration; log, checkpoint and evaluate into ``run`` as
     :func:`agentax.runners.host.train` does (the evaluation on the host adapter: Gymnasium's MuJoCo)."""
-    check(agent, env_id, runner, num_seeds)
-    _xla.let_xla_use_every_cpu()
-    evaluator = host.Evaluator(agent, host.env_factory(env_id, runner), runner.eval_episodes)
-    session = Session(agent, run, runner, evaluator, resume=resume)
+    check(agent, env_id, runner)
+    session = host.host_session(agent, env_id, runner, run, resume)  # (on-policy: no replay)
     learner_key, updates, env_steps = session.learner_key, session.updates, session.env_steps
     games_done = int(session.meta.get("games", 0))
     experience: OnPolicy = agent.experience

@@ -157,11 +157,6 @@ class RateLimiter:
             self.learned += count
             self.condition.notify_all()
 
-    def close(self) -> None:
-        with self.condition:
-            self.closed = True
-            self.condition.notify_all()
-
 
 def put(items: queue.Queue, item: Any, coordinator: Coordinator) -> float:
     """Put into a bounded queue, giving up once the run stops; returns the seconds waited."""

@@ -7,9 +7,8 @@ experience the agent asked for — a rollout of T steps (on-policy), whole episo
 replay buffer (off-policy, with ``as_dataset`` drawing batches ahead); then ``agent.learn`` (jitted)
 trains on it. :mod:`agentax.runners.parallel` runs the same actors and learning steps in threads.
 
-Keys: the agent is initialised from ``key(seed)``'s first split, the learner's key chain from its
-second, actor ``i`` acts with its key folded from the third and seeds its envs ``seed + 1000 i``
-(:func:`fold_actor_key`, :func:`actor_seed`); so the host runner is the parallel runner's
+Keys: :func:`~agentax.runners.session.agent_keys`, actor ``i`` folding its own and seeding its envs
+by :func:`fold_actor_key` and :func:`actor_seed`; so the host runner is the parallel runner's
 policy-lag-0 run with one actor, number for number.
 
 Checkpoints hold the agent state and the learner's key, and beside them the replay buffer
@@ -45,6 +44,7 @@ from agentax.runners.driver import (
     TrajectoryObserver,
     first_time_step,
 )
+from agentax.runners.replay_program import example_action
 from agentax.runners.rollout import scalars
 from agentax.runners.session import Session, TrainResult, checkpoint_target
 from agentax.runs import Run, load_checkpoint
@@ -143,16 +143,13 @@ def record_returns(returns: FinishedReturns, trajectory: Transition, episodes: b
     """Feed a trajectory ``[T, E]`` to a returns tracker; returns the env steps it holds. With
     ``episodes`` only each env's first episode counts (``info["valid"]``), ended by the step limit."""
     reward, terminated, truncated = trajectory.reward, trajectory.terminated, trajectory.truncated
-    valid = trajectory.info["valid"] if episodes else np.ones(reward.shape, bool)
-    last = len(reward) - 1
-    for t in range(last + 1):
-        if episodes:
-            returns(
-                _Ends(reward[t] * valid[t], terminated[t] & valid[t], (truncated[t] | (t == last)) & valid[t])
-            )
-        else:
-            returns(_Ends(reward[t], terminated[t], truncated[t]))
-    return int(valid.sum())
+    if episodes:
+        valid = trajectory.info["valid"]
+        reward, terminated = reward * valid, terminated & valid
+        truncated = (truncated | (np.arange(len(reward)) == len(reward) - 1)[:, None]) & valid
+    for t in range(len(reward)):
+        returns(_Ends(reward[t], terminated[t], truncated[t]))
+    return int(trajectory.info["valid"].sum()) if episodes else reward.size
 
 
 def act_and_split(act):
@@ -184,11 +181,8 @@ class Actor:
         self.key = key
         self.act = jax.jit(act_and_split(agent.act))
         self.state: Any = None
-        self.steps, self.episodes, self.returns = (
-            EnvironmentSteps(done_steps),
-            NumberOfEpisodes(),
-            FinishedReturns(),
-        )
+        self.steps, self.episodes = EnvironmentSteps(done_steps), NumberOfEpisodes()
+        self.returns = FinishedReturns()
         experience = agent.experience
         self.by_episode = isinstance(experience, OffPolicy) and experience.by_episode
         self.progress = lambda: self.episodes.count if self.by_episode else self.steps.count
@@ -271,9 +265,7 @@ def replay_for(agent: Agent, obs_shape: tuple[int, ...], seed: int) -> Any:
             seed=seed,
         )
     obs = np.zeros(obs_shape, np.float32)
-    state = jax.eval_shape(agent.init, jax.random.key(0))
-    action, _ = jax.eval_shape(agent.act, state, obs[None], jax.random.key(0), 0)
-    one = jax.device_get(example_transition(obs, np.zeros(action.shape[1:], action.dtype)))
+    one = jax.device_get(example_transition(obs, example_action(agent, obs[None])))
     return ReplayBuffer(
         experience.capacity,
         one,
@@ -286,9 +278,8 @@ def replay_for(agent: Agent, obs_shape: tuple[int, ...], seed: int) -> Any:
 class OffPolicyLearner:
     """Learning phases on a replay buffer: ``gradient_steps`` learning steps, one compiled call for
     uniform replay (a ``lax.scan`` over batches drawn ahead by ``as_dataset`` while XLA learns), step
-    by step for prioritized replay (each batch depends on the priorities the last one set). A phase's metrics
-    are the means of every scalar metric ``learn`` returns (whatever the agent names them); the
-    priorities come from ``metrics[PRIORITY]``."""
+    by step for prioritized replay (each batch depends on the priorities the last one set); the means
+    of every scalar metric of ``learn``, whatever the agent names them."""
 
     def __init__(self, agent: Agent, replay: Any, loop: Loop = jax.lax.scan):
         self.experience: OffPolicy = agent.experience
@@ -344,7 +335,7 @@ def collection_over(agent: Agent, env_steps: int, episodes: int, updates: int = 
     experience = agent.experience
     if not isinstance(experience, OffPolicy):
         return updates >= num_updates(agent)
-    max_episodes = getattr(experience, "max_episodes", 0)
+    max_episodes = experience.max_episodes
     return env_steps >= agent.total_steps or bool(max_episodes and episodes >= max_episodes)
 
 
@@ -374,6 +365,15 @@ class Evaluator:
         self.env.close()
 
 
+def host_session(agent: Agent, env_id: str, runner: Any, run: Run | None, resume: bool) -> Session:
+    """The :class:`Session` of a run on host envs, evaluated by an :class:`Evaluator` (an off-policy
+    replay restored with its checkpoint where kept), with XLA on every CPU for actors and learner."""
+    _xla.let_xla_use_every_cpu()
+    evaluator = Evaluator(agent, env_factory(env_id, runner), runner.eval_episodes)
+    replayed = isinstance(agent.experience, OffPolicy) and runner.checkpoint_replay
+    return Session(agent, run, runner, evaluator, resume=resume, with_replay=replayed)
+
+
 def train(
     agent: Agent,
     env_id: str,
@@ -384,12 +384,8 @@ def train(
     progress: bool = False,
 ) -> TrainResult:
     """Train ``agent`` on ``env_id`` (any Gymnasium id or agentax env), one step after the other."""
-    _xla.let_xla_use_every_cpu()
-    experience = agent.experience
-    make_env = env_factory(env_id, runner)
-    evaluator = Evaluator(agent, make_env, runner.eval_episodes)
-    replayed = isinstance(experience, OffPolicy) and runner.checkpoint_replay
-    session = Session(agent, run, runner, evaluator, resume=resume, with_replay=replayed)
+    session = host_session(agent, env_id, runner, run, resume)
+    experience, make_env = agent.experience, env_factory(env_id, runner)
     state, learner_key, updates = session.state, session.learner_key, session.updates
     actor = Actor(
         agent,
@@ -447,12 +443,8 @@ def train(
     return session.finish(state, actor.steps.count, updates)
 
 
-def restore_policy(run_dir: Path, agent: Agent) -> Policy:
-    """The greedy policy of a host or parallel run's newest loadable checkpoint."""
+def restore(run_dir: Path, config: dict[str, Any], agent: Agent) -> Policy:
+    """The greedy policy of the newest loadable checkpoint of a run of the runners that checkpoint
+    ``(agent state, learner key)`` (host, parallel, Ray, compiled EnvPool)."""
     (state, _), _, _ = load_checkpoint(run_dir, checkpoint_target(agent))
     return agent.greedy_policy(state)
-
-
-def restore(run_dir: Path, config: dict[str, Any], agent: Agent) -> Policy:
-    """The greedy policy of a run of the runners that checkpoint ``(agent state, learner key)``."""
-    return restore_policy(run_dir, agent)

@@ -23,12 +23,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from agentax.agents.memory import check_learning_fits
 from agentax.agents.protocol import EnvSpec
 from agentax.envs import make_host_env, make_jax
 from agentax.errors import UsageError
 from agentax.policies import Policy
 from agentax.runners import RUNNERS, kind_of
-from agentax.runners.memory import check_learning_fits
 from agentax.runners.session import TrainResult
 from agentax.runs import Run
 
@@ -58,38 +58,32 @@ def agent_maker(module: Any, spec: Any, cfg: Any, conv: str | None = None) -> Ca
     return functools.partial(module.make_agent, spec, cfg, loop=loop, conv=conv)
 
 
-def parse_stop(value: str, preset: Any, env: Any) -> float | None:
-    """``--stop-at-return``: a number, 'none', or 'auto' (the env's solved threshold in a solving
-    preset)."""
+def parse_return(flag: str, value: str, auto: float | None) -> float | None:
+    """A return flag's value (``--stop-at-return``, ``--freeze-at-return``): a number, 'none', or
+    'auto' (then ``auto``)."""
     if value == "none":
         return None
     if value == "auto":
-        solved = getattr(env, "reward_threshold", None)
-        return float(solved) if preset.stop_at_solved and solved is not None else None
+        return auto
     try:
         return float(value)
     except ValueError:
-        raise UsageError(f"--stop-at-return must be a number, 'none' or 'auto', got {value!r}") from None
+        raise UsageError(f"{flag} must be a number, 'none' or 'auto', got {value!r}") from None
 
 
-def host_env_spec(env_id: str, backend: str, sticky_actions: float) -> tuple[Any, Any]:
-    """``(EnvSpec, Gymnasium's EnvSpec or None)`` of ``env_id`` as the host runners make it."""
+def env_specs(kind: str, env_id: str, backend: str = "auto", sticky_actions: float = 0.25) -> tuple[Any, Any]:
+    """``(EnvSpec, what --stop-at-return auto reads the solved threshold of)`` of ``env_id`` as the
+    ``kind`` runner makes it: agentax's JAX env, else the host adapter (and Gymnasium's EnvSpec)."""
+    if RUNNERS[kind].envs == "jax":
+        env = make_jax(env_id)
+        return EnvSpec.of(env), env
     probe = make_host_env(env_id, 1, backend=backend, sticky_actions=sticky_actions)
     specs = EnvSpec.of(probe), getattr(getattr(probe, "vector_env", None), "spec", None)
     probe.close()
     return specs
 
 
-def env_specs(kind: str, env_id: str, backend: str = "auto", sticky_actions: float = 0.25) -> tuple[Any, Any]:
-    """``(EnvSpec, what --stop-at-return auto reads the solved threshold of)`` of ``env_id`` as the
-    ``kind`` runner makes it: agentax's JAX env, else the host adapter."""
-    if RUNNERS[kind].envs == "jax":
-        env = make_jax(env_id)
-        return EnvSpec.of(env), env
-    return host_env_spec(env_id, backend, sticky_actions)
-
-
-def prepare(algo: str, module: Any, run_args: Any, cfg: Any, preset: Any, kind: str) -> Launch:
+def prepare(module: Any, run_args: Any, cfg: Any, preset: Any, kind: str) -> Launch:
     """The ``kind`` run ``run_args`` describe (``module``: the algorithm's, ``cfg`` its config); what
     the runner or the agent cannot train is refused here, before anything is written."""
     runner_module = RUNNERS[kind].load()
@@ -99,28 +93,26 @@ def prepare(algo: str, module: Any, run_args: Any, cfg: Any, preset: Any, kind: 
     remake = agent_maker(module, spec, cfg)
     agent = remake()  # refuses what the agent cannot train before anything is written
     check_learning_fits(module.make_agent(spec, cfg), spec, run_args.seeds)  # (plain: see its docstring)
-    run_args = _with_stop(run_args, parse_stop(run_args.stop_at_return, preset, solved_by))
+    solved = getattr(solved_by, "reward_threshold", None)  # 'auto': the env's, in a solving preset
+    auto = float(solved) if preset.stop_at_solved and solved is not None else None
+    stop = parse_return("--stop-at-return", run_args.stop_at_return, auto)
+    run_args = dataclasses.replace(run_args, stop_at_return=stop)  # what every configure reads
     runner, where = runner_module.configure(run_args, agent, preset)
     return _launch(runner_module, agent, remake, run_args.env, runner, where)
-
-
-def _with_stop(run_args: Any, stop: float | None) -> Any:
-    """``run_args`` with ``stop_at_return`` resolved to a number or None (what every ``configure`` reads)."""
-    return dataclasses.replace(run_args, stop_at_return=stop)
 
 
 def reopen(config: dict[str, Any], module: Any, cfg: Any, runner: Any) -> Launch:
     """The run of ``config`` (a config.json; ``runner``: its settings, parsed), to resume."""
     kind = kind_of(config)
-    spec, _ = env_specs(kind, config["env"], *_host_options(runner))
+    spec, _ = env_specs(kind, config["env"], *_host_options(config))
     remake = agent_maker(module, spec, cfg)
     return _launch(RUNNERS[kind].load(), remake(), remake, config["env"], runner, "")
 
 
-def _host_options(runner: Any) -> tuple[str, float]:
-    """The host adapter's options a runner's settings (a Config or config.json's dict) hold."""
-    get = runner.get if isinstance(runner, dict) else functools.partial(getattr, runner)
-    return get("env_backend", "auto"), get("sticky_actions", 0.25)
+def _host_options(config: dict[str, Any]) -> tuple[str, float]:
+    """The host adapter's options a run's config.json holds under "runner"."""
+    runner = config.get("runner", {})
+    return runner.get("env_backend", "auto"), runner.get("sticky_actions", 0.25)
 
 
 def _launch(runner_module: Any, agent: Any, remake: Any, env_id: str, runner: Any, where: str) -> Launch:
@@ -137,5 +129,5 @@ def restore(run_dir: Path, config: dict[str, Any], module: Any, cfg: Any, conv: 
     """The greedy policy of the run's best seed, from its newest good checkpoint (its convolutions on
     ``conv``, else on :func:`agent_maker`'s choice)."""
     kind = kind_of(config)
-    spec, _ = env_specs(kind, config["env"], *_host_options(config.get("runner", {})))
+    spec, _ = env_specs(kind, config["env"], *_host_options(config))
     return RUNNERS[kind].load().restore(Path(run_dir), config, agent_maker(module, spec, cfg, conv)())

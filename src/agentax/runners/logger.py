@@ -113,14 +113,8 @@ class Progress:
             self.bar.stop()
 
 
-PARALLEL_COLUMNS = (
-    "actor_steps_per_second",
-    "learner_updates_per_second",
-    "actor_wait_fraction",
-    "learner_wait_fraction",
-    "policy_lag",
-)
-"""The parallel runner's figures, shown on the progress bar too."""
+BAR_COLUMNS = ("actor_wait_fraction", "learner_wait_fraction", "policy_lag")
+"""The parallel runner's figures shown on the progress bar too."""
 
 
 class RunLogger:
@@ -176,11 +170,7 @@ class RunLogger:
         self.rows.append(row)
         if self.run is not None:
             self.run.log(row)
-        extra = "  ".join(
-            f"{name.removesuffix('_per_second').replace('_', ' ')} {row[name]:,.2f}"
-            for name in PARALLEL_COLUMNS
-            if name in row and name.endswith(("fraction", "lag"))
-        )
+        extra = "  ".join(f"{name.replace('_', ' ')} {row[name]:,.2f}" for name in BAR_COLUMNS if name in row)
         self.bar.update(
             env_steps, row.get("steps_per_second", math.nan), row.get("mean_return", math.nan), extra
         )
@@ -216,10 +206,6 @@ class RunLogger:
         path = self.run.save_checkpoint(step, tree, meta)
         self.last_checkpoint, self.last_checkpoint_time = path.name, now
         return True
-
-    def finish(self, returns: np.ndarray, lengths: np.ndarray, **extra: Any) -> dict[str, Any]:
-        """The final evaluation into the logger's run (:func:`finish_run`)."""
-        return finish_run(self.run, returns, lengths, **extra)
 
 
 def finish_run(run: Run | None, returns: np.ndarray, lengths: np.ndarray, **extra: Any) -> dict[str, Any]:

@@ -16,10 +16,8 @@ learner (the calling thread, so Ctrl-C lands there) runs ``agent.learn``; betwee
 
 JAX releases the GIL while a compiled call runs, so a learner's update and the actors' Python
 env steps overlap on different cores. An exception in any thread stops every thread and is raised
-from :func:`train`, never a hang. Rows add ``actor_steps_per_second``,
-``learner_updates_per_second``, ``actor_wait_fraction``, ``learner_wait_fraction`` and
-``policy_lag`` (parameter versions between acting and learning, averaged over the rollouts since
-the last row).
+from :func:`train`, never a hang. Rows add the actors' and the learner's speeds and wait fractions
+and the policy lag (:class:`Meter`).
 """
 
 from __future__ import annotations
@@ -30,12 +28,12 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import numpy as np
 
-from agentax import _xla, kernel_choice
+from agentax import kernel_choice
 from agentax.agents.protocol import Agent, Episodes, OffPolicy
 from agentax.errors import UsageError
 from agentax.runners import host
@@ -52,13 +50,13 @@ from agentax.runners.coordination import (
 from agentax.runners.driver import FinishedReturns, ReplayObserver
 from agentax.runners.host import (
     Actor,
-    Evaluator,
     HostRunnerConfig,
     OffPolicyLearner,
     actor_seed,
     collection_over,
     env_factory,
     fold_actor_key,
+    host_session,
     num_updates,
     one_seed_settings,
     record_returns,
@@ -154,7 +152,8 @@ class ActorThread(threading.Thread):
 
 
 class Meter:
-    """Speeds, wait fractions and the mean policy lag between two rows."""
+    """Speeds, wait fractions and the mean policy lag (parameter versions between acting and learning,
+    over the rollouts) between two rows."""
 
     def __init__(self, threads: list[ActorThread], extra: Callable[[], dict[str, float]] | None = None):
         self.threads, self.extra = threads, extra
@@ -196,6 +195,10 @@ class Fleet:
     description: str
     share: Callable[[int, Any], Any] = in_memory
     figures: Callable[[], dict[str, float]] | None = None
+
+    def finished_returns(self) -> list[float]:
+        """The actors' returns of the episodes (or whole games) finished since the last call."""
+        return [r for actor in self.actors for r in actor.finished_returns()]
 
     def close(self) -> None:
         for actor in self.actors:
@@ -240,11 +243,8 @@ def train(
 ) -> TrainResult:
     """Train ``agent`` on ``env_id`` with ``runner.actors`` actors and a learner; the actors are
     threads of this process (:func:`thread_fleet`) unless ``fleet`` makes them elsewhere."""
-    _xla.let_xla_use_every_cpu()  # XLA runs an actor's and the learner's programs side by side
     runner.check(agent)
-    evaluator = Evaluator(agent, env_factory(env_id, runner), runner.eval_episodes)
-    replayed = isinstance(agent.experience, OffPolicy) and runner.checkpoint_replay
-    session = Session(agent, run, runner, evaluator, resume=resume, with_replay=replayed)
+    session = host_session(agent, env_id, runner, run, resume)
     state, updates, done_steps = session.state, session.updates, session.env_steps
     coordinator = Coordinator()
     make_fleet = fleet or thread_fleet(agent, env_id, runner)
@@ -254,7 +254,7 @@ def train(
         fleet = make_fleet(coordinator, updates, done_steps, session.actors_key)
         logger = session.begin(f"{agent.name} {env_id} ({fleet.description})", progress)
         learner = _off_policy if isinstance(agent.experience, OffPolicy) else _on_policy
-        loop = Loop(agent, runner, fleet, threads, coordinator, _Rows(session))
+        loop = Loop(agent, runner, fleet, threads, coordinator, session)
         with logger, interrupted_at_a_safe_point(coordinator):
             state, updates, env_steps = learner(loop, state, session.learner_key, updates, done_steps)
     finally:
@@ -266,25 +266,20 @@ def train(
     return session.finish(state, env_steps, updates)
 
 
-class Loop(NamedTuple):
+@dataclass
+class Loop:
     """What a learner's loop works with: the agent, the runner's settings, the actors (their fleet
-    and the threads it adds), the coordinator and the session's rows."""
+    and the threads it adds), the coordinator and the session, whose rows add the actors' figures
+    (``meter``, once the threads exist) and the replay's size (off-policy)."""
 
     agent: Agent
     runner: ParallelRunnerConfig
     fleet: Fleet
     threads: list[ActorThread]
     coordinator: Coordinator
-    rows: _Rows
-
-
-class _Rows:
-    """The learner's side of logging: the session's rows, with the actors' figures and the replay's size."""
-
-    def __init__(self, session: Session):
-        self.session = session
-        self.meter: Meter | None = None  # set once the actor threads exist
-        self.replay: Any = None  # off-policy: its size in the rows
+    session: Session
+    meter: Meter | None = None
+    replay: Any = None
 
     def maybe_log(
         self, state, learner_key, env_steps, collected, updates, learner_wait, returns, metrics, final
@@ -302,7 +297,7 @@ class _Rows:
 
 def _on_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, done_steps: int):
     """Rollout ``k`` from every actor, collected with parameter version ``k - policy_lag``; learn."""
-    agent, runner, fleet, rows = loop.agent, loop.runner, loop.fleet, loop.rows
+    agent, runner, fleet = loop.agent, loop.runner, loop.fleet
     threads, coordinator = loop.threads, loop.coordinator
     experience, actors = agent.experience, fleet.actors
     last_update = num_updates(agent)
@@ -322,14 +317,11 @@ def _on_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, don
 
     for i, actor in enumerate(actors):
         threads.append(ActorThread(actor, lambda thread, i=i: collect(thread, i), coordinator, i))
-    rows.meter = Meter(threads, fleet.figures)
+    loop.meter = Meter(threads, fleet.figures)
     learn = jax.jit(agent.learn)
     returns = FinishedReturns()
-    drain = returns.drain  # from what was learned, so runs repeat; whole Atari games from the envs
-    if actors[0].keeps_scores:
-
-        def drain() -> list[float]:
-            return [r for actor in actors for r in actor.finished_returns()]
+    # from what was learned, so runs repeat; whole Atari games from the envs
+    drain = fleet.finished_returns if actors[0].keeps_scores else returns.drain
 
     learner_wait, env_steps, metrics = 0.0, done_steps, {}
     for thread in threads:
@@ -349,7 +341,7 @@ def _on_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, don
         env_steps += record_returns(returns, trajectory, isinstance(experience, Episodes))
         final = updates == last_update
         collected = sum(a.steps.count for a in actors)
-        if rows.maybe_log(
+        if loop.maybe_log(
             state, learner_key, env_steps, collected, updates, learner_wait, drain, metrics, final
         ):
             break
@@ -358,13 +350,13 @@ def _on_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, don
 
 def _off_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, done_steps: int):
     """Actors fill the shared replay as the rate limiter allows; the learner learns as it allows."""
-    agent, runner, fleet, rows = loop.agent, loop.runner, loop.fleet, loop.rows
+    agent, runner, fleet = loop.agent, loop.runner, loop.fleet
     threads, coordinator = loop.threads, loop.coordinator
     experience: OffPolicy = agent.experience
     actors = fleet.actors
     replay = replay_for(agent, actors[0].obs_shape, runner.seed)
-    rows.replay = replay
-    rows.session.keep_replay(replay)
+    loop.replay = replay
+    loop.session.keep_replay(replay)
     chunk = experience.train_frequency * (experience.num_envs // runner.actors)
     limiter = RateLimiter(
         coordinator,
@@ -395,11 +387,8 @@ def _off_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, do
 
     for i, actor in enumerate(actors):
         threads.append(ActorThread(actor, lambda thread, i=i: collect(thread, i), coordinator, i))
-    rows.meter = Meter(threads, fleet.figures)
+    loop.meter = Meter(threads, fleet.figures)
     learner = OffPolicyLearner(agent, replay, loop=kernel_choice.learning_loop_for(actors[0].obs_shape))
-
-    def drain() -> list[float]:
-        return [r for actor in actors for r in actor.finished_returns()]
 
     learner_wait, metrics, phases = 0.0, {}, 0
     for thread in threads:
@@ -422,8 +411,16 @@ def _off_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, do
         final = not ready and collection_over(agent, env_steps, 0)
         if env_steps >= total and not final:
             continue  # collected all: the last row waits for the learner to catch up
-        if rows.maybe_log(
-            state, learner_key, env_steps, env_steps, updates, learner_wait, drain, metrics, final
+        if loop.maybe_log(
+            state,
+            learner_key,
+            env_steps,
+            env_steps,
+            updates,
+            learner_wait,
+            fleet.finished_returns,
+            metrics,
+            final,
         ):
             break
         if final:

@@ -5,8 +5,6 @@ scans ``updates_per_chunk`` updates and then evaluates the greedy policy when as
 evaluation-seed rule, :data:`agentax.runners.session.EVAL_KEY_OFFSET`), both taking and giving the
 carry as the flat list of its arrays.
 
-Lowered training programs are kept on disk (``jax.export``), so a repeated run skips tracing too.
-
 The persistent compilation cache (:mod:`agentax._xla`) lets a repeated run skip XLA's compile,
 but jax looks a compiled program up only after tracing the Python code and lowering it to
 StableHLO — about 1 s for PPO's chunk on this 2-core CPU, a third of a warm ``agentax train``.

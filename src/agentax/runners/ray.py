@@ -22,13 +22,9 @@ it and waits. So
   raised *inside* a collector (a bug, a broken env) ends the run with that error, and so does a
   learner error; the actors are then killed.
 
-Where it runs: ``ray_address`` joins an existing cluster (``auto``, or ``HOST:PORT`` of ``ray start
---head``, sending this machine's token as ``auto`` does; a refused token is one line at once: both in
-:mod:`agentax.runners.ray_cluster`); without it the run starts a local Ray (no
-dashboard, Ray's token authentication, as many CPUs as the machine has; Ray 2.60 listens on the
-machine's address, it cannot be held to loopback) and shuts it down at the end, also after Ctrl-C
-(at the learner's next safe point) or an error. A process already connected to Ray (``ray.init``
-before the call, as the tests do) keeps its connection. Every node needs agentax installed (the same
+Where it runs: :func:`~agentax.runners.ray_cluster.ray_session` joins the cluster at
+``ray_address``, else starts a local Ray for the run and shuts it down at the end, also after Ctrl-C
+(at the learner's next safe point) or an error. Every node needs agentax installed (the same
 version); the learner stays in this process.
 """
 
@@ -36,14 +32,11 @@ from __future__ import annotations
 
 import collections
 import functools
-import os
-import signal
+import subprocess
 import sys
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import jax
@@ -62,7 +55,7 @@ from agentax.runners.parallel import algorithm_config as actors_algorithm_config
 from agentax.runners.parallel import train as train_parallel
 from agentax.runners.ray_cluster import ray_session
 from agentax.runners.session import TrainResult
-from agentax.runs import Run
+from agentax.runs import Run, checkpoints
 
 CHECK_SECONDS = 1.0
 """how often a replacement collector that waits to start checks that the cluster still holds the run"""
@@ -86,8 +79,8 @@ Config = RayRunnerConfig
 REMAKES_AGENT = True
 """its actors build the agent again in their processes: :func:`train` takes ``make_agent``"""
 algorithm_config = actors_algorithm_config
-restore = parallel.restore
 """the parallel runner's: ``--envs-per-actor`` sets the algorithm's envs"""
+restore = parallel.restore
 
 
 def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[RayRunnerConfig, str]:
@@ -316,7 +309,7 @@ def ray_fleet(agent: Agent, make_agent: Callable[[], Agent], env_id: str, runner
         return version, ray.put(jax.device_get(acting_view(state)))
 
     def make(coordinator: Coordinator, updates: int, done_steps: int, actors_key: jax.Array) -> Fleet:
-        check_resources(ray, runner)
+        check_cpus(ray, runner)
 
         def spawn(index: int, restarts: int) -> Any:
             seed = actor_seed(runner.seed, index, updates) + RESTART_SEED_STRIDE * restarts
@@ -334,7 +327,7 @@ def ray_fleet(agent: Agent, make_agent: Callable[[], Agent], env_id: str, runner
                 coordinator,
                 done_steps // runner.actors,
                 runner.max_actor_restarts,
-                functools.partial(check_not_lost, ray, runner),
+                functools.partial(check_cpus, ray, runner, started=True),
             )
             for i in range(runner.actors)
         ]
@@ -360,27 +353,23 @@ def ray_fleet(agent: Agent, make_agent: Callable[[], Agent], env_id: str, runner
     return make
 
 
-def check_resources(ray: Any, runner: RayRunnerConfig) -> None:
-    """A ``UsageError`` when the cluster has fewer CPUs than the actors reserve (they would wait forever)."""
+def check_cpus(ray: Any, runner: RayRunnerConfig, started: bool = False) -> None:
+    """A ``UsageError`` when the cluster has fewer CPUs than the actors reserve (they would wait
+    forever); once ``started``, a :class:`~agentax.errors.NodeLost`: a node was lost, and a
+    replacement collector would wait for it forever."""
     cpus = ray.cluster_resources().get("CPU", 0)
     wanted = runner.actors * runner.cpus_per_actor
-    if wanted > cpus:
-        raise UsageError(
-            f"{runner.actors} actors × {runner.cpus_per_actor:g} CPU need {wanted:g} CPUs, the Ray cluster "
-            f"has {cpus:g}: join more nodes, or set --cpus-per-actor {cpus / runner.actors:.2g}"
-        )
-
-
-def check_not_lost(ray: Any, runner: RayRunnerConfig) -> None:
-    """A :class:`~agentax.errors.NodeLost` once the cluster's live nodes no longer have the CPUs the
-    run's actors reserve: a node was lost, and a replacement collector would wait for it forever."""
-    cpus = ray.cluster_resources().get("CPU", 0)
-    wanted = runner.actors * runner.cpus_per_actor
-    if wanted > cpus:
+    if wanted <= cpus:
+        return
+    if started:
         raise NodeLost(
             f"a Ray node was lost and with it the CPUs of the run's actors ({runner.actors} actors × "
             f"{runner.cpus_per_actor:g} CPU, {cpus:g} CPUs left): join a node"
         )
+    raise UsageError(
+        f"{runner.actors} actors × {runner.cpus_per_actor:g} CPU need {wanted:g} CPUs, the Ray cluster "
+        f"has {cpus:g}: join more nodes, or set --cpus-per-actor {cpus / runner.actors:.2g}"
+    )
 
 
 RESUME_HINT_CODE = """import os, shlex, sys
@@ -406,43 +395,20 @@ def hint_if_ray_ends_this_process(run: Run | None) -> Iterator[None]:
     if run is None:
         yield
         return
-    read_end, write_end = os.pipe()  # the write end stays here (not inherited), the watcher reads
-    watcher = os.posix_spawn(  # no fork of this multithreaded process (JAX, Ray)
-        sys.executable,
+    watcher = subprocess.Popen(  # fork_exec in C: no Python runs in a fork of this multithreaded process
         [sys.executable, "-I", "-S", "-c", RESUME_HINT_CODE, str(run.path)],
-        os.environ,
-        file_actions=[
-            (os.POSIX_SPAWN_DUP2, read_end, 0),
-            (os.POSIX_SPAWN_OPEN, 1, os.devnull, os.O_WRONLY, 0),
-        ],
-        setsid=True,  # Ctrl-C in the terminal is the run's, not the watcher's
+        stdin=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        start_new_session=True,  # Ctrl-C in the terminal is the run's, not the watcher's
     )
-    os.close(read_end)
     try:
         yield
     finally:
         try:
-            os.write(write_end, b"done")
-        except OSError:  # the watcher is gone (killed): nothing to say it
-            pass
-        os.close(write_end)
-        end_quiet_watcher(watcher)
-
-
-def end_quiet_watcher(pid: int, seconds: float = 10.0) -> None:
-    """Reap the watcher, which ends once it has read "done"; killed if it has not after ``seconds``."""
-    deadline = time.monotonic() + seconds
-    while os.waitpid(pid, os.WNOHANG) == (0, 0):
-        if time.monotonic() > deadline:
-            os.kill(pid, signal.SIGKILL)
-            os.waitpid(pid, 0)
-            return
-        time.sleep(0.01)
-
-
-def has_checkpoint(run: Run | None) -> bool:
-    checkpoints = None if run is None else Path(run.path) / "checkpoints"
-    return checkpoints is not None and checkpoints.is_dir() and any(checkpoints.iterdir())
+            watcher.communicate(b"done", timeout=10)  # the watcher ends once it has read "done"
+        except subprocess.TimeoutExpired:
+            watcher.kill()
+            watcher.wait()
 
 
 def train(
@@ -463,7 +429,7 @@ def train(
         try:
             return train_parallel(agent, env_id, runner, run, resume=resume, progress=progress, fleet=fleet)
         except NodeLost as lost:
-            if has_checkpoint(run):
+            if run is not None and checkpoints(run.path):
                 lost.run_dir = str(run.path)  # the CLI adds: continue with agentax train --resume DIR
             elif run is not None:
                 lost.args = (f"{lost}; the run had saved no checkpoint yet: start it again",)

@@ -72,15 +72,6 @@ def checkpoint_target(agent: Agent) -> Any:
     return jax.eval_shape(lambda key: (agent.init(key), key), jax.random.key(0))
 
 
-def restore(agent: Agent, run: Run, with_replay: bool = False) -> tuple[Any, jax.Array, dict[str, Any]]:
-    """``(agent state, learner key, meta)`` of the run's newest loadable checkpoint (``with_replay``:
-    of the newest saved with its replay buffer); trims metrics.csv. ``meta["checkpoint"]`` is the
-    file it came from."""
-    (state, learner_key), meta, path = load_checkpoint(run.path, checkpoint_target(agent), with_replay)
-    run.truncate_metrics(meta["env_steps"])
-    return state, learner_key, {**meta, "checkpoint": path}
-
-
 def evaluated_if_stopping(row: dict[str, float], runner: Any, evaluator: Any, state: Any) -> bool:
     """When the run may stop early, evaluate the greedy policy into ``row["eval_return"]``; whether
     it reached ``runner.stop_at_return``."""
@@ -210,8 +201,11 @@ class Session:
         self.agent, self.run, self.runner, self.evaluator = agent, run, runner, evaluator
         init_key, self.learner_key, self.actors_key = agent_keys(runner.seed)
         self.meta: dict[str, Any] = {"env_steps": 0, "updates": 0, "elapsed": 0.0}
-        if resume:
-            self.state, self.learner_key, self.meta = restore(agent, run, with_replay)
+        if resume:  # the newest loadable checkpoint (with_replay: saved with its replay); rows trimmed
+            target = checkpoint_target(agent)
+            (self.state, self.learner_key), meta, path = load_checkpoint(run.path, target, with_replay)
+            run.truncate_metrics(meta["env_steps"])
+            self.meta = {**meta, "checkpoint": path}  # the file it came from (its replay is beside it)
         else:
             self.state = agent.init(init_key)
         self.updates, self.env_steps = int(self.meta["updates"]), int(self.meta["env_steps"])

@@ -207,49 +207,45 @@ def _ray_job(fn: Callable[..., Any], job: tuple) -> Any:
     return fn(*job)
 
 
+SEED_COLUMNS = ("return_seed", "eval_seed")
+"""The per-seed columns of a row (``return_seed<k>``, ``eval_seed<k>``)."""
+
+
 def merge_rows(tables: Sequence[Sequence[dict[str, float]]], seeds: Sequence[int]) -> list[dict[str, float]]:
-    """One run's rows from its workers' (row ``i`` of each, as far as each got): per-seed columns
-    (``return_seed<k>``, ``eval_seed<k>``) renumbered across the run, ``mean_return`` and
-    ``eval_return`` over every seed present, ``wall_seconds`` the latest, the other metrics the
-    mean over workers weighted by their ``seeds``."""
+    """One run's rows from its workers' (row ``i`` of each, as far as each got), columns in the first
+    worker's order: per-seed columns renumbered across the run, ``mean_return`` and ``eval_return``
+    over every seed present, ``wall_seconds`` the latest, the other metrics the mean over workers
+    weighted by their ``seeds``."""
     offsets = np.cumsum([0, *seeds[:-1]])
     merged = []
     for i in range(max(map(len, tables))):
         present = [(t[i], n, o) for t, n, o in zip(tables, seeds, offsets, strict=True) if i < len(t)]
+        seeded = {
+            f"{prefix}{offset + k}": source[f"{prefix}{k}"]
+            for prefix in SEED_COLUMNS
+            for source, count, offset in present
+            for k in range(count)
+            if f"{prefix}{k}" in source
+        }
         row: dict[str, float] = {}
-        for prefix in ("return_seed", "eval_seed"):
-            for source, _, offset in present:
-                for name, value in source.items():
-                    if name.startswith(prefix) and name[len(prefix) :].isdigit():
-                        row[f"{prefix}{offset + int(name[len(prefix) :])}"] = value
         for name in dict.fromkeys(name for source, _, _ in present for name in source):
-            if name in row or name.startswith(("return_seed", "eval_seed")):
-                continue
-            values = [(source.get(name, math.nan), n) for source, n, _ in present]
-            if name == "wall_seconds":  # the workers run at once: the latest
-                row[name] = max(v for v, _ in values)
-            elif name == "mean_return" or name == "eval_return":
-                prefix = "return_seed" if name == "mean_return" else "eval_seed"
-                per_seed = [v for k, v in row.items() if k.startswith(prefix) and math.isfinite(v)]
-                row[name] = float(np.mean(per_seed)) if per_seed else math.nan
+            if name.startswith(SEED_COLUMNS):
+                if name.endswith("_seed0"):  # every worker's seeds of this column, here
+                    row.update({k: v for k, v in seeded.items() if k.startswith(name[:-1])})
+            elif name == "wall_seconds":  # the workers run at once: the latest
+                row[name] = max(source.get(name, math.nan) for source, _, _ in present)
+            elif name in ("mean_return", "eval_return"):
+                prefix = SEED_COLUMNS[name == "eval_return"]
+                finite = [v for k, v in seeded.items() if k.startswith(prefix) and math.isfinite(v)]
+                row[name] = float(np.mean(finite)) if finite else math.nan
             else:
-                finite = [(v, n) for v, n in values if math.isfinite(v)]
+                finite = [
+                    (source[name], n) for source, n, _ in present if math.isfinite(source.get(name, math.nan))
+                ]
                 total = sum(n for _, n in finite)
                 row[name] = sum(v * n for v, n in finite) / total if finite else math.nan
-        merged.append(_ordered(row, present[0][0]))
+        merged.append({**row, **seeded})
     return merged
-
-
-def _ordered(row: dict[str, float], like: dict[str, float]) -> dict[str, float]:
-    """``row``'s columns in the order of a worker's (seed columns where that worker's were)."""
-    order: list[str] = []
-    for name in like:
-        for prefix in ("return_seed", "eval_seed"):
-            if name == f"{prefix}0":
-                order += sorted((k for k in row if k.startswith(prefix)), key=lambda k: int(k[len(prefix) :]))
-        if not name.startswith(("return_seed", "eval_seed")):
-            order.append(name)
-    return {**{k: row[k] for k in order if k in row}, **row}
 
 
 def worker_of(runner: Any, seed_index: int) -> tuple[int, int]:
@@ -333,20 +329,3 @@ def resume_or_restart(folder: Path, config: dict[str, Any], resume: bool = True)
     if folder.exists():
         shutil.rmtree(folder)
     return Run.create(folder, config), False
-
-
-__all__ = [
-    "FINAL_RETURNS",
-    "announced",
-    "default_for",
-    "map_processes",
-    "map_ray",
-    "merge_rows",
-    "node",
-    "resume_or_restart",
-    "split",
-    "train",
-    "train_worker",
-    "worker_dir",
-    "worker_of",
-]

@@ -141,9 +141,15 @@ def check_learning_fits(agent: Agent, spec: EnvSpec, seeds: int = 1) -> None:
             f"{unit[:-1]}), but only {have / 1e9:.1f} GB of memory is available; lower it to about "
             f"{int(have * count // one):,} {unit} at most"
         )
-    if one * seeds > have:
+    check_seeds_fit(seeds, one, "their learning steps side by side")
+
+
+def check_seeds_fit(seeds: int, per_seed: int, what: str, agents: int | None = None) -> None:
+    """A ``UsageError`` naming ``--seeds`` and how many fit when ``agents`` (default: ``seeds``; a
+    sweep's settings × seeds) need more memory than is available, ``per_seed`` bytes each for ``what``."""
+    have, need = available_memory(), per_seed * (seeds if agents is None else agents)
+    if have is not None and need > have:
         raise UsageError(
-            f"--seeds {seeds:,} needs about {one * seeds / 1e9:,.1f} GB for their learning steps side by "
-            f"side ({one:,} bytes a seed), but only {have / 1e9:.1f} GB of memory is available; at most "
-            f"about {have // one:,} seeds fit"
+            f"--seeds {seeds:,} needs about {need / 1e9:,.1f} GB for {what} ({per_seed:,} bytes a seed), but "
+            f"only {have / 1e9:.1f} GB of memory is available; at most about {have // per_seed:,} seeds fit"
         )
