@@ -129,7 +129,7 @@ class ActorCriticState:
     step: jax.Array  # int32 []
 
 
-def actor_critic_setup(name: str, spec: EnvSpec, cfg: ReplayConfig) -> tuple[int, TwinQ, Any]:
+def actor_critic_setup(name: str, spec: EnvSpec, cfg: ReplayConfig) -> tuple[int, Any, Any]:
     """``(action_dim, critic, tx)`` of actor-critic ``name`` on ``spec``: the twin critics (behind an
     encoder of packed observations) and one Adam for every network, once ``cfg`` is valid and the env
     has flat observations and continuous actions."""
