@@ -143,6 +143,20 @@ NOISY: dict[str, dict[int, Tolerance]] = {
             "a training run, given the widest band of any page)",
         ),
     },
+    "10-board-games-and-action-masks.md": {
+        3: Tolerance(
+            rtol=1.0,
+            atol=0.2,
+            why="PPO's training returns on tic-tac-toe, masked and unmasked (not measured on other code; "
+            "a training run)",
+        ),
+        4: Tolerance(
+            rtol=1.0,
+            atol=5.0,
+            why="the greedy policies' wins, draws, losses and illegal moves in 1,000 games (not measured "
+            "on other code; the count of rare illegal moves varies most)",
+        ),
+    },
 }
 
 OUTPUTS_WRITTEN_ON = re.compile(r"^<!-- outputs written on: (?P<platform>.*?) -->[ \t]*\n?", re.MULTILINE)

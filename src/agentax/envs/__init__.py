@@ -11,6 +11,7 @@ import gymnasium
 from agentax.envs.atari import AtariEnv, atari_games, is_atari_id, make_atari
 from agentax.envs.cartpole import CartPole, cartpole_v0, cartpole_v1
 from agentax.envs.core import Box, Discrete, Environment, TimeStep
+from agentax.envs.gridworld import GridWorld
 from agentax.envs.gym import (
     NAMESPACE,
     GymnasiumEnv,
@@ -22,6 +23,7 @@ from agentax.envs.gymnax import factories as gymnax_envs
 from agentax.envs.mdp import lecture_mdp_env
 from agentax.envs.pendulum import MountainCarContinuous, Pendulum
 from agentax.envs.spaces import packed
+from agentax.envs.tictactoe import TicTacToe
 from agentax.envs.vacuum import Vacuum
 from agentax.errors import UsageError
 
@@ -32,6 +34,8 @@ JAX_ENVS: dict[str, Callable[[], Environment]] = {
     "LectureMDP-v0": lecture_mdp_env,
     "Pendulum-v1": Pendulum,
     "MountainCarContinuous-v0": MountainCarContinuous,
+    "GridWorld-v0": GridWorld,
+    "TicTacToe-v0": TicTacToe,
     **gymnax_envs(),  # gymnax/<ID>, where gymnax is installed
 }
 

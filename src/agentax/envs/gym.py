@@ -285,7 +285,7 @@ _REGISTERED: dict[str, Callable[[], Environment]] = {}
 def _compiled_by_id(env_id: str) -> tuple[Environment, EnvParams, Callable, Callable]:
     if env_id not in _REGISTERED:
         raise UsageError(f"unknown JAX env {env_id!r}; choose from {', '.join(_REGISTERED)}")
-    env = _REGISTERED[env_id]()
+    env = spaces.packed(_REGISTERED[env_id]())
     return _compile(env, env.default_params())
 
 
@@ -320,7 +320,20 @@ def frames_per_second(params: EnvParams) -> float:
 
 
 def _has_renderer(env: Environment) -> bool:
+    env = env.env if isinstance(env, spaces.Packed) else env
     return type(env).render_frame is not Environment.render_frame
+
+
+def gymnasium_values(values: Any, space: gymnasium.Space) -> Any:
+    """NumPy values (a dict or tuple of them for Dict and Tuple spaces) as ``space`` holds them:
+    an ``int`` for Discrete, else arrays of the space's (each leaf's) shape and dtype."""
+    if isinstance(space, gymnasium.spaces.Discrete):
+        return int(np.asarray(values).reshape(()))
+    if isinstance(space, gymnasium.spaces.Dict):
+        return {key: gymnasium_values(values[key], sub) for key, sub in space.spaces.items()}
+    if isinstance(space, gymnasium.spaces.Tuple):
+        return tuple(gymnasium_values(value, sub) for value, sub in zip(values, space.spaces, strict=True))
+    return np.asarray(values).astype(space.dtype).reshape(space.shape)
 
 
 class JaxToGymnasium(gymnasium.Env):
@@ -329,7 +342,9 @@ class JaxToGymnasium(gymnasium.Env):
     ``env`` is a JAX env id (with default params, its compiled functions are shared by all
     instances) or an ``Environment``. ``reset(seed=s)`` seeds Gymnasium's ``np_random``, which
     draws the JAX key of the episode, so equal seeds give equal episodes. The env's own time limit
-    sets ``truncated``.
+    sets ``truncated``. Composite observations travel packed (:func:`agentax.envs.spaces.packed`)
+    and reach Gymnasium as the env gives them: its own Dict or Tuple space, a dict or tuple of
+    arrays of each leaf's dtype.
     """
 
     metadata: Mapping[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 50}
@@ -340,7 +355,7 @@ class JaxToGymnasium(gymnasium.Env):
         if isinstance(env, str) and params is None:
             self.env, self.params, self._reset_fn, self._step_fn = _compiled_by_id(env)
         else:
-            env = _compiled_by_id(env)[0] if isinstance(env, str) else env
+            env = _compiled_by_id(env)[0] if isinstance(env, str) else spaces.packed(env)
             params = env.default_params() if params is None else params
             self.env, self.params, self._reset_fn, self._step_fn = _compile(env, params)
         self.metadata = {
@@ -352,15 +367,17 @@ class JaxToGymnasium(gymnasium.Env):
                 f"render_mode {render_mode!r} not supported; choose from {self.metadata['render_modes']}"
             )
         self.render_mode = render_mode
-        self.observation_space = to_gymnasium_space(self.env.observation_space(self.params))
+        self.layout = getattr(self.env, "layout", None)
+        own_space = self.env.original_space if self.layout else self.env.observation_space(self.params)
+        self.observation_space = to_gymnasium_space(own_space)
         self.action_space = to_gymnasium_space(self.env.action_space(self.params))
         self.state = None
         self._key = None
 
-    def _obs(self, obs: np.ndarray) -> np.ndarray | int:
-        if isinstance(self.observation_space, gymnasium.spaces.Discrete):
-            return int(obs.reshape(()))
-        return np.asarray(obs, self.observation_space.dtype).reshape(self.observation_space.shape)
+    def _obs(self, obs: np.ndarray) -> Any:
+        """The observation as Gymnasium's space holds it, from the (packed) vector the program gave."""
+        values = obs if self.layout is None else self.layout.unpack(obs)
+        return gymnasium_values(values, self.observation_space)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
         super().reset(seed=seed)

@@ -164,7 +164,7 @@ class Layout:
         values = {}
         for leaf in self.leaves:
             value = packed[..., leaf.start : leaf.start + leaf.size]
-            values[leaf.key] = value.reshape(*value.shape[:-1], *leaf.shape)
+            values[leaf.key] = value.reshape((*value.shape[:-1], *leaf.shape))  # a tuple: NumPy takes () too
         if self.structure == "single":
             return values[None]
         return values if self.structure == "dict" else tuple(values[i] for i in range(len(values)))
