@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-from agentax.agents import ppo
+from agentax.agents import ppo, presets
 from agentax.envs import gridworld, make_jax
 from agentax.envs.core import episode_returns
 from agentax.envs.gridworld import GridWorld, GridWorldState
@@ -131,9 +131,7 @@ def test_gymnasium_sees_the_dict_space_and_dict_observations(env_id):
 
 # ---------------------------------------------------------------- learning, fixed seeds
 
-GRID_PPO = ppo.PPOConfig(
-    total_steps=24_576, num_envs=16, num_steps=32, learning_rate=2.5e-3, update_epochs=4, num_minibatches=4
-)
+GRID_PPO = dataclasses.replace(presets.PPO_PRESETS["small-games"].config, total_steps=24_576)
 """PPO on the gridworld: 48 updates of 16 envs × 32 steps, lr 2.5e-3 annealed, 4 epochs × 4
 minibatches, entropy 0.01, γ 0.99, 64-64 tanh on the encoder's features (seeds 0-7 all optimal from
 every start; with 32 updates one seed took 2 steps too many from one start)."""
