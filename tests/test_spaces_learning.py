@@ -216,7 +216,6 @@ def test_dqn_learns_to_name_the_lit_channel_of_a_picture():
         train_frequency=16,
         gradient_steps=16,
         target_update_period=200,
-        buffer_size=4_096,
     )
     agent = dqn.make_agent(spec_of(OWN + "Picture48-v0"), cfg)
     result = train(agent, OWN + "Picture48-v0")
