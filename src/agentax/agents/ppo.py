@@ -423,7 +423,7 @@ def make_agent(spec: EnvSpec, cfg: PPOConfig, *, loop: Loop = jax.lax.scan, conv
     action_dim(spec)  # a clear error for actions PPO cannot take
     if cfg.normalize_observations and (is_image(spec.obs_shape) or spec.layout is not None):
         what = f"frames {spec.obs_shape}" if spec.layout is None else f"packed observations ({spec.layout})"
-        raise UsageError(f"normalize_observations standardises flat vector observations, not {what}")
+        raise UsageError(f"normalize_observations standardises flat observations, not {what}")
 
     def act_with_info(state: PPOAgent, obs: jax.Array, key: jax.Array, progress: jax.Array):
         obs = observe(state.obs_stats, obs, cfg)

@@ -30,7 +30,7 @@ def env_rows() -> list[dict[str, str]]:
             {
                 "id": env_id,
                 "kind": "JAX",
-                "observation_space": str(env.observation_space()),
+                "observation_space": str(getattr(env, "original_space", None) or env.observation_space()),
                 "action_space": str(env.action_space()),
             }
         )
@@ -40,7 +40,7 @@ def env_rows() -> list[dict[str, str]]:
             {
                 "id": env_id,
                 "kind": "Gymnasium",
-                "observation_space": str(env.observation_space()),
+                "observation_space": str(getattr(env, "original_space", None) or env.observation_space()),
                 "action_space": str(env.action_space()),
             }
         )

@@ -20,7 +20,8 @@ POLICY_CHOICES = "basic, random, or a trained run's folder"
 def named_policy(name: str, env: Environment | GymnasiumEnv, env_id: str = "") -> Policy:
     """The policy called ``name`` (``basic`` or ``random``) for ``env``; ``UsageError`` if it does not fit."""
     env_id = env_id or getattr(env, "id", type(env).__name__)
-    obs_space, action_space = env.observation_space(), env.action_space()
+    obs_space = getattr(env, "original_space", None) or env.observation_space()  # as the env declares it
+    action_space = env.action_space()
     if name == "basic":
         is_cartpole = isinstance(obs_space, Box) and obs_space.shape == (4,) and action_space == Discrete(2)
         if not is_cartpole:
