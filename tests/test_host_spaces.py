@@ -105,7 +105,7 @@ def test_packed_host_observations_and_their_layouts():
         ("Blackjack-v1", "host"),
         (OWN + "Match-MultiDiscrete-v0", "host"),
         (OWN + "Match-MultiBinary-v0", "host"),
-        (OWN + "Picture48-v0", "host"),
+        pytest.param(OWN + "Picture48-v0", "host", marks=pytest.mark.long),  # test_spaces_learning trains it
         (OWN + "Masked-Dict-v0", "parallel"),
         pytest.param(OWN + "Picture48-v0", "parallel", marks=pytest.mark.long),  # as host's, in actors
         pytest.param("Taxi-v4", "parallel", marks=pytest.mark.long),  # the info mask, in actors

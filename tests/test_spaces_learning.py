@@ -240,7 +240,7 @@ CAR_RACING_CONFIGS = {
 5 learning steps. Each test took ~50 s (most of it the evaluation's 1,000-step episode)."""
 
 
-@pytest.mark.slow
+@pytest.mark.long  # ~50 s each, most of it one 1,000-step evaluation episode of Box2D's renderer
 @pytest.mark.timeout(300)
 @pytest.mark.parametrize("algo", list(CAR_RACING))
 def test_car_racing_frames_and_box_actions_train(algo):
