@@ -62,6 +62,7 @@ def test_packed_gridworld_unpacks_to_the_envs_own_observation():
 # ---------------------------------------------------------------- tic-tac-toe's rules
 
 
+@pytest.mark.slow  # compiles learning steps or plays thousands of games: not for the edit-test loop
 def test_win_illegal_move_and_loss_by_hand():
     env, params = TicTacToe(), TicTacToe().default_params()
     x, o = AGENT, OPPONENT
@@ -95,6 +96,7 @@ def test_win_illegal_move_and_loss_by_hand():
     assert int(np.asarray(ts.obs["action_mask"]).sum()) == 0
 
 
+@pytest.mark.slow  # compiles learning steps or plays thousands of games: not for the edit-test loop
 def test_random_players_win_as_often_as_known():
     # Both players uniformly random, X first: X wins 58.5 %, O 28.8 %, draws 12.7 % (enumerating
     # every game, weighted by its probability). 4,000 games: standard errors below 0.8 points.

@@ -56,6 +56,7 @@ def chosen_legally(obs: np.ndarray, actions: jax.Array) -> np.ndarray:
 # --- encoders ----------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # compiles learning steps or plays thousands of games: not for the edit-test loop
 def test_each_leaf_kind_has_its_encoder_and_the_mask_is_not_seen():
     layout = layout_of(
         Dict(
@@ -85,6 +86,7 @@ def test_each_leaf_kind_has_its_encoder_and_the_mask_is_not_seen():
     assert jnp.array_equal(tail[:, 5:10], jnp.tile(jnp.array([1.0, 0, 1, 0, 0]), (2, 1)))  # dice (0, 0)
 
 
+@pytest.mark.slow  # compiles learning steps or plays thousands of games: not for the edit-test loop
 @pytest.mark.parametrize("algo", ["sac", "td3"])
 def test_sac_and_td3_encode_packed_observations_in_actor_and_critic(algo):
     layout = layout_of(Dict((("cell", Discrete(6)), ("velocity", Box(-1.0, 1.0, (3,))))))
@@ -158,6 +160,7 @@ def replay_sample(
     return ReplaySample(transition, jnp.arange(batch), jnp.ones(batch))
 
 
+@pytest.mark.slow  # compiles learning steps or plays thousands of games: not for the edit-test loop
 @pytest.mark.parametrize("double", [False, True])
 def test_dqn_bootstraps_from_the_best_legal_action_of_the_next_observation(double):
     cfg = dqn.DQNConfig(hidden=(16,), n_step=1, loss="mse", double=double)
@@ -174,6 +177,7 @@ def test_dqn_bootstraps_from_the_best_legal_action_of_the_next_observation(doubl
     assert not np.allclose(best_legal, q_t.max(axis=-1))  # the mask changed some maxima
 
 
+@pytest.mark.slow  # compiles learning steps or plays thousands of games: not for the edit-test loop
 @pytest.mark.parametrize("variant", ["plain", "c51"])
 def test_a_next_observation_without_legal_actions_bootstraps_finitely(variant):
     cfg = dqn.DQNConfig(hidden=(16,), n_step=1, loss="mse", **DQN_VARIANTS[variant])
@@ -198,6 +202,7 @@ def test_legal_max_is_the_max_over_legal_actions_and_finite_without_any():
     assert legal_max(q, None).tolist() == [5.0, 7.0, 9.0]
 
 
+@pytest.mark.slow  # compiles learning steps or plays thousands of games: not for the edit-test loop
 def test_pqn_explores_among_legal_actions_and_its_targets_use_the_legal_maximum():
     cfg = pqn.PQNConfig(
         num_envs=2, num_steps=4, hidden=(16,), q_lambda=0.0, update_epochs=1, num_minibatches=1
