@@ -243,6 +243,7 @@ def no_checkpoint_run(runs, tmp_path):
         (["evaluate", "--policy", "{run}/policy.onnx", "--env", "Pendulum-v1"], "cannot read Pendulum-v1's"),
     ],
 )
+@pytest.mark.slow  # its run comes from the module's trainings
 @pytest.mark.xdist_group("export")  # one worker trains the shared runs once
 def test_bad_input_is_one_line_and_exit_code_2(runs, tmp_path, argv, message, capsys):
     (tmp_path / "orphan.onnx").write_bytes(b"not a model")
@@ -255,6 +256,7 @@ def test_bad_input_is_one_line_and_exit_code_2(runs, tmp_path, argv, message, ca
     assert err.count("\n") == 1 and err.startswith(f"agentax {argv[0]}: error: ") and message in err, err
 
 
+@pytest.mark.slow  # its run comes from the module's trainings
 @pytest.mark.xdist_group("export")  # one worker trains the shared runs once
 def test_a_missing_export_extra_names_the_install_command(runs, tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "jax2onnx", None)  # import jax2onnx raises ImportError
