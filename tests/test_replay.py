@@ -269,3 +269,16 @@ def test_a_full_disk_while_saving_the_replay_leaves_nothing_and_names_the_bytes(
         save_replay(buffer, tmp_path / "replay-1.npz")
     assert raised.value.needed == sum(np.asanyarray(a).nbytes for a in buffer.state_dict().values()) > 0
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_host_replay_larger_than_memory_is_one_line_before_anything_is_allocated():
+    """CarRacing's 96×96×3 observations in SAC's default million-transition replay: a UsageError
+    naming the size and the flag, not NumPy's allocation error."""
+    from agentax.errors import UsageError
+    from agentax.replay import host as host_replay
+
+    one = {"obs": np.zeros(27_648, np.float32), "next_obs": np.zeros(27_648, np.float32)}
+    with pytest.raises(
+        UsageError, match=r"a replay of 1,000,000 transitions needs 221\.18 GB .* lower --buffer-size"
+    ):
+        host_replay.init(1_000_000, one)

@@ -18,8 +18,10 @@ from typing import Any
 import jax
 import numpy as np
 
+from agentax.errors import UsageError
 from agentax.replay._numpy import Dataset, find_prefix_sum, set_leaves
 from agentax.replay.core import ReplaySample, capacity_of
+from agentax.replay.frames import available_memory
 from agentax.replay.prioritized import tree_size
 
 
@@ -43,6 +45,13 @@ def init(capacity: int, example_transition: Any) -> HostUniformState:
     """An empty buffer of ``capacity`` slots shaped like ``example_transition``."""
     if capacity < 1:
         raise ValueError(f"replay capacity must be at least 1, got {capacity}")
+    need = capacity * sum(np.asarray(x).nbytes for x in jax.tree.leaves(example_transition))
+    have = available_memory()
+    if have is not None and need > have:
+        raise UsageError(
+            f"a replay of {capacity:,} transitions needs {need / 1e9:.2f} GB ({need:,} bytes), but only "
+            f"{have / 1e9:.2f} GB of memory is available; lower --buffer-size"
+        )
     storage = jax.tree.map(
         lambda x: np.zeros((capacity, *np.shape(x)), np.asarray(x).dtype), example_transition
     )
