@@ -263,7 +263,7 @@ def policy_output(net: Any, params: Any, obs: jax.Array, spec: EnvSpec) -> tuple
     where the observations carry a mask (:meth:`EnvSpec.legal`)."""
     actor_out, value = net.apply(params, obs)
     legal = spec.legal(obs)
-    return (actor_out if legal is None else masked(actor_out, legal)), value
+    return masked(actor_out, legal), value
 
 
 def act(

@@ -134,7 +134,7 @@ def policy_output(net: Any, params: Any, obs: jax.Array) -> Any:
     """The policy network's output on ``obs``, the illegal actions' logits masked where the
     observations carry a mask."""
     out, legal = net.apply(params, obs), legal_actions(net, obs)
-    return out if legal is None else masked(out, legal)
+    return masked(out, legal)
 
 
 def action_log_prob(out: Any, action: jax.Array, actions: Actions) -> jax.Array:
