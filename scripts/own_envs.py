@@ -9,6 +9,8 @@ train on them; ``BAD`` are spaces agentax refuses in one line.
 
 from __future__ import annotations
 
+import abc
+
 import gymnasium
 import numpy as np
 from gymnasium import spaces
@@ -17,7 +19,7 @@ EPISODE = 8
 """Steps of an episode: the best return of every env here."""
 
 
-class _Matching(gymnasium.Env):
+class _Matching(gymnasium.Env, abc.ABC):
     """A target drawn each step; reward 1 where the action matches it, else 0."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -33,11 +35,13 @@ class _Matching(gymnasium.Env):
         strip = np.repeat(np.repeat(np.minimum(cells[None, :, None] * 80 + 40, 255), 16, 0), 16, 1)
         return np.broadcast_to(strip, (*strip.shape[:2], 3)).astype(np.uint8)
 
+    @abc.abstractmethod
     def _target(self) -> None:
-        raise NotImplementedError
+        """Draw ``self.target``, what the next action must match."""
 
+    @abc.abstractmethod
     def _obs(self):
-        raise NotImplementedError
+        """The observation that shows ``self.target``."""
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
