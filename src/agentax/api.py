@@ -191,7 +191,8 @@ def _create(out: Path, algo: str, run_args: RunArgs, cfg: Any, kind: str, runner
     """The new run folder ``out``: config.json, and run.toml (the run file that repeats it)."""
     from agentax import runfile, runs
 
-    config = runs.run_config(algo, run_args.env, run_args.preset, kind, runner, config_to_dict(cfg))
+    settings = config_to_dict(cfg)
+    config = runs.run_config(algo, run_args.env, run_args.preset, kind, runner, settings, run_args.encoders)
     run = runs.Run.create(out, config)
     header = f"the run in {out}: agentax train --config {out / runs.RUN_FILE} --out NEW_FOLDER repeats it"
     preset = choose_preset(algo, run_args.env, run_args.preset)[0]

@@ -232,7 +232,8 @@ LAYOUT_METADATA = "agentax_layout"
 def layout_card(layout: Layout | None) -> dict[str, Any] | None:
     """A layout as JSON: the packed vector's ``size``, ``dtype`` and ``structure`` (single, dict or
     tuple), and each leaf's key, kind, shape and ``[start, start + size)`` (with a Discrete or
-    MultiDiscrete leaf's ``categories``, an image's ``channels_first`` and ``scale``); None without one."""
+    MultiDiscrete leaf's ``categories``, an image's ``channels_first`` and ``scale``, an ``encoder``
+    the run chose); None without one."""
     if layout is None:
         return None
     return {
@@ -249,6 +250,7 @@ def layout_card(layout: Layout | None) -> dict[str, Any] | None:
                 **({"categories": list(leaf.categories)} if leaf.categories else {}),
                 **({"channels_first": True} if leaf.channels_first else {}),
                 **({"scale": leaf.scale} if leaf.scale != 1.0 else {}),
+                **({"encoder": leaf.encoder} if leaf.encoder != "auto" else {}),
             }
             for leaf in layout.leaves
         ],
@@ -269,6 +271,7 @@ def layout_from_card(card: dict[str, Any] | None) -> Layout | None:
             tuple(leaf.get("categories", ())),
             leaf.get("channels_first", False),
             leaf.get("scale", 1.0),
+            leaf.get("encoder", "auto"),
         )
         for leaf in card["leaves"]
     )
@@ -380,6 +383,8 @@ def export_run(
     if path.is_dir() or not path.parent.is_dir():
         raise UsageError(f"--out {path}: give a file in an existing folder")
     *spaces, layout = env_spaces(config["env"])
+    if layout is not None:  # the card says how the network encodes each leaf, as the run chose
+        layout = layout.with_encoders(config.get("encoders", {}))
     obs = jax.ShapeDtypeStruct(tuple(spaces[0].shape), jnp.dtype(spaces[0].dtype))
     f, action = batched(restore(), obs, stochastic)
     if format == "onnx":

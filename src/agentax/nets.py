@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 
 from agentax import kernels
+from agentax.envs.spaces import NATURE_PIXELS
 
 ACTIVATIONS = {"elu": nn.elu, "relu": nn.relu, "tanh": nn.tanh, "gelu": nn.gelu, "swish": nn.swish}
 
@@ -98,7 +99,8 @@ class Encoder(nn.Module):
     """Packed observations ``[..., layout.size]`` (:mod:`agentax.envs.spaces`) → features ``[..., F]``:
     one encoder per leaf, concatenated (the lecture's preprocessing layers and combiner).
 
-    Box vectors as they are (bytes scaled to [0, 1]); images through :class:`ImageEncoder`;
+    Each leaf's :attr:`~agentax.envs.spaces.Leaf.encoder` picks its row of :data:`LEAF_ENCODERS`;
+    "auto" is: Box vectors as they are (bytes scaled to [0, 1]); images through :class:`ImageEncoder`;
     ``Discrete`` leaves one-hot, ``MultiDiscrete`` one one-hot per entry; ``MultiBinary`` as 0/1.
     The ``action_mask`` leaf is not seen: it masks the actions (:func:`masked`).
     """
@@ -110,26 +112,62 @@ class Encoder(nn.Module):
     def __call__(self, packed: jax.Array) -> jax.Array:
         parts = []
         for leaf in self.layout.leaves:
-            x = packed[..., leaf.start : leaf.start + leaf.size]
-            if leaf.kind == "mask":
-                continue
-            if leaf.kind in ("discrete", "multi_discrete"):
-                ints = x.astype(jnp.int32)
-                parts += [jax.nn.one_hot(ints[..., i], n) for i, n in enumerate(leaf.categories)]
-            elif leaf.kind == "image":
-                parts.append(ImageEncoder(leaf.image_hwc, leaf.channels_first, leaf.scale)(x))
-            else:
-                parts.append(x.astype(jnp.float32) * leaf.scale)
+            if leaf.kind != "mask":
+                x = packed[..., leaf.start : leaf.start + leaf.size]
+                parts.append(LEAF_ENCODERS[resolved_encoder(leaf)](leaf, x))
         return jnp.concatenate(parts, axis=-1)
 
 
+def resolved_encoder(leaf: Any) -> str:
+    """The encoder a leaf's choice names: "auto" resolved by its kind (an image's by its size)."""
+    if leaf.encoder != "auto":
+        return leaf.encoder
+    if leaf.kind == "image":
+        return "nature" if min(leaf.image_hwc[:2]) >= NATURE_PIXELS else "small"
+    return "one_hot" if leaf.kind in ("discrete", "multi_discrete") else "flat"
+
+
+def one_hot_entries(leaf: Any, x: jax.Array) -> jax.Array:
+    """A Discrete or MultiDiscrete leaf ``[..., k]`` → one one-hot per entry ``[..., Σ categories]``."""
+    ints = x.astype(jnp.int32)
+    return jnp.concatenate([jax.nn.one_hot(ints[..., i], n) for i, n in enumerate(leaf.categories)], -1)
+
+
+def flat_numbers(leaf: Any, x: jax.Array) -> jax.Array:
+    """A leaf's entries ``[..., size]`` as floats, scaled (an image's pixels, a vector, an integer)."""
+    return x.astype(jnp.float32) * leaf.scale
+
+
+def image_encoder(torso: str) -> Any:
+    """``encode(leaf, x)``: an image leaf through an :class:`ImageEncoder` with ``torso`` (created
+    in the calling module, so its parameters keep their names: ``ImageEncoder_<i>``)."""
+
+    def encode(leaf: Any, x: jax.Array) -> jax.Array:
+        return ImageEncoder(leaf.image_hwc, leaf.channels_first, leaf.scale, torso)(x)
+
+    return encode
+
+
+LEAF_ENCODERS: dict[str, Any] = {
+    "nature": image_encoder("nature"),
+    "small": image_encoder("small"),
+    "one_hot": one_hot_entries,
+    "scalar": flat_numbers,
+    "flat": flat_numbers,
+}
+"""Each encoder choice (:data:`agentax.envs.spaces.ENCODERS`) → ``encode(leaf, x [..., size]) →
+features [..., F]``: nature 512, small 256, one_hot Σ categories, scalar one per entry, flat size."""
+
+
 class ImageEncoder(nn.Module):
-    """One image leaf ``[..., H·W·C]`` → ``[..., 512]`` (Nature CNN's convolutions from 36 px) or
-    ``[..., 256]`` (two 3×3 convolutions, 16 and 32 channels, below), ReLU after each layer."""
+    """One image leaf ``[..., H·W·C]`` → ``[..., 512]`` (``torso`` "nature": the Nature CNN's
+    convolutions, from 36 px) or ``[..., 256]`` ("small": two 3×3 convolutions, 16 and 32 channels);
+    "auto": nature from 36 px, small below. ReLU after each layer."""
 
     hwc: tuple[int, int, int]
     channels_first: bool = False
     scale: float = 1.0
+    torso: str = "auto"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
@@ -142,7 +180,7 @@ class ImageEncoder(nn.Module):
             x = jnp.transpose(x, (0, 2, 3, 1))
         x = x * self.scale
         init = nn.initializers.orthogonal(jnp.sqrt(2.0))
-        large = min(height, width) >= 36
+        large = self.torso == "nature" or (self.torso == "auto" and min(height, width) >= NATURE_PIXELS)
         if large:
             for features, size, stride in ((32, 8, 4), (64, 4, 2), (64, 3, 1)):
                 x = nn.relu(nn.Conv(features, (size, size), (stride, stride), "VALID", kernel_init=init)(x))

@@ -17,7 +17,8 @@ runs/X/run.toml --out Y`` repeats the run), ``agentax sweep`` writes ``best.toml
 presets ALGO NAME`` prints a preset's. The top-level keys are :class:`RunArgs`'s fields (the flags'
 names with ``_``), ``[config]`` the algorithm's config dataclass's; a key left out keeps the preset's
 value (or RunArgs's default). A ``X | None`` field holds ``"none"`` for None (TOML has no null), as
-its flag does.
+its flag does; ``encoders`` is a table, ``encoders = {image = "flat"}`` (its flag ``--encoder
+image=flat``, repeated for each key, adds to the file's).
 
 The checks are the flags' own: a value's type is checked against the same dataclass annotation
 tyro builds the flag from, and ranges by the same ``RunArgs.check`` and ``validate()`` the flags
@@ -31,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import tomllib
 import types
 import typing
@@ -100,6 +102,10 @@ class RunArgs:
     freeze_episodes side episodes all return at least this; 'none': never; 'auto': the preset's"""
     freeze_episodes: int = 8
     """compiled runner: the greedy side episodes behind --freeze-at-return"""
+    encoders: dict[str, str] = dataclasses.field(default_factory=dict)
+    """the encoder of an observation's leaf, by its key (a Dict key, a Tuple position, 'obs' for one
+    leaf): images auto, nature, small or flat; Discrete and MultiDiscrete auto, one_hot or scalar;
+    vectors and MultiBinary auto or flat (docs/howto/spaces.md)"""
 
     def check(self) -> RunArgs:
         """Raise ``UsageError`` on a value no runner accepts; return ``self``."""
@@ -162,7 +168,7 @@ def _table(obj: Any, skip: tuple[str, ...] = ()) -> list[str]:
     rows = []
     for field in dataclasses.fields(obj):
         value = getattr(obj, field.name)
-        if field.name in skip or (value is None and field.default is None):
+        if field.name in skip or (value is None and field.default is None) or value == {}:
             continue
         rows.append(f"{field.name} = {_value(value)}")
     return rows
@@ -181,7 +187,14 @@ def _value(value: Any) -> str:
         return json.dumps(value, ensure_ascii=False)
     if isinstance(value, tuple | list):
         return "[" + ", ".join(_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{_key(k)} = {_value(v)}" for k, v in value.items()) + "}"
     raise TypeError(f"{type(value).__name__} has no TOML form here")
+
+
+def _key(key: str) -> str:
+    """A TOML key: bare where it may be (letters, digits, ``_`` and ``-``), else quoted."""
+    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else json.dumps(key, ensure_ascii=False)
 
 
 # Reading.
@@ -270,6 +283,10 @@ def _typed(value: Any, hint: Any, key: str) -> Any:
     if typing.get_origin(hint) in (typing.Union, types.UnionType) and type(None) in args:
         inner = next(a for a in args if a is not type(None))
         return None if value == "none" and inner is not str else _typed(value, inner, key)
+    if typing.get_origin(hint) is dict:
+        if not isinstance(value, dict) or not all(isinstance(v, str) for v in value.values()):
+            raise UsageError(f'{key} must be a table of strings ({{grid = "flat"}}), got {_shown(value)}')
+        return dict(value)
     if typing.get_origin(hint) is tuple:
         if not isinstance(value, list):
             raise UsageError(f"{key} must be an array of {_kind(args[0])}, got {_shown(value)}")

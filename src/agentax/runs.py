@@ -133,8 +133,18 @@ def read_json(path: str | Path) -> Any:
         raise UsageError(f"{path} is not valid JSON ({error}); was it written by agentax?") from None
 
 
-def run_config(algo: str, env_id: str, preset: str, runner_kind: str, runner: Any, config: dict) -> dict:
-    """What a trainer's ``config.json`` holds: the algorithm, env, preset, runner and its settings."""
+def run_config(
+    algo: str,
+    env_id: str,
+    preset: str,
+    runner_kind: str,
+    runner: Any,
+    config: dict,
+    encoders: dict[str, str] | None = None,
+) -> dict:
+    """What a trainer's ``config.json`` holds: the algorithm, env, preset, runner and its settings,
+    and ``"encoders"`` where the run chose some (key → choice; a run without holds no such key, as
+    every folder written before encoders could be chosen)."""
     runner = dataclasses.asdict(runner) if dataclasses.is_dataclass(runner) else dict(runner)
     return {
         "algo": algo,
@@ -143,6 +153,7 @@ def run_config(algo: str, env_id: str, preset: str, runner_kind: str, runner: An
         "runner_kind": runner_kind,
         "runner": runner,
         "config": config,
+        **({"encoders": dict(encoders)} if encoders else {}),
     }
 
 

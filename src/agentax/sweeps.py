@@ -134,13 +134,16 @@ def sweep(
     workers: int | None = None,
     ray_address: str | None = None,
     progress: bool = True,
+    encoders: dict[str, str] | None = None,
 ) -> SweepResult:
     """Train every setting of ``grid`` (name → "v1,v2,...", their product), ``random`` draws from
     ``ranges``, or (``method="optuna"``) ``trials`` settings Optuna's TPE suggests in ``ranges``,
-    ``batch`` at a time as one program; ``seeds`` seeds each. Writes and returns the sweep (see the
-    module docstring); ``out`` naming an unfinished sweep of the same request resumes it."""
+    ``batch`` at a time as one program; ``seeds`` seeds each; the observation's leaves encoded as
+    ``encoders`` choose (key → choice, as ``agentax train --encoder``). Writes and returns the sweep
+    (see the module docstring); ``out`` naming an unfinished sweep of the same request resumes it."""
     from agentax import _xla
     from agentax.agents import algorithm
+    from agentax.agents.protocol import EnvSpec
     from agentax.envs import JAX_ENVS, make_jax
     from agentax.runfile import choose_preset
     from agentax.runners.compiled import compiled_program
@@ -165,9 +168,10 @@ def sweep(
     names = list(grid) + list(ranges)
     fields = _numeric_fields(algo, base, names)
     jax_env = make_jax(env)
+    EnvSpec.of(jax_env).with_encoders(encoders, env)  # a bad key or choice: one line, before tracing
 
     def make_program(cfg):
-        return compiled_program(module, jax_env, cfg)
+        return compiled_program(module, jax_env, cfg, encoders=encoders)
 
     traced = [n for n in names if n in float_fields(base) and traceable(make_program, base, n)]
     static = [n for n in names if n not in traced]
@@ -195,6 +199,7 @@ def sweep(
         **({"settings": settings} if settings else {"ranges": ranges, "trials": trials, "batch": batch}),
         "traced": traced,
         "static": static,
+        **({"encoders": dict(encoders)} if encoders else {}),  # (absent: as every older sweep.json)
     }
     _open_folder(path, request)
 
@@ -395,9 +400,14 @@ def _train_program(folder: Path, request, cfg, runner, table, progress: bool = F
     if done.exists():
         return np.asarray([s["mean_return"] for s in json.loads(done.read_text())["per_seed"]])
     module, env = algorithm(request["algo"]), make_jax(request["env"])
-    program = sweep_program(lambda config: compiled_program(module, env, config), cfg, table)
+    encoders = request.get("encoders")
+    program = sweep_program(
+        lambda config: compiled_program(module, env, config, encoders=encoders), cfg, table
+    )
     settings = config_to_dict(cfg)
-    config = run_config(request["algo"], request["env"], request["preset"], "sweep", runner, settings)
+    config = run_config(
+        request["algo"], request["env"], request["preset"], "sweep", runner, settings, encoders
+    )
     run, resume = resume_or_restart(folder, {**config, "table": {n: c.tolist() for n, c in table.items()}})
     result = train_program(program, env, runner, run, resume=resume, progress=progress)
     return np.asarray([s["mean_return"] for s in result.eval["per_seed"]])
@@ -422,6 +432,7 @@ def _write_results(path: Path, request, settings, scores) -> SweepResult:
     best = max(rows, key=lambda row: (row["iqm"], row["mean"]))  # ties (a solved env) by the mean
     setting = {n: best[n] for n in settings[0]}
     flags = " ".join(f"--{n.replace('_', '-')} {shlex.quote(str(v))}" for n, v in setting.items())
+    flags += "".join(f" --encoder {shlex.quote(f'{k}={v}')}" for k, v in request.get("encoders", {}).items())
     command = (
         f"agentax train {request['algo']} --env {request['env']} --preset {request['preset']} "
         f"--seeds {request['seeds']} --seed {request['seed']} --total-steps {request['total_steps']} "
@@ -449,6 +460,7 @@ def _write_best_run_file(path: Path, request: dict[str, Any], setting: dict[str,
         seed=request["seed"],
         seeds=request["seeds"],
         stop_at_return="none",
+        encoders=request.get("encoders", {}),
     )
     header = f"the best setting of the sweep in {path.parent}: {command}\nor: agentax train --config {path}"
     runfile.write(path, request["algo"], run_args, cfg, header)

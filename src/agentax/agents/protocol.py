@@ -38,6 +38,7 @@ folder. This module is a leaf: both sides import it, it imports neither.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -92,6 +93,21 @@ class EnvSpec:
             check_observations(obs_space, getattr(env, "id", None))
         check_actions(action_space, getattr(env, "id", None))
         return cls(tuple(obs_space.shape), action_space, jnp.dtype(obs_space.dtype), image_shape, layout)
+
+    def with_encoders(self, overrides: dict[str, str] | None, env_id: str | None = None) -> EnvSpec:
+        """This spec with the leaves' encoders ``overrides`` chooses (key → choice, see
+        :meth:`agentax.envs.spaces.Layout.with_encoders`); itself without any. A one-line
+        ``UsageError`` where the observations are plain: there are no leaves to choose for."""
+        if not overrides:
+            return self
+        if self.layout is None:
+            flags = " ".join(f"{key}={choice}" for key, choice in overrides.items())
+            raise UsageError(
+                f"--encoder {flags}: {env_id or 'the env'}'s observations are plain "
+                f"{list(self.obs_shape)}, not Dict, Tuple, Discrete or small images; encoders are chosen "
+                "per key of those only"
+            )
+        return dataclasses.replace(self, layout=self.layout.with_encoders(overrides))
 
     def legal(self, obs: jax.Array) -> jax.Array | None:
         """The legal actions ``bool [..., n]`` of observations ``[..., *obs_shape]`` (None: all)."""

@@ -57,6 +57,8 @@ class SweepArgs:
     """print the results as one JSON object"""
     progress: bool = True
     """show the progress of each program"""
+    encoder: Annotated[tuple[str, ...], tyro.conf.UseAppendAction] = ()
+    """KEY=CHOICE: the encoder of the observation's leaf KEY, as agentax train's (repeat the flag)"""
 
 
 def main(argv: list[str]) -> int:
@@ -71,6 +73,7 @@ def main(argv: list[str]) -> int:
             raise UsageError(f"--grid {item!r}: write NAME=V1,V2,...")
         grid[name] = values
     ranges = dict(parse_range(item) for item in args.range)
+    encoders = {key: choice for key, _, choice in (item.partition("=") for item in args.encoder)}
     result = sweep(
         args.algo,
         args.env,
@@ -88,6 +91,7 @@ def main(argv: list[str]) -> int:
         workers=args.workers,
         ray_address=args.ray_address,
         progress=args.progress,
+        encoders=encoders,
     )
     if args.json:
         print(json.dumps({"sweep": str(result.path), "settings": result.settings, "best": result.best}))

@@ -70,6 +70,36 @@ def with_aliases(config_type: type, aliases: dict[str, tuple[str, ...]]) -> type
     )
 
 
+def _encoder_pairs(args: list[str]) -> dict[str, str]:
+    """``--encoder KEY=CHOICE`` as ``{KEY: CHOICE}`` (no ``=``: an empty choice, refused with the
+    choices there are once the env's keys are known)."""
+    return {key: choice for key, _, choice in (arg.partition("=") for arg in args)}
+
+
+ENCODER_FLAG = tyro.constructors.PrimitiveConstructorSpec(
+    nargs=1,
+    metavar="KEY=CHOICE",
+    instance_from_str=_encoder_pairs,
+    is_instance=lambda value: isinstance(value, dict),
+    str_from_instance=lambda pairs: [f"{key}={choice}" for key, choice in pairs.items()],
+    _action="append",  # repeatable, each adding to the run file's table (tyro's own dict flags' action)
+)
+"""``RunArgs.encoders`` on the command line: ``--encoder image=flat --encoder 0=scalar``. A
+primitive spec, not tyro's dict rule: that one turns a non-empty default (a run file's table) into
+one flag per key, and no key could be added."""
+
+
+def cli_run_args() -> type:
+    """:class:`RunArgs` as tyro parses it: ``encoders`` as the repeatable ``--encoder KEY=CHOICE``
+    (:data:`ENCODER_FLAG`); the other fields, defaults and docstrings as RunArgs's own."""
+    flag = Annotated[dict[str, str], ENCODER_FLAG, tyro.conf.arg(name="encoder")]
+    field = dataclasses.field(default_factory=dict)
+    namespace = {"__doc__": RunArgs.__doc__, "__module__": RunArgs.__module__}
+    return dataclasses.make_dataclass(
+        RunArgs.__name__, [("encoders", flag, field)], bases=(RunArgs,), frozen=True, namespace=namespace
+    )
+
+
 def _as(cls: type, value: Any) -> Any:
     """``value``, a config of ``cls`` or of a class with the same fields, as a ``cls``."""
     if type(value) is cls:
@@ -90,11 +120,12 @@ def parse(algo: str, argv: list[str], base: runfile.RunFile | None = None) -> tu
     presets = presets_of(algo)
     config_type = type(preset.config)
     cli_type = with_aliases(config_type, ALIASES.get(algo, {}))
+    run_type = cli_run_args()
 
     Args = dataclasses.make_dataclass(
         "Args",
         [
-            ("run", Annotated[RunArgs, tyro.conf.OmitArgPrefixes]),
+            ("run", Annotated[run_type, tyro.conf.OmitArgPrefixes]),
             ("config", Annotated[cli_type, tyro.conf.OmitArgPrefixes]),
         ],
         frozen=True,
@@ -104,7 +135,7 @@ def parse(algo: str, argv: list[str], base: runfile.RunFile | None = None) -> tu
         Args,
         args=argv,
         prog=f"agentax train {algo}",
-        default=Args(default_run, _as(cli_type, default_config)),
+        default=Args(_as(run_type, default_run), _as(cli_type, default_config)),
         description=f"Train {algo}. Presets: "
         + "; ".join(f"{name}: {p.description}" for name, p in presets.items()),
     )
@@ -113,7 +144,7 @@ def parse(algo: str, argv: list[str], base: runfile.RunFile | None = None) -> tu
         config.validate()
     if base is not None:  # --env or --preset beside --config: the preset of the run as it is
         preset = api.choose_preset(algo, args.run.env, args.run.preset)[1]
-    return args.run.check(), config, preset
+    return _as(RunArgs, args.run).check(), config, preset
 
 
 def parse_file(argv: list[str]) -> tuple[str, RunArgs, Any, Any]:

@@ -18,6 +18,7 @@ A packed vector is uint8 where every leaf fits a byte and one is an image (a 48�
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -34,6 +35,19 @@ MASK_KEY = "action_mask"
 Gymnasium's toy-text envs give the same array as ``info["action_mask"]``)."""
 SMALLEST_IMAGE = 8
 """The least height and width of an observation taken as an image (a smaller 2-D or 3-D Box is a vector)."""
+NATURE_PIXELS = 36
+"""The least height and width the Nature CNN's convolutions take (its 8×8/4, 4×4/2, 3×3/1 stack)."""
+ENCODERS: dict[str, tuple[str, ...]] = {
+    "image": ("auto", "nature", "small", "flat"),
+    "discrete": ("auto", "one_hot", "scalar"),
+    "multi_discrete": ("auto", "one_hot", "scalar"),
+    "vector": ("auto", "flat"),
+    "binary": ("auto", "flat"),
+}
+"""The encoders a leaf of each kind may choose (:meth:`Layout.with_encoders`; the modules are
+:class:`agentax.nets.Encoder`'s): "auto" is an image's Nature CNN from :data:`NATURE_PIXELS`, else its
+two small convolutions; a Discrete entry's one-hot; a vector's numbers as they are. "flat" takes an
+image's pixels as a scaled vector, "scalar" a Discrete entry's integer as one float."""
 SUPPORTED = (
     "Box, Discrete, MultiDiscrete, MultiBinary, and a Dict or Tuple of them (one level), with an "
     f"optional {MASK_KEY!r} entry"
@@ -118,6 +132,14 @@ class Leaf:
     """an image laid out ``[C, H, W]`` (else ``[H, W, C]``, or ``[H, W]`` for one channel)"""
     scale: float = 1.0
     """what an image's values are multiplied by (1/255 for bytes)"""
+    encoder: str = "auto"
+    """how the network encodes the leaf, one of :data:`ENCODERS` of its kind (packing ignores it)"""
+
+    @property
+    def name(self) -> str:
+        """The leaf's key as an encoder override names it: the Dict key, the Tuple position as a
+        string, or "obs" for an observation that is one leaf."""
+        return "obs" if self.key is None else str(self.key)
 
     @property
     def image_hwc(self) -> tuple[int, int, int]:
@@ -129,7 +151,8 @@ class Leaf:
     def __str__(self) -> str:
         where = "" if self.key is None else f"{self.key}: "
         extra = f" {list(self.categories)}" if self.categories else ""
-        return f"{where}{self.kind} {list(self.shape)}{extra}"
+        encoder = "" if self.encoder == "auto" else f" ({self.encoder})"
+        return f"{where}{self.kind} {list(self.shape)}{extra}{encoder}"
 
 
 @dataclass(frozen=True)
@@ -176,8 +199,45 @@ class Layout:
             return None
         return packed[..., leaf.start : leaf.start + leaf.size] > 0
 
+    def with_encoders(self, overrides: dict[str, str]) -> Layout:
+        """This layout with the leaves ``overrides`` names (by :attr:`Leaf.name`) encoded by the
+        choice given, the rest as they were; packing is unchanged. An unknown key, or a choice that
+        does not fit the leaf's kind, is a one-line ``UsageError`` naming those that do."""
+        leaves = {leaf.name: leaf for leaf in self.leaves if leaf.kind != "mask"}
+        for name, choice in overrides.items():
+            if name not in leaves:
+                mask = f" ({MASK_KEY} masks the actions: it has no encoder)" if name == MASK_KEY else ""
+                raise UsageError(
+                    f"--encoder {name}: no such key{mask}; the observation's keys are {', '.join(leaves)}"
+                )
+            check_encoder(leaves[name], choice)
+        return dataclasses.replace(
+            self,
+            leaves=tuple(
+                dataclasses.replace(leaf, encoder=overrides[leaf.name]) if leaf.name in overrides else leaf
+                for leaf in self.leaves
+            ),
+        )
+
     def __str__(self) -> str:
         return "; ".join(str(leaf) for leaf in self.leaves)
+
+
+def check_encoder(leaf: Leaf, choice: str) -> None:
+    """A one-line ``UsageError`` where ``choice`` cannot encode ``leaf``: not one of its kind's
+    :data:`ENCODERS`, or the Nature CNN on an image under :data:`NATURE_PIXELS` pixels."""
+    fits = ENCODERS[leaf.kind]
+    if choice not in fits:
+        raise UsageError(
+            f"--encoder {leaf.name}={choice}: not an encoder of a {leaf.kind} leaf; "
+            f"choose from {', '.join(fits)}"
+        )
+    height, width = leaf.image_hwc[:2] if leaf.kind == "image" else (NATURE_PIXELS, NATURE_PIXELS)
+    if choice == "nature" and min(height, width) < NATURE_PIXELS:
+        raise UsageError(
+            f"--encoder {leaf.name}=nature: the Nature CNN takes images of at least {NATURE_PIXELS}×"
+            f"{NATURE_PIXELS} pixels, this one is {height}×{width}; choose small or flat"
+        )
 
 
 def is_plain(space: Any) -> bool:

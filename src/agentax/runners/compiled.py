@@ -39,7 +39,7 @@ from agentax.envs.core import Environment
 from agentax.errors import UsageError
 from agentax.policies import Policy
 from agentax.runners import algorithm_of, programs, workers
-from agentax.runners.launch import agent_maker, parse_return
+from agentax.runners.launch import agent_maker, env_specs, parse_return
 from agentax.runners.programs import CHUNK_COMPILER_OPTIONS, init_from_seeds
 from agentax.runners.replay_program import Freeze, off_policy_program
 from agentax.runners.rollout import Program, VectorEnv, episodes_program, on_policy_program
@@ -361,10 +361,13 @@ def program_of(agent: Agent, env: Environment, runner: RunnerConfig | None = Non
     return on_policy_program(agent, envs)
 
 
-def compiled_program(module: Any, env: Environment, cfg: Any, runner: RunnerConfig | None = None) -> Program:
+def compiled_program(
+    module: Any, env: Environment, cfg: Any, runner: RunnerConfig | None = None, encoders: dict | None = None
+) -> Program:
     """The program of ``module``'s agent (an algorithm module, ``cfg`` its config) on the JAX env
-    ``env``, with the per-seed early stop of ``runner`` if given."""
-    return program_of(agent_maker(module, EnvSpec.of(env), cfg)(), env, runner)
+    ``env``, its leaves encoded as ``encoders`` choose, with the per-seed early stop of ``runner``."""
+    spec = EnvSpec.of(env).with_encoders(encoders, env.id)
+    return program_of(agent_maker(module, spec, cfg)(), env, runner)
 
 
 # ---------------------------------------------------------------- the runner module's four names
@@ -420,8 +423,8 @@ def train(
     env = make_jax(env_id)
     algorithm = program_of(agent, env, runner)
     description = None
-    if run is not None:  # algo, env id, config and the freeze determine the program (our envs take no params)
-        description = {key: run.config[key] for key in ("algo", "env", "config")}
+    if run is not None:  # algo, env, config, encoders and the freeze determine the program (no env params)
+        description = {k: run.config[k] for k in ("algo", "env", "config", "encoders") if k in run.config}
         description["freeze"] = [runner.freeze_at_return, runner.freeze_episodes]
     result = train_program(
         algorithm, env, runner, run, resume=resume, progress=progress, program_description=description
@@ -436,8 +439,8 @@ def train_worker(
 ) -> TrainResult:
     """One worker's seeds (``runner``) of the run ``config`` describes, in this process, into ``run``."""
     module, cfg = algorithm_of(config)
-    env = make_jax(config["env"])
-    agent = agent_maker(module, EnvSpec.of(env), cfg)()
+    spec, _ = env_specs("compiled", config["env"], encoders=config.get("encoders"))  # as launch.prepare's
+    agent = agent_maker(module, spec, cfg)()
     return train(agent, config["env"], runner, run, resume=resume, progress=progress)
 
 

@@ -71,16 +71,25 @@ def parse_return(flag: str, value: str, auto: float | None) -> float | None:
         raise UsageError(f"{flag} must be a number, 'none' or 'auto', got {value!r}") from None
 
 
-def env_specs(kind: str, env_id: str, backend: str = "auto", sticky_actions: float = 0.25) -> tuple[Any, Any]:
+def env_specs(
+    kind: str,
+    env_id: str,
+    backend: str = "auto",
+    sticky_actions: float = 0.25,
+    encoders: dict[str, str] | None = None,
+) -> tuple[Any, Any]:
     """``(EnvSpec, what --stop-at-return auto reads the solved threshold of)`` of ``env_id`` as the
-    ``kind`` runner makes it: agentax's JAX env, else the host adapter (and Gymnasium's EnvSpec)."""
+    ``kind`` runner makes it: agentax's JAX env, else the host adapter (and Gymnasium's EnvSpec);
+    its leaves encoded as ``encoders`` choose (:meth:`EnvSpec.with_encoders`)."""
     if RUNNERS[kind].envs == "jax":
         env = make_jax(env_id)
-        return EnvSpec.of(env), env
+        return EnvSpec.of(env).with_encoders(encoders, env_id), env
     probe = make_host_env(env_id, 1, backend=backend, sticky_actions=sticky_actions)
-    specs = EnvSpec.of(probe), getattr(getattr(probe, "vector_env", None), "spec", None)
-    probe.close()
-    return specs
+    try:
+        spec = EnvSpec.of(probe).with_encoders(encoders, env_id)
+        return spec, getattr(getattr(probe, "vector_env", None), "spec", None)
+    finally:
+        probe.close()
 
 
 def prepare(module: Any, run_args: Any, cfg: Any, preset: Any, kind: str) -> Launch:
@@ -89,7 +98,9 @@ def prepare(module: Any, run_args: Any, cfg: Any, preset: Any, kind: str) -> Lau
     runner_module = RUNNERS[kind].load()
     if hasattr(runner_module, "algorithm_config"):  # a runner with actors splits the envs between them
         cfg = runner_module.algorithm_config(cfg, run_args)
-    spec, solved_by = env_specs(kind, run_args.env, run_args.env_backend, run_args.sticky_actions)
+    spec, solved_by = env_specs(
+        kind, run_args.env, run_args.env_backend, run_args.sticky_actions, run_args.encoders
+    )
     remake = agent_maker(module, spec, cfg)
     agent = remake()  # refuses what the agent cannot train before anything is written
     check_learning_fits(module.make_agent(spec, cfg), spec, run_args.seeds)  # (plain: see its docstring)
@@ -104,7 +115,7 @@ def prepare(module: Any, run_args: Any, cfg: Any, preset: Any, kind: str) -> Lau
 def reopen(config: dict[str, Any], module: Any, cfg: Any, runner: Any) -> Launch:
     """The run of ``config`` (a config.json; ``runner``: its settings, parsed), to resume."""
     kind = kind_of(config)
-    spec, _ = env_specs(kind, config["env"], *_host_options(config))
+    spec, _ = env_specs(kind, config["env"], *_host_options(config), config.get("encoders"))
     remake = agent_maker(module, spec, cfg)
     return _launch(RUNNERS[kind].load(), remake(), remake, config["env"], runner, "")
 
@@ -129,5 +140,5 @@ def restore(run_dir: Path, config: dict[str, Any], module: Any, cfg: Any, conv: 
     """The greedy policy of the run's best seed, from its newest good checkpoint (its convolutions on
     ``conv``, else on :func:`agent_maker`'s choice)."""
     kind = kind_of(config)
-    spec, _ = env_specs(kind, config["env"], *_host_options(config))
+    spec, _ = env_specs(kind, config["env"], *_host_options(config), config.get("encoders"))
     return RUNNERS[kind].load().restore(Path(run_dir), config, agent_maker(module, spec, cfg, conv)())
