@@ -40,6 +40,7 @@ from typing import TYPE_CHECKING, Any
 
 from agentax.agents import ALGORITHMS, algorithm_config, presets_of
 from agentax.errors import UsageError
+from agentax.kernels import PRECISIONS
 
 if TYPE_CHECKING:
     from agentax.agents.presets import Preset
@@ -100,6 +101,11 @@ class RunArgs:
     freeze_episodes side episodes all return at least this; 'none': never; 'auto': the preset's"""
     freeze_episodes: int = 8
     """compiled runner: the greedy side episodes behind --freeze-at-return"""
+    precision: str = "f32"
+    """the networks' products: f32 (float32, today's numbers exactly), bf16 (bfloat16 operands summed
+    in float32; parameters, optimizer state, targets and replay stay float32) or auto (bf16 where a
+    learning step of the run's width measures faster on this machine, measured once and kept); the
+    run folder records the one used"""
 
     def check(self) -> RunArgs:
         """Raise ``UsageError`` on a value no runner accepts; return ``self``."""
@@ -107,6 +113,9 @@ class RunArgs:
             raise UsageError(f"--seeds must be at least 1, got {self.seeds}")
         if self.workers is not None and self.workers < 1:
             raise UsageError(f"--workers must be at least 1, got {self.workers}")
+        if self.precision not in PRECISION_MODES:
+            choices = ", ".join(PRECISION_MODES)
+            raise UsageError(f"--precision must be one of {choices}, got {self.precision!r}")
         if self.freeze_at_return not in ("auto", "none"):
             try:
                 float(self.freeze_at_return)
@@ -117,6 +126,8 @@ class RunArgs:
         return self
 
 
+PRECISION_MODES = ("auto", *PRECISIONS)
+"""What ``--precision`` takes: ``auto`` or one of :data:`agentax.kernels.PRECISIONS`."""
 NOT_WRITTEN = ("out", "progress")
 """RunArgs fields of one invocation, not of the training: a written run file leaves them out."""
 

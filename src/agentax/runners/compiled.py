@@ -39,7 +39,7 @@ from agentax.envs.core import Environment
 from agentax.errors import UsageError
 from agentax.policies import Policy
 from agentax.runners import algorithm_of, programs, workers
-from agentax.runners.launch import agent_maker, parse_return
+from agentax.runners.launch import agent_maker, parse_return, precision_of
 from agentax.runners.programs import CHUNK_COMPILER_OPTIONS, init_from_seeds
 from agentax.runners.replay_program import Freeze, off_policy_program
 from agentax.runners.rollout import Program, VectorEnv, episodes_program, on_policy_program
@@ -422,6 +422,7 @@ def train(
     description = None
     if run is not None:  # algo, env id, config and the freeze determine the program (our envs take no params)
         description = {key: run.config[key] for key in ("algo", "env", "config")}
+        description["precision"] = precision_of(run.config)  # bf16 products: another program
         description["freeze"] = [runner.freeze_at_return, runner.freeze_episodes]
     result = train_program(
         algorithm, env, runner, run, resume=resume, progress=progress, program_description=description
@@ -437,7 +438,7 @@ def train_worker(
     """One worker's seeds (``runner``) of the run ``config`` describes, in this process, into ``run``."""
     module, cfg = algorithm_of(config)
     env = make_jax(config["env"])
-    agent = agent_maker(module, EnvSpec.of(env), cfg)()
+    agent = agent_maker(module, EnvSpec.of(env), cfg, precision=precision_of(config))()
     return train(agent, config["env"], runner, run, resume=resume, progress=progress)
 
 
