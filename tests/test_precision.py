@@ -146,13 +146,16 @@ def test_a_bad_precision_is_one_line_and_exit_code_2(value, capsys):
 
 @pytest.mark.slow
 @pytest.mark.timeout(300)
-def test_the_run_folder_records_the_precision_and_restores_with_it(tmp_path):
+def test_a_bf16_ppo_solves_cartpole_and_its_folder_records_the_precision(tmp_path):
+    """The ``cartpole-fast`` preset in bf16 solves CartPole-v1 (it stops at the solved threshold, as
+    in float32); config.json and run.toml say bf16, and the restored policy (in bf16) plays well."""
     out = tmp_path / "run"
-    run = train("ppo", "CartPole-v1", total_steps=2_048, out=out, progress=False, precision="bf16")
+    run = train("ppo", "CartPole-v1", out=out, progress=False, precision="bf16")
     config = json.loads((out / "config.json").read_text())
     assert config["precision"] == "bf16" and config["precision_choice"]["mode"] == "bf16"
     assert tomllib.loads((out / "run.toml").read_text())["precision"] == "bf16"
-    assert np.isfinite(run.evaluate(episodes=2).mean_return)
+    assert run.final_eval["mean_return"] >= 400, run.final_eval
+    assert run.evaluate(episodes=4).mean_return >= 400
     # a folder written before precisions were recorded trained in float32, and loads so
     del config["precision"], config["precision_choice"]
     (out / "config.json").write_text(json.dumps(config))
@@ -160,11 +163,14 @@ def test_the_run_folder_records_the_precision_and_restores_with_it(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 @pytest.mark.timeout(300)
 def test_a_bf16_sac_learns_pendulum():
-    """Two bf16 seeds from random swings (about −1,200) to upright within 4,000 steps: what
-    tests/test_actor_critic.py asks of the float32 SAC in 5,000."""
-    cfg = presets.preset("sac", "pendulum", hidden=(64, 64), total_steps=4_000, learning_starts=500).config
+    """Two bf16 seeds from random swings (about −1,200) to upright in 5,000 steps: what
+    tests/test_actor_critic.py asks of the float32 SAC (~60 s on 2 shared cores: make test-long;
+    benchmarks/bench_precision.py compares both precisions' seeds)."""
+    overrides = {"hidden": (64, 64), "total_steps": 5_000, "learning_starts": 500}
+    cfg = presets.preset("sac", "pendulum", **overrides).config
     runner = RunnerConfig(seed=0, num_seeds=2, updates_per_chunk=1_000, eval_episodes=10)
     env = make_jax("Pendulum-v1")
     agent = agent_maker(algorithm("sac"), EnvSpec.of(env), cfg, precision="bf16")()
