@@ -9,8 +9,9 @@ functions over pytrees. Its contract, written once here:
 - ``make_agent(spec: EnvSpec, cfg, *, loop=jax.lax.scan, conv="xla", precision="f32") -> Agent``: the
   four pure functions below, closed over the env's spec and the config, and the experience they
   learn from (``conv``: the convolution backend the entry point chose, :mod:`agentax.kernel_choice`;
-  ``precision``: its networks' products, ``f32`` or ``bf16``, for acting and learning alike). Every runner drives
-  this one object; the compiled runner builds its program from it (:mod:`agentax.runners.rollout`).
+  ``precision``: its networks' products, ``f32`` or ``bf16``, for acting and learning alike).
+  Every runner drives this one object; the compiled runner builds its program from it
+  (:mod:`agentax.runners.rollout`).
 
 An :class:`Agent` is TF-Agents' agent in JAX terms:
 
