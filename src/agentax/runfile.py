@@ -60,7 +60,8 @@ class RunArgs:
     """independent agents trained together (vmapped into one program)"""
     workers: int | None = None
     """compiled runner: processes the seeds are split over, one per core; default: every core once
-    the seeds' agent steps reach the measured break-even in a run without --stop-at-return, else
+    the seeds' program cost (XLA's flops) reaches the measured break-even in a run without
+    --stop-at-return, else
     1 (the same split gives the same numbers; --stop-at-return then stops each worker once its own
     seeds reach the return)"""
     stop_at_return: str = "auto"
