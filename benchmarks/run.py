@@ -240,7 +240,10 @@ def render_readme(results: list[dict]) -> str:
 
 
 def stored_results() -> list[dict]:
-    return [json.loads(path.read_text()) for path in sorted(RESULTS_DIR.glob("*.json"))]
+    """Every stored section result (a JSON file of results/ holding :data:`REQUIRED_KEYS`; other
+    evidence kept there, such as flat_env_cost.json, is no section of the README)."""
+    results = [json.loads(path.read_text()) for path in sorted(RESULTS_DIR.glob("*.json"))]
+    return [r for r in results if isinstance(r, dict) and all(key in r for key in REQUIRED_KEYS)]
 
 
 def run_section(name: str, path: Path) -> dict:

@@ -69,7 +69,7 @@ def test_a_finished_sweep_is_read_back_and_another_request_is_refused(swept, mon
 
     assert json.loads((swept.path / "sweep.json").read_text())["workers"] == 1  # below the break-even
     # asked again where the default would split it: its own worker count, read back
-    monkeypatch.setattr(workers, "BREAK_EVEN_AGENT_STEPS", 1)
+    monkeypatch.setattr(workers, "BREAK_EVEN_FLOPS", 1)
     monkeypatch.setattr(workers, "usable_cores", lambda: 2)
     again = sweep("ppo", grid={"learning_rate": "1e-3,3e-3", "num_envs": "4,8"}, out=swept.path, **SMALL)
     assert [row["scores"] for row in again.settings] == [row["scores"] for row in swept.settings]

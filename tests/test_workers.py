@@ -71,11 +71,62 @@ def test_workers_refuse_a_runner_that_trains_one_seed(capsys):
 
 def test_every_core_by_default_once_the_run_reaches_the_break_even(monkeypatch):
     monkeypatch.setattr(workers, "usable_cores", lambda: 2)
-    below, at = workers.BREAK_EVEN_AGENT_STEPS - 1, workers.BREAK_EVEN_AGENT_STEPS
+    below, at = workers.BREAK_EVEN_FLOPS * 0.999, workers.BREAK_EVEN_FLOPS
     assert [workers.default_count(8, below), workers.default_count(8, at)] == [1, 2]
+    assert workers.default_count(8, lambda: at) == 2  # the cost asked for where it decides
     assert workers.default_count(1, 10 * at) == 1  # never more workers than seeds (or settings)
     monkeypatch.setattr(workers, "usable_cores", lambda: 1)
     assert workers.default_count(8, 10 * at) == 1
+
+
+def test_the_cost_counts_every_step_of_every_scan_which_xlas_count_takes_once():
+    import jax
+    import jax.numpy as jnp
+
+    from agentax.runners import cost
+
+    def inner(c, _):
+        return c @ c, None
+
+    def outer(c, _):
+        return jax.lax.scan(inner, c, None, length=4)[0], None
+
+    def matmuls(x):  # 3 × 4 nested steps of one [64, 64] product each, and one more outside
+        return jax.lax.scan(outer, x, None, length=3)[0] @ x
+
+    closed = jax.make_jaxpr(matmuls)(jnp.ones((64, 64)))
+    one = 2 * 64**3  # a [64, 64] @ [64, 64] product's multiply-adds
+    assert cost.xla_flops(closed) == pytest.approx(2 * one, rel=0.01)  # XLA: each body once
+    assert cost.flops(closed) == pytest.approx(13 * one, rel=0.01)
+
+
+@pytest.mark.slow
+def test_the_split_follows_the_programs_cost_not_its_steps(monkeypatch):
+    """Two seeds of 1M steps (2M agent steps, half the old step rule's break-even): PPO's default
+    64-64 CartPole program costs too little to gain from a second core (its calibration: XLA's
+    flops per step as :data:`workers.PPO_CARTPOLE_FLOPS_PER_STEP`), the same with 256-256 networks
+    (~15× the flops) gets both cores."""
+    import functools
+
+    from agentax.agents import ppo
+    from agentax.agents.presets import PPO_PRESETS
+    from agentax.agents.protocol import EnvSpec
+    from agentax.envs import make_jax
+    from agentax.runners import cost
+    from agentax.runners.compiled import program_of
+
+    monkeypatch.setattr(workers, "usable_cores", lambda: 2)
+    env = make_jax("CartPole-v1")
+    chosen, per_step = {}, {}
+    for hidden in ((64, 64), (256, 256)):
+        cfg = dataclasses.replace(PPO_PRESETS["default"].config, hidden=hidden, total_steps=1_000_000)
+        program = program_of(ppo.make_agent(EnvSpec.of(env), cfg), env)
+        seed_flops = functools.cache(functools.partial(cost.program_flops, program))
+        chosen[hidden] = workers.default_for(2, seed_flops, None)
+        per_step[hidden] = seed_flops() / cfg.total_steps
+    assert per_step[(64, 64)] == pytest.approx(workers.PPO_CARTPOLE_FLOPS_PER_STEP, rel=0.02)
+    assert per_step[(256, 256)] > 10 * per_step[(64, 64)]
+    assert chosen == {(64, 64): 1, (256, 256): 2}
 
 
 def test_the_chosen_split_is_announced_in_one_line(monkeypatch):
@@ -86,7 +137,7 @@ def test_the_chosen_split_is_announced_in_one_line(monkeypatch):
 
     monkeypatch.setattr(workers, "usable_cores", lambda: 2)
     preset = PPO_PRESETS["default"]
-    steps = workers.BREAK_EVEN_AGENT_STEPS // 4
+    steps = workers.BREAK_EVEN_AGENT_STEPS // 2  # 4 seeds: 8M PPO CartPole steps, twice the break-even
 
     def prepared(**given):
         run_args = runfile.RunArgs(**{"seeds": 4, "stop_at_return": "none", **given}).check()

@@ -187,17 +187,22 @@ def _announce(message: str, quiet: bool) -> None:
         print(message, file=sys.stderr)
 
 
-def _create(out: Path, algo: str, run_args: RunArgs, cfg: Any, kind: str, runner: Any) -> Any:
-    """The new run folder ``out``: config.json, and run.toml (the run file that repeats it)."""
+def _create(out: Path, algo: str, run_args: RunArgs, cfg: Any, kind: str, ready: launch.Launch) -> Any:
+    """The new run folder ``out``: config.json (with the networks' precision, ``precision``, and how
+    it was chosen, ``precision_choice``), and run.toml (the run file that repeats it)."""
     from agentax import runfile, runs
 
+    runner, precision = ready.runner, ready.precision["precision"]
     settings = config_to_dict(cfg)
     config = runs.run_config(algo, run_args.env, run_args.preset, kind, runner, settings, run_args.encoders)
+    config["precision"] = precision
+    about = ready.precision
+    config["precision_choice"] = {k: about[k] for k in ("mode", "why", "ms") if k in about}
     run = runs.Run.create(out, config)
     header = f"the run in {out}: agentax train --config {out / runs.RUN_FILE} --out NEW_FOLDER repeats it"
     preset = choose_preset(algo, run_args.env, run_args.preset)[0]
     workers = getattr(runner, "workers", run_args.workers)  # the compiled runner's, chosen or given
-    resolved = dataclasses.replace(run_args, preset=preset, workers=workers)
+    resolved = dataclasses.replace(run_args, preset=preset, workers=workers, precision=precision)
     runfile.write(out / runs.RUN_FILE, algo, resolved, cfg, header)
     return run
 
@@ -216,7 +221,7 @@ def start(algo: str, run_args: RunArgs, cfg: Any, preset: Preset, *, quiet: bool
     out = Path(run_args.out) if run_args.out else runs.default_run_dir(algo, run_args.env)
     kind = kind_for(run_args.runner, run_args.env)
     ready = launch.prepare(algorithm(algo), run_args, cfg, preset, kind)
-    run = _create(out, algo, run_args, cfg, kind, ready.runner)
+    run = _create(out, algo, run_args, cfg, kind, ready)
     _announce(f"training {algo} on {run_args.env} ({ready.where}) into {out}", quiet)
     return _trained(ready, run, resume=False, progress=run_args.progress)
 

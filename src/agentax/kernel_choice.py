@@ -35,6 +35,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -48,12 +49,14 @@ from agentax.errors import UsageError
 from agentax.kernels import (
     BACKENDS,
     LIBRARY,
+    PRECISIONS,
     available,
     check,
     conv2d,
     dense,
     implementation,
     learning_loop,
+    matmul,
     unavailable_reason,
 )
 
@@ -147,9 +150,12 @@ def cache_path() -> Path | None:
     return Path(setting) if setting else Path.home() / ".cache" / "agentax" / "kernels.json"
 
 
-def choice_fields(cpu: tuple[str, frozenset[str]], batch: int = CHOICE_BATCH) -> dict[str, str]:
+def choice_fields(
+    cpu: tuple[str, frozenset[str]], batch: int = CHOICE_BATCH, shape: str | None = None
+) -> dict[str, str]:
     """What a measured choice depends on: the CPU's name and flags, the kernel library (its size and
-    time, so a rebuild measures again), jax, oneDNN's threads, the CPUs and the measured shape."""
+    time, so a rebuild measures again), jax, oneDNN's threads, the CPUs and the measured ``shape``
+    (default: the convolution backends' update of ``batch``)."""
     import jaxlib
 
     name, flags = cpu
@@ -167,7 +173,7 @@ def choice_fields(cpu: tuple[str, frozenset[str]], batch: int = CHOICE_BATCH) ->
         "jax": f"{jax.__version__} (jaxlib {jaxlib.__version__})",
         "threads": os.environ.get("AGENTAX_CONV_THREADS", "1"),
         "cpus": str(cpus),
-        "shape": f"Nature-CNN DQN update, batch {batch}",
+        "shape": shape or f"Nature-CNN DQN update, batch {batch}",
     }
 
 
@@ -231,19 +237,27 @@ def _locked(path: Path | None) -> Iterator[None]:
         yield
 
 
-def measure(runnable: list[str], batch: int = CHOICE_BATCH) -> tuple[dict[str, float], dict[str, str]]:
+def measure(
+    runnable: list[str],
+    batch: int = CHOICE_BATCH,
+    printer: str = "print_update_times",
+    cpu_only: bool = True,
+    shape: tuple[int, ...] = (),
+) -> tuple[dict[str, float], dict[str, str]]:
     """ms per Nature-CNN DQN update of ``batch`` for each backend of ``runnable``, timed in a fresh
     process (:func:`time_updates`), and why any could not be timed. Not in this one: it may be
     tracing a program now (jax would stage the measurement into it), and the measurement's programs
-    stay out of its memory; a process that hangs or fails gives no timings."""
+    stay out of its memory; a process that hangs or fails gives no timings. ``printer``: the
+    function of this module the process runs (another choice's timings, :func:`print_precision_times`,
+    handed ``shape`` after the batch), on jax's CPU backend where ``cpu_only``."""
     source = str(Path(__file__).resolve().parents[1])  # this agentax, whatever sys.path holds
     env = {
         **os.environ,
-        "JAX_PLATFORMS": "cpu",
+        **({"JAX_PLATFORMS": "cpu"} if cpu_only else {}),
         "PYTHONPATH": os.pathsep.join([source, *filter(None, [os.environ.get("PYTHONPATH")])]),
     }
-    script = "import sys; from agentax import kernel_choice; kernel_choice.print_update_times(sys.argv[1:])"
-    command = [sys.executable, "-c", script, str(batch), *runnable]
+    script = f"import sys; from agentax import kernel_choice; kernel_choice.{printer}(sys.argv[1:])"
+    command = [sys.executable, "-c", script, str(batch), *map(str, shape), *runnable]
     try:
         done = subprocess.run(
             command,
@@ -288,15 +302,11 @@ def time_updates(
             updates[name] = update
         except Exception as error:  # a kernel that fails here is no candidate
             errors[name] = f"{type(error).__name__}: {error}"[:300]
-    best = dict.fromkeys(updates, float("inf"))
-    for _ in range(rounds):
-        for name, update in updates.items():
-            state = params
-            start = time.perf_counter()
-            for _ in range(loop):
-                state = update(state, params, obs, next_obs, action)
-            jax.block_until_ready(state)
-            best[name] = min(best[name], (time.perf_counter() - start) / loop * 1e3)
+
+    def step(update, state):
+        return update(state, params, obs, next_obs, action)
+
+    best = _interleaved(updates, step, params, rounds, loop)
     return {name: round(ms, 2) for name, ms in best.items()}, errors
 
 
@@ -342,6 +352,35 @@ def dqn_update(backend: str = "xla") -> Callable:
     return update
 
 
+@dataclass(frozen=True)
+class Question:
+    """What an ``auto`` choice measures and how it falls back: the convolution backend's
+    (:data:`CONV`) or the networks' precision (:data:`PRECISION`), one cache and one mechanism."""
+
+    shape: str
+    """what is timed (in the cache's key: another shape is measured apart)"""
+    batch: int
+    """the batch the timer is handed"""
+    timer: Callable[[list[str], int], tuple[dict[str, float], dict[str, str]]]
+    """``timer(runnable, batch) -> (ms, errors)``, in a fresh process"""
+    unmeasured: Callable[[list[str], frozenset[str]], str]
+    """the choice where nothing is kept and nothing may be (or could be) measured"""
+    unmeasured_why: str
+    """why, in words"""
+    on_accelerator: str | None = "xla"
+    """the choice where jax runs on an accelerator, unmeasured (None: measured there too)"""
+
+
+CONV = Question(
+    f"Nature-CNN DQN update, batch {CHOICE_BATCH}",
+    CHOICE_BATCH,
+    lambda runnable, batch: measure(runnable, batch),
+    flag_rule,
+    "not measured (AGENTAX_KERNELS_MEASURE=0): the CPU flags' choice",
+)
+"""The convolution backend's question (:func:`choice`)."""
+
+
 def resolve(
     runnable: list[str],
     excluded: dict[str, str],
@@ -351,37 +390,39 @@ def resolve(
     cpu: tuple[str, frozenset[str]] | None = None,
     again: bool = False,
     measuring: bool = True,
+    question: Question = CONV,
 ) -> dict[str, Any]:
     """``auto``'s choice among ``runnable``: the kept one for this machine (:func:`choice_fields`),
-    else the fastest that ``timer(runnable, batch) -> (ms, errors)`` (default :func:`measure`)
-    finds, kept in ``path`` for the next process (``again``: measured afresh). Where nothing could
-    be timed, :func:`flag_rule`'s; without ``measuring``, where nothing is kept, :func:`flag_rule`'s
-    too, kept nowhere (``source``: ``unmeasured``)."""
+    else the fastest that ``timer(runnable, batch) -> (ms, errors)`` (default the ``question``'s,
+    :func:`measure`) finds, kept in ``path`` for the next process (``again``: measured afresh).
+    Where nothing could be timed, the question's ``unmeasured`` choice (:func:`flag_rule`'s for the
+    backend); without ``measuring``, where nothing is kept, the same, kept nowhere (``source``:
+    ``unmeasured``). The choice is under ``backend`` whatever the question."""
     name, flags = cpu or cpu_info()
     about = {"mode": "auto", "cpu": name, "candidates": runnable, "excluded": excluded}
     about["cache"] = None if path is None else str(path)
-    if _xla._accelerator_expected():
-        return {**about, "backend": "xla", "why": "jax runs on an accelerator: XLA's convolutions", "ms": {}}
-    if runnable == ["xla"]:
+    if question.on_accelerator is not None and _xla._accelerator_expected():
+        why = f"jax runs on an accelerator: {question.on_accelerator}, unmeasured"
+        return {**about, "backend": question.on_accelerator, "why": why, "ms": {}}
+    if len(runnable) == 1:
         why = next(iter(excluded.values()), "no other candidate")
-        return {**about, "backend": "xla", "why": f"the only candidate ({why})", "ms": {}}
-    fields = choice_fields((name, flags))
+        return {**about, "backend": runnable[0], "why": f"the only candidate ({why})", "ms": {}}
+    fields = choice_fields((name, flags), question.batch, question.shape)
     key = choice_key(fields)
     with _locked(path):
         choices = read_choices(path)
         entry = None if again else _kept(choices.get(key), runnable)
         source = "kept"
         if entry is None and not measuring:
-            why = "not measured (AGENTAX_KERNELS_MEASURE=0): the CPU flags' choice"
             return {
                 **about,
-                "backend": flag_rule(runnable, flags),
-                "why": why,
+                "backend": question.unmeasured(runnable, flags),
+                "why": question.unmeasured_why,
                 "ms": {},
                 "source": "unmeasured",
             }
         if entry is None:
-            ms, errors = (timer or measure)(runnable, CHOICE_BATCH)
+            ms, errors = (timer or question.timer)(runnable, question.batch)
             entry = {
                 "fields": fields,
                 "ms": ms,
@@ -392,9 +433,10 @@ def resolve(
                 entry["backend"] = fastest(ms)
                 entry["why"] = f"the fastest of {len(ms)} measured"
             else:
-                entry["backend"] = flag_rule(runnable, flags)
+                entry["backend"] = question.unmeasured(runnable, flags)
                 entry["why"] = (
-                    "nothing could be timed: the CPU flags' choice (`agentax kernels --measure` tries again)"
+                    f"nothing could be timed: {question.unmeasured_why.split(': ', 1)[-1]} "
+                    "(`agentax kernels --measure` tries again)"
                 )
             write_choices(path, {**choices, key: entry})
             source = "measured"
@@ -472,3 +514,106 @@ def learning_loop_for(obs_shape: Sequence[int]) -> Callable:
     """:func:`agentax.kernels.learning_loop` for the backend :func:`backend_for` chose (the entry
     point's choice, kept for the process: nothing is measured again)."""
     return learning_loop(obs_shape, backend_for(obs_shape))
+
+
+# The networks' precision: the same mechanism, another question.
+
+PRECISION_BATCH = 256
+"""The batch of the learning step :func:`precision_choice` times (SAC's and TD3's minibatch)."""
+PRECISION_MODES = ("auto", *PRECISIONS)
+
+
+def precision_question(width: int) -> Question:
+    """The precision's question for networks of hidden ``width``: which of :data:`PRECISIONS` takes
+    fewer ms per MLP learning step (:func:`time_precisions`); ``f32`` unmeasured (never a CPU flag's
+    guess), measured on an accelerator too."""
+    return Question(
+        f"MLP learning step, batch {PRECISION_BATCH}, 2 hidden layers of {width}",
+        PRECISION_BATCH,
+        lambda runnable, batch: measure(runnable, batch, "print_precision_times", False, (width,)),
+        lambda runnable, flags: "f32",
+        "not measured (AGENTAX_KERNELS_MEASURE=0): f32, the float32 products",
+        on_accelerator=None,
+    )
+
+
+def print_precision_times(argv: list[str]) -> None:
+    """The measuring process of :func:`precision_question`: ``argv`` is the batch, the width, then
+    the precisions; prints ``{"ms": {precision: ms}, "errors": {precision: why}}`` as its last line."""
+    ms, errors = time_precisions(argv[2:], int(argv[0]), int(argv[1]))
+    print(json.dumps({"ms": ms, "errors": errors}))
+
+
+def mlp_update(precision: str) -> Callable:
+    """An MLP learning step in ``precision`` ``(params, x [B, in], y [B, out]) -> params``: forward,
+    backward of the squared error, an SGD step (a critic's products; :func:`agentax.kernels.matmul`)."""
+
+    def forward(params, x):
+        for w, b in params[:-1]:
+            x = jax.nn.relu(matmul(x, w, precision) + b)
+        w, b = params[-1]
+        return matmul(x, w, precision) + b
+
+    def update(params, x, y):
+        grads = jax.grad(lambda p: jnp.mean((forward(p, x) - y) ** 2))(params)
+        return jax.tree.map(lambda p, g: p - 1e-4 * g, params, grads)
+
+    return update
+
+
+def time_precisions(
+    precisions: list[str], batch: int, width: int, rounds: int = 8, loop: int = 10
+) -> tuple[dict[str, float], dict[str, str]]:
+    """ms per MLP learning step (:func:`mlp_update`; 32 inputs, two hidden layers of ``width``, 8
+    outputs) of ``batch`` in each precision, interleaved in ``rounds`` rounds of ``loop`` calls,
+    the fastest round of each kept; and why any failed."""
+    sizes = (32, width, width, 8)
+    keys = jax.random.split(jax.random.key(0), len(sizes))
+    params = [
+        (jax.random.normal(k, (a, b)) / np.sqrt(a), jnp.zeros(b))
+        for k, a, b in zip(keys, sizes[:-1], sizes[1:], strict=False)
+    ]
+    x, y = jax.random.normal(keys[-1], (batch, sizes[0])), jnp.zeros((batch, sizes[-1]))
+    updates, errors = {}, {}
+    for name in precisions:
+        try:
+            update = jax.jit(mlp_update(name))
+            jax.block_until_ready(update(params, x, y))
+            updates[name] = update
+        except Exception as error:  # a precision that fails here is no candidate
+            errors[name] = f"{type(error).__name__}: {error}"[:300]
+    return _interleaved(updates, lambda update, state: update(state, x, y), params, rounds, loop), errors
+
+
+def _interleaved(calls: dict[str, Callable], step: Callable, state: Any, rounds: int, loop: int) -> dict:
+    """ms per ``step(call, state) -> state`` of each of ``calls``: ``rounds`` rounds of ``loop`` steps
+    of each in turn (another process's load falls on all alike), the fastest round kept."""
+    best = dict.fromkeys(calls, float("inf"))
+    for _ in range(rounds):
+        for name, call in calls.items():
+            current = state
+            start = time.perf_counter()
+            for _ in range(loop):
+                current = step(call, current)
+            jax.block_until_ready(current)
+            best[name] = min(best[name], (time.perf_counter() - start) / loop * 1e3)
+    return {name: round(ms, 3) for name, ms in best.items()}
+
+
+def precision_choice(requested: str, width: int = 256, again: bool = False) -> dict[str, Any]:
+    """The networks' precision for ``--precision requested`` and why (a dict for the run's config):
+    ``f32`` or ``bf16`` as asked; ``auto``: the faster here of a learning step of networks of hidden
+    ``width`` (:func:`precision_question`), measured once per machine and width in another process,
+    kept with the convolution backend's choices (:func:`resolve`); ``precision`` holds the choice."""
+    if requested not in PRECISION_MODES:
+        raise UsageError(f"--precision must be one of {', '.join(PRECISION_MODES)}, got {requested!r}")
+    if requested != "auto":
+        return {"mode": requested, "precision": requested, "why": f"--precision {requested}"}
+    runnable, path = list(PRECISIONS), cache_path()
+    memo = ("precision", width, str(path))
+    if again or memo not in _resolved:
+        question = precision_question(width)
+        measure_now = again or measuring()
+        about = resolve(runnable, {}, path=path, again=again, measuring=measure_now, question=question)
+        _resolved[memo] = {**about, "precision": about["backend"]}
+    return _resolved[memo]

@@ -15,6 +15,11 @@ argument (one of :data:`BACKENDS`), chosen before tracing by the entry point
   inputs, weights and gradients stay float32 outside, rounded to bfloat16 inside, accumulated in
   float32.
 
+The networks' other products take a precision (one of :data:`PRECISIONS`, chosen by the entry point
+as the backend is, :func:`agentax.kernel_choice.precision_choice`): :func:`matmul` and
+:func:`dot_general_for` give ``bf16`` products (bfloat16 operands, float32 accumulation, float32
+out) or leave XLA's float32 ones exactly as they were.
+
 ``AGENTAX_CONV_THREADS`` sets oneDNN's OpenMP threads (default 1; ``OMP_WAIT_POLICY`` defaults to
 ``PASSIVE``, so that idle OpenMP threads sleep instead of spinning on a core that XLA or an env
 thread needs): with one core busy elsewhere, a DQN update took 30.4 ms with two threads against 28.7
@@ -235,6 +240,74 @@ def dot_general(lhs, rhs, dimension_numbers, precision=None, preferred_element_t
     if plain:
         return dense(lhs, rhs, backend)
     return lax.dot_general(lhs, rhs, dimension_numbers, precision, preferred_element_type)
+
+
+PRECISIONS = ("f32", "bf16")
+"""The precisions of the networks' products a network can be handed: ``f32`` (XLA's float32
+products, the golden numbers') or ``bf16`` (:func:`bf16_matmul`: bfloat16 operands, float32 sums)."""
+
+
+def _bf16_product(a: jax.Array, b: jax.Array, contract: tuple[tuple[int, ...], tuple[int, ...]]) -> jax.Array:
+    """``a`` and ``b`` rounded to bfloat16 and contracted over ``contract``, summed in float32."""
+    bf16 = jnp.bfloat16
+    dimensions = (contract, ((), ()))
+    return lax.dot_general(a.astype(bf16), b.astype(bf16), dimensions, preferred_element_type=jnp.float32)
+
+
+@jax.custom_vjp
+def bf16_matmul(x: jax.Array, w: jax.Array) -> jax.Array:
+    """``x [..., K] @ w [K, N]`` → float32 ``[..., N]`` with bfloat16 operands and float32 accumulation
+    (one rounding of each operand; XLA's CPU backend hands it to YNNPACK's bf16 kernels, AMX or
+    AVX512-BF16 where the CPU has them). Its gradients are products of the same kind: the incoming
+    gradient is rounded to bfloat16 too, the gradients come out float32 (the parameters, their
+    gradients and the optimizer's moments stay float32)."""
+    return _bf16_product(x, w, ((x.ndim - 1,), (0,)))
+
+
+def _bf16_matmul_forward(x, w):
+    return bf16_matmul(x, w), (x.astype(jnp.bfloat16), w.astype(jnp.bfloat16))
+
+
+def _bf16_matmul_backward(residuals, dy):
+    x, w = residuals  # bf16 [..., K], [K, N]; dy float32 [..., N]
+    dx = _bf16_product(dy, w, ((dy.ndim - 1,), (1,)))  # [..., K]
+    rows = x.reshape(-1, x.shape[-1])
+    dw = _bf16_product(rows, dy.reshape(-1, dy.shape[-1]), ((0,), (0,)))  # [K, N]
+    return dx, dw
+
+
+bf16_matmul.defvjp(_bf16_matmul_forward, _bf16_matmul_backward)
+
+
+def matmul(x: jax.Array, w: jax.Array, precision: str = "f32") -> jax.Array:
+    """``x [..., K] @ w [K, N]`` → ``[..., N]`` in ``precision``: ``x @ w`` exactly for ``f32``,
+    :func:`bf16_matmul` for ``bf16``."""
+    return bf16_matmul(x, w) if check_precision(precision) == "bf16" else x @ w
+
+
+def bf16_dot_general(lhs, rhs, dimension_numbers, precision=None, preferred_element_type=None):
+    """``lax.dot_general``'s signature for ``nn.Dense(dot_general=...)``: a dense layer's product
+    (``lhs [..., K]`` contracted with a ``[K, N]`` kernel) is :func:`bf16_matmul`; any other
+    contraction gets bfloat16 operands and float32 sums without the custom gradient."""
+    if rhs.ndim == 2 and dimension_numbers == (((lhs.ndim - 1,), (0,)), ((), ())):
+        return bf16_matmul(lhs, rhs)
+    bf16 = jnp.bfloat16
+    return lax.dot_general(
+        lhs.astype(bf16), rhs.astype(bf16), dimension_numbers, precision, preferred_element_type=jnp.float32
+    )
+
+
+def dot_general_for(precision: str) -> Callable | None:
+    """``nn.Dense``'s ``dot_general`` for ``precision``: None (flax's own ``lax.dot_general``, so
+    float32 networks trace exactly as before) for ``f32``, :func:`bf16_dot_general` for ``bf16``."""
+    return bf16_dot_general if check_precision(precision) == "bf16" else None
+
+
+def check_precision(precision: str) -> str:
+    """``precision`` if it is one of :data:`PRECISIONS`, else a ``UsageError`` naming them."""
+    if precision not in PRECISIONS:
+        raise UsageError(f"unknown precision {precision!r}; choose from {', '.join(PRECISIONS)}")
+    return precision
 
 
 def conv_general_dilated(

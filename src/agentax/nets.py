@@ -12,6 +12,7 @@ state-independent ``log_std`` for PPO and REINFORCE, a state-dependent bounded o
 
 from __future__ import annotations
 
+import functools
 import itertools
 from collections.abc import Sequence
 from typing import Any
@@ -26,6 +27,13 @@ from agentax.envs.spaces import NATURE_PIXELS
 ACTIVATIONS = {"elu": nn.elu, "relu": nn.relu, "tanh": nn.tanh, "gelu": nn.gelu, "swish": nn.swish}
 
 
+def dense_layer(features: int, precision: str = "f32", **kwargs: Any) -> nn.Dense:
+    """``nn.Dense(features, **kwargs)`` whose product is in ``precision``: flax's own for ``f32``
+    (parameters and numbers as always), bfloat16 operands with float32 sums for ``bf16``
+    (:func:`agentax.kernels.dot_general_for`); parameters and outputs float32 either way."""
+    return nn.Dense(features, dot_general=kernels.dot_general_for(precision), **kwargs)
+
+
 class MLP(nn.Module):
     """Dense layers with one activation: ``[..., in] -> [..., hidden[-1]]`` (or ``out`` if given)."""
 
@@ -35,15 +43,17 @@ class MLP(nn.Module):
     layer_norm: bool = False
     """LayerNorm between each dense layer and its activation (PQN's regularizer: it keeps TD learning
     stable without a target network)"""
+    precision: str = "f32"
+    """the products' precision (:data:`agentax.kernels.PRECISIONS`), chosen by the entry point"""
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         act = ACTIVATIONS[self.activation]
         for width in self.hidden:
-            x = nn.Dense(width)(x)
+            x = dense_layer(width, self.precision)(x)
             x = act(nn.LayerNorm()(x) if self.layer_norm else x)
         if self.out is not None:
-            x = nn.Dense(self.out)(x)
+            x = dense_layer(self.out, self.precision)(x)
         return x
 
 
@@ -59,12 +69,18 @@ class NatureCNN(nn.Module):
     """LayerNorm before each ReLU (PQN's network, as purejaxql's ``pqn_atari``)"""
     conv: str = "xla"
     """the convolution backend (:data:`agentax.kernels.BACKENDS`), chosen by the entry point"""
+    precision: str = "f32"
+    """the dense layer's precision where the backend is XLA's (oneDNN's keeps its own); the
+    convolutions stay the backend's"""
 
     @nn.compact
     def __call__(self, frames: jax.Array) -> jax.Array:
         x = nature_convolutions(frames, self.layer_norm, self.conv)
         init = nn.initializers.orthogonal(jnp.sqrt(2.0))
-        x = nn.Dense(512, kernel_init=init, dot_general=kernels.dot_general_with(self.conv))(x)
+        if self.conv == "xla" and self.precision != "f32":
+            x = dense_layer(512, self.precision, kernel_init=init)(x)
+        else:
+            x = nn.Dense(512, kernel_init=init, dot_general=kernels.dot_general_with(self.conv))(x)
         return nn.relu(nn.LayerNorm()(x) if self.layer_norm else x)
 
 
@@ -107,6 +123,8 @@ class Encoder(nn.Module):
 
     layout: Any
     """an :class:`agentax.envs.spaces.Layout`"""
+    precision: str = "f32"
+    """the products' precision (:data:`agentax.kernels.PRECISIONS`), chosen by the entry point"""
 
     @nn.compact
     def __call__(self, packed: jax.Array) -> jax.Array:
@@ -114,7 +132,7 @@ class Encoder(nn.Module):
         for leaf in self.layout.leaves:
             if leaf.kind != "mask":
                 x = packed[..., leaf.start : leaf.start + leaf.size]
-                parts.append(LEAF_ENCODERS[resolved_encoder(leaf)](leaf, x))
+                parts.append(LEAF_ENCODERS[resolved_encoder(leaf)](leaf, x, self.precision))
         return jnp.concatenate(parts, axis=-1)
 
 
@@ -127,13 +145,13 @@ def resolved_encoder(leaf: Any) -> str:
     return "one_hot" if leaf.kind in ("discrete", "multi_discrete") else "flat"
 
 
-def one_hot_entries(leaf: Any, x: jax.Array) -> jax.Array:
+def one_hot_entries(leaf: Any, x: jax.Array, precision: str = "f32") -> jax.Array:
     """A Discrete or MultiDiscrete leaf ``[..., k]`` → one one-hot per entry ``[..., Σ categories]``."""
     ints = x.astype(jnp.int32)
     return jnp.concatenate([jax.nn.one_hot(ints[..., i], n) for i, n in enumerate(leaf.categories)], -1)
 
 
-def flat_numbers(leaf: Any, x: jax.Array) -> jax.Array:
+def flat_numbers(leaf: Any, x: jax.Array, precision: str = "f32") -> jax.Array:
     """A leaf's entries ``[..., size]`` as floats, scaled (an image's pixels, a vector, an integer)."""
     return x.astype(jnp.float32) * leaf.scale
 
@@ -142,8 +160,8 @@ def image_encoder(torso: str) -> Any:
     """``encode(leaf, x)``: an image leaf through an :class:`ImageEncoder` with ``torso`` (created
     in the calling module, so its parameters keep their names: ``ImageEncoder_<i>``)."""
 
-    def encode(leaf: Any, x: jax.Array) -> jax.Array:
-        return ImageEncoder(leaf.image_hwc, leaf.channels_first, leaf.scale, torso)(x)
+    def encode(leaf: Any, x: jax.Array, precision: str = "f32") -> jax.Array:
+        return ImageEncoder(leaf.image_hwc, leaf.channels_first, leaf.scale, torso, precision)(x)
 
     return encode
 
@@ -155,7 +173,7 @@ LEAF_ENCODERS: dict[str, Any] = {
     "scalar": flat_numbers,
     "flat": flat_numbers,
 }
-"""Each encoder choice (:data:`agentax.envs.spaces.ENCODERS`) → ``encode(leaf, x [..., size]) →
+"""Each encoder choice (:data:`agentax.envs.spaces.ENCODERS`) → ``encode(leaf, x [..., size], precision) →
 features [..., F]``: nature 512, small 256, one_hot Σ categories, scalar one per entry, flat size."""
 
 
@@ -168,6 +186,8 @@ class ImageEncoder(nn.Module):
     channels_first: bool = False
     scale: float = 1.0
     torso: str = "auto"
+    precision: str = "f32"
+    """the dense layer's and the small convolutions' precision (the Nature CNN's stay float32)"""
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
@@ -185,9 +205,10 @@ class ImageEncoder(nn.Module):
             for features, size, stride in ((32, 8, 4), (64, 4, 2), (64, 3, 1)):
                 x = nn.relu(nn.Conv(features, (size, size), (stride, stride), "VALID", kernel_init=init)(x))
         else:  # as matrix products over patches: nn.Conv ran ~5x slower in the runner's programs
-            x = nn.relu(MatmulConv(16, 3, init)(x))
-            x = nn.relu(MatmulConv(32, 3, init)(x))
-        x = nn.relu(nn.Dense(512 if large else 256, kernel_init=init)(x.reshape(x.shape[0], -1)))
+            x = nn.relu(MatmulConv(16, 3, init, self.precision)(x))
+            x = nn.relu(MatmulConv(32, 3, init, self.precision)(x))
+        features = 512 if large else 256
+        x = nn.relu(dense_layer(features, self.precision, kernel_init=init)(x.reshape(x.shape[0], -1)))
         return x.reshape(*batch_shape, -1)
 
 
@@ -198,10 +219,12 @@ class MatmulConv(nn.Module):
     features: int
     size: int
     kernel_init: Any = nn.initializers.lecun_normal()
+    precision: str = "f32"
+    """the products' precision (:data:`agentax.kernels.PRECISIONS`), chosen by the entry point"""
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        return valid_conv_as_matmul(self, x, self.features, self.size, self.kernel_init)
+        return valid_conv_as_matmul(self, x, self.features, self.size, self.kernel_init, self.precision)
 
 
 class Encoded(nn.Module):
@@ -210,16 +233,18 @@ class Encoded(nn.Module):
 
     layout: Any
     net: nn.Module
+    precision: str = "f32"
+    """the encoder's precision (the net has its own)"""
 
     @nn.compact
     def __call__(self, obs: jax.Array, *args, **kwargs):
-        return self.net(Encoder(self.layout)(obs), *args, **kwargs)
+        return self.net(Encoder(self.layout, self.precision)(obs), *args, **kwargs)
 
 
-def with_encoder(net: nn.Module, layout: Any) -> nn.Module:
+def with_encoder(net: nn.Module, layout: Any, precision: str = "f32") -> nn.Module:
     """``net`` itself for plain observations (``layout`` None: parameters as they always were), else
-    :class:`Encoded`."""
-    return net if layout is None else Encoded(layout, net)
+    :class:`Encoded` (its encoder's products in ``precision``)."""
+    return net if layout is None else Encoded(layout, net, precision)
 
 
 def unwrapped(net: nn.Module) -> nn.Module:
@@ -244,14 +269,16 @@ class PolicyNet(nn.Module):
     hidden: Sequence[int] = (5,)
     activation: str = "elu"
     sigmoid_head: bool = False
+    precision: str = "f32"
+    """the products' precision (:data:`agentax.kernels.PRECISIONS`), chosen by the entry point"""
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
-        x = MLP(self.hidden, self.activation)(obs)
+        x = MLP(self.hidden, self.activation, precision=self.precision)(obs)
         if self.sigmoid_head:
-            z = nn.Dense(1)(x)
+            z = dense_layer(1, self.precision)(x)
             return jnp.concatenate([z, jnp.zeros_like(z)], axis=-1)
-        return nn.Dense(self.num_actions)(x)
+        return dense_layer(self.num_actions, self.precision)(x)
 
 
 class GaussianPolicyNet(nn.Module):
@@ -262,10 +289,13 @@ class GaussianPolicyNet(nn.Module):
     action_dim: int
     hidden: Sequence[int] = (64, 64)
     activation: str = "tanh"
+    precision: str = "f32"
+    """the products' precision (:data:`agentax.kernels.PRECISIONS`), chosen by the entry point"""
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
-        return gaussian_head(self, MLP(self.hidden, self.activation, out=self.action_dim)(obs))
+        mlp = MLP(self.hidden, self.activation, out=self.action_dim, precision=self.precision)
+        return gaussian_head(self, mlp(obs))
 
 
 def gaussian_head(
@@ -295,11 +325,14 @@ class SquashedGaussianActor(nn.Module):
     activation: str
     log_std_min: float
     log_std_max: float
+    precision: str = "f32"
+    """the products' precision (:data:`agentax.kernels.PRECISIONS`), chosen by the entry point"""
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
-        x = MLP(self.hidden, self.activation)(obs.astype(jnp.float32))
-        return gaussian_head(self, nn.Dense(2 * self.action_dim)(x), (self.log_std_min, self.log_std_max))
+        x = MLP(self.hidden, self.activation, precision=self.precision)(obs.astype(jnp.float32))
+        out = dense_layer(2 * self.action_dim, self.precision)(x)
+        return gaussian_head(self, out, (self.log_std_min, self.log_std_max))
 
 
 def sample_squashed(mean: jax.Array, log_std: jax.Array, key: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -355,6 +388,8 @@ class NoisyDense(nn.Module):
 
     features: int
     sigma0: float = 0.5
+    precision: str = "f32"
+    """the products' precision (:data:`agentax.kernels.PRECISIONS`), chosen by the entry point"""
 
     @nn.compact
     def __call__(self, x: jax.Array, deterministic: bool = True) -> jax.Array:
@@ -370,9 +405,10 @@ class NoisyDense(nn.Module):
         sigma_kernel = self.param("sigma_kernel", sigma, (in_features, self.features))
         sigma_bias = self.param("sigma_bias", sigma, (self.features,))
         if deterministic:
-            return x @ kernel + bias
+            return kernels.matmul(x, kernel, self.precision) + bias
         eps_kernel, eps_bias = factorised_noise(self.make_rng("noise"), in_features, self.features)
-        return x @ (kernel + sigma_kernel * eps_kernel) + bias + sigma_bias * eps_bias
+        noisy_kernel = kernel + sigma_kernel * eps_kernel
+        return kernels.matmul(x, noisy_kernel, self.precision) + bias + sigma_bias * eps_bias
 
 
 class QNetwork(nn.Module):
@@ -400,24 +436,28 @@ class QNetwork(nn.Module):
     noisy_sigma0: float = 0.5
     conv: str = "xla"
     """the Nature CNN's convolution backend (with ``cnn``)"""
+    precision: str = "f32"
+    """the products' precision (:data:`agentax.kernels.PRECISIONS`), chosen by the entry point"""
 
     @nn.compact
     def __call__(self, obs: jax.Array, deterministic: bool = True) -> jax.Array:
+        precision = self.precision
+
         def dense(features: int):
             if self.noisy:
-                return lambda x: NoisyDense(features, self.noisy_sigma0)(x, deterministic)
-            return nn.Dense(features)
+                return lambda x: NoisyDense(features, self.noisy_sigma0, precision)(x, deterministic)
+            return dense_layer(features, precision)
 
         if not self.noisy:
             x = (
-                NatureCNN(conv=self.conv)(obs)
+                NatureCNN(conv=self.conv, precision=precision)(obs)
                 if self.cnn
-                else MLP(self.hidden, self.activation)(obs.astype(jnp.float32))
+                else MLP(self.hidden, self.activation, precision=precision)(obs.astype(jnp.float32))
             )
         elif self.cnn:
             x = nn.relu(dense(512)(NatureConvTorso(self.conv)(obs)))
         else:
-            x = MLP(self.hidden[:-1], self.activation)(obs.astype(jnp.float32))
+            x = MLP(self.hidden[:-1], self.activation, precision=precision)(obs.astype(jnp.float32))
             if self.hidden:
                 x = ACTIVATIONS[self.activation](dense(self.hidden[-1])(x))
         atoms = self.num_atoms or 1
@@ -537,23 +577,27 @@ class ActorCritic(nn.Module):
     """one MinAtar conv torso shared by actor and critic, on flat observations of this ``[H, W, C]``"""
     conv: str = "xla"
     """the Nature CNN's convolution backend (with ``cnn``)"""
+    precision: str = "f32"
+    """the products' precision (:data:`agentax.kernels.PRECISIONS`), chosen by the entry point"""
 
     @nn.compact
     def __call__(self, obs: jax.Array):
         act = ACTIVATIONS[self.activation]
         hidden_init = nn.initializers.orthogonal(jnp.sqrt(2.0))
         shared = self.cnn or self.image_shape is not None
+        precision = self.precision
         if self.cnn:
-            actor = critic = NatureCNN(conv=self.conv)(obs)
+            actor = critic = NatureCNN(conv=self.conv, precision=precision)(obs)
         elif self.image_shape is not None:
-            actor = critic = MinAtarCNN(tuple(self.image_shape))(obs)
+            actor = critic = MinAtarCNN(tuple(self.image_shape), precision=precision)(obs)
         else:
             actor = critic = obs.astype(jnp.float32)
         for width in () if shared else self.hidden:
-            actor = act(nn.Dense(width, kernel_init=hidden_init)(actor))
-            critic = act(nn.Dense(width, kernel_init=hidden_init)(critic))
-        actor_out = nn.Dense(self.action_dim, kernel_init=nn.initializers.orthogonal(0.01))(actor)
-        value = nn.Dense(1, kernel_init=nn.initializers.orthogonal(1.0))(critic)[..., 0]
+            actor = act(dense_layer(width, precision, kernel_init=hidden_init)(actor))
+            critic = act(dense_layer(width, precision, kernel_init=hidden_init)(critic))
+        orthogonal = nn.initializers.orthogonal
+        actor_out = dense_layer(self.action_dim, precision, kernel_init=orthogonal(0.01))(actor)
+        value = dense_layer(1, precision, kernel_init=orthogonal(1.0))(critic)[..., 0]
         return (gaussian_head(self, actor_out) if self.continuous else actor_out), value
 
 
@@ -586,23 +630,28 @@ class MinAtarCNN(nn.Module):
     image_shape: tuple[int, ...]
     features: int = 128
     layer_norm: bool = False
+    precision: str = "f32"
+    """the products' precision (:data:`agentax.kernels.PRECISIONS`), chosen by the entry point"""
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
         batch_shape = obs.shape[:-1]
         x = obs.astype(jnp.float32).reshape(-1, *self.image_shape)  # (N, H, W, C)
         init = nn.initializers.orthogonal(jnp.sqrt(2.0))
-        x = valid_conv_as_matmul(self, x, 16, 3, init)  # (N, H-2, W-2, 16)
+        x = valid_conv_as_matmul(self, x, 16, 3, init, self.precision)  # (N, H-2, W-2, 16)
         x = nn.relu(nn.LayerNorm()(x) if self.layer_norm else x)
-        x = nn.Dense(self.features, kernel_init=init)(x.reshape(x.shape[0], -1))
+        x = dense_layer(self.features, self.precision, kernel_init=init)(x.reshape(x.shape[0], -1))
         x = nn.relu(nn.LayerNorm()(x) if self.layer_norm else x)
         return x.reshape(*batch_shape, self.features)
 
 
-def valid_conv_as_matmul(module: nn.Module, x: jax.Array, features: int, size: int, init) -> jax.Array:
+def valid_conv_as_matmul(
+    module: nn.Module, x: jax.Array, features: int, size: int, init, precision: str = "f32"
+) -> jax.Array:
     """A stride-1 VALID convolution ``[N, H, W, C] -> [N, H-size+1, W-size+1, features]`` inside
-    ``module``, computed as one matrix product over the ``size × size`` patches (im2col):
-    ``out[n, y, x] = Σ_{i, j, c} x[n, y+i, x+j, c] · kernel[i, j, c] + bias``, as ``nn.Conv``."""
+    ``module``, computed as one matrix product over the ``size × size`` patches (im2col), in
+    ``precision``: ``out[n, y, x] = Σ_{i, j, c} x[n, y+i, x+j, c] · kernel[i, j, c] + bias``, as
+    ``nn.Conv``."""
     n, h, w, c = x.shape
     kernel = module.param("conv_kernel", init, (size, size, c, features))
     bias = module.param("conv_bias", nn.initializers.zeros, (features,))
@@ -610,7 +659,7 @@ def valid_conv_as_matmul(module: nn.Module, x: jax.Array, features: int, size: i
     patches = jnp.concatenate(
         [x[:, i : i + oh, j : j + ow, :] for i in range(size) for j in range(size)], axis=-1
     )  # (N, oh, ow, size·size·C), ordered as the kernel's (kh, kw, C)
-    return patches @ kernel.reshape(size * size * c, features) + bias
+    return kernels.matmul(patches, kernel.reshape(size * size * c, features), precision) + bias
 
 
 class TwinQ(nn.Module):
@@ -619,11 +668,14 @@ class TwinQ(nn.Module):
 
     hidden: Sequence[int] = (256, 256)
     activation: str = "relu"
+    precision: str = "f32"
+    """the products' precision (:data:`agentax.kernels.PRECISIONS`), chosen by the entry point"""
 
     @nn.compact
     def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
         x = jnp.concatenate([obs.astype(jnp.float32), action], axis=-1)
-        return jnp.stack([MLP(self.hidden, self.activation, out=1)(x)[..., 0] for _ in range(2)])
+        mlp = functools.partial(MLP, self.hidden, self.activation, out=1, precision=self.precision)
+        return jnp.stack([mlp()(x)[..., 0] for _ in range(2)])
 
 
 def polyak(target: Any, online: Any, tau: float | jax.Array) -> Any:

@@ -42,6 +42,7 @@ from typing import TYPE_CHECKING, Any
 
 from agentax.agents import ALGORITHMS, algorithm_config, presets_of
 from agentax.errors import UsageError
+from agentax.kernels import PRECISIONS
 
 if TYPE_CHECKING:
     from agentax.agents.presets import Preset
@@ -61,7 +62,8 @@ class RunArgs:
     """independent agents trained together (vmapped into one program)"""
     workers: int | None = None
     """compiled runner: processes the seeds are split over, one per core; default: every core once
-    the seeds' agent steps reach the measured break-even in a run without --stop-at-return, else
+    the seeds' program cost (XLA's flops) reaches the measured break-even in a run without
+    --stop-at-return, else
     1 (the same split gives the same numbers; --stop-at-return then stops each worker once its own
     seeds reach the return)"""
     stop_at_return: str = "auto"
@@ -106,6 +108,11 @@ class RunArgs:
     """the encoder of an observation's leaf, by its key (a Dict key, a Tuple position, 'obs' for one
     leaf): images auto, nature, small or flat; Discrete and MultiDiscrete auto, one_hot or scalar;
     vectors and MultiBinary auto or flat (docs/howto/spaces.md)"""
+    precision: str = "f32"
+    """the networks' products: f32 (float32, today's numbers exactly), bf16 (bfloat16 operands summed
+    in float32; parameters, optimizer state, targets and replay stay float32) or auto (bf16 where a
+    learning step of the run's width measures faster on this machine, measured once and kept); the
+    run folder records the one used"""
 
     def check(self) -> RunArgs:
         """Raise ``UsageError`` on a value no runner accepts; return ``self``."""
@@ -113,6 +120,9 @@ class RunArgs:
             raise UsageError(f"--seeds must be at least 1, got {self.seeds}")
         if self.workers is not None and self.workers < 1:
             raise UsageError(f"--workers must be at least 1, got {self.workers}")
+        if self.precision not in PRECISION_MODES:
+            choices = ", ".join(PRECISION_MODES)
+            raise UsageError(f"--precision must be one of {choices}, got {self.precision!r}")
         if self.freeze_at_return not in ("auto", "none"):
             try:
                 float(self.freeze_at_return)
@@ -123,6 +133,8 @@ class RunArgs:
         return self
 
 
+PRECISION_MODES = ("auto", *PRECISIONS)
+"""What ``--precision`` takes: ``auto`` or one of :data:`agentax.kernels.PRECISIONS`."""
 NOT_WRITTEN = ("out", "progress")
 """RunArgs fields of one invocation, not of the training: a written run file leaves them out."""
 

@@ -147,6 +147,7 @@ def sweep(
     from agentax.envs import JAX_ENVS, make_jax
     from agentax.runfile import choose_preset
     from agentax.runners.compiled import compiled_program
+    from agentax.runners.cost import program_flops
     from agentax.runners.sweep import float_fields, traceable
     from agentax.runners.workers import default_count
 
@@ -182,10 +183,10 @@ def sweep(
         )
     settings = _settings(method, grid, ranges, random, seed, fields, base)
     path = Path(out) if out is not None else _default_sweep_dir(algo, env)
-    if workers is None:  # a resumed sweep's own; else every core once the sweep is long enough to gain
+    if workers is None:  # a resumed sweep's own; else every core once the sweep costs enough to gain
         members = len(settings) or trials
         workers = _asked(path).get("workers") or default_count(
-            len(settings) or batch, members * seeds * base.total_steps
+            len(settings) or batch, lambda: members * seeds * program_flops(make_program(base))
         )
     request = {
         "algo": algo,

@@ -235,8 +235,11 @@ class DQNState:
     """the :class:`QNetwork`, behind its encoder where observations are packed (:func:`with_encoder`)"""
 
 
-def q_network(cfg: DQNConfig, num_actions: int, cnn: bool = False, conv: str = "xla") -> QNetwork:
-    """The Q-network of ``cfg``'s variant (``cnn``: on the Nature CNN, its convolutions on ``conv``)."""
+def q_network(
+    cfg: DQNConfig, num_actions: int, cnn: bool = False, conv: str = "xla", precision: str = "f32"
+) -> QNetwork:
+    """The Q-network of ``cfg``'s variant (``cnn``: on the Nature CNN, its convolutions on ``conv``),
+    its products in ``precision``."""
     return QNetwork(
         num_actions=num_actions,
         hidden=tuple(cfg.hidden),
@@ -249,6 +252,7 @@ def q_network(cfg: DQNConfig, num_actions: int, cnn: bool = False, conv: str = "
         noisy=cfg.noisy,
         noisy_sigma0=cfg.noisy_sigma0,
         conv=conv,
+        precision=precision,
     )
 
 
@@ -289,6 +293,7 @@ def init(
     cfg: DQNConfig,
     conv: str = "xla",
     layout: Layout | None = None,
+    precision: str = "f32",
 ) -> DQNState:
     """A fresh learner for observations shaped like ``obs_example`` (one observation; stacked
     frames ``[4, 84, 84]`` get the Nature CNN, its convolutions on backend ``conv``; packed ones
@@ -298,7 +303,7 @@ def init(
         raise UsageError(
             f"augment={cfg.augment!r} shifts image frames, not observations {jnp.shape(obs_example)}"
         )
-    network = with_encoder(q_network(cfg, num_actions, cnn=cnn, conv=conv), layout)
+    network = with_encoder(q_network(cfg, num_actions, cnn, conv, precision), layout, precision)
     params = network.init(key, jnp.asarray(obs_example)[None])
     return DQNState(
         params=params,
@@ -528,12 +533,15 @@ def importance_exponent_at(cfg: DQNConfig, env_steps: jax.Array) -> jax.Array:
     return linear_schedule(cfg.importance_exponent_start, 1.0, cfg.total_steps)(env_steps)
 
 
-def make_agent(spec: EnvSpec, cfg: DQNConfig, *, loop: Loop = jax.lax.scan, conv: str = "xla") -> Agent:
+def make_agent(
+    spec: EnvSpec, cfg: DQNConfig, *, loop: Loop = jax.lax.scan, conv: str = "xla", precision: str = "f32"
+) -> Agent:
     """DQN's pure functions for every runner (see ``agentax.agents.protocol``).
 
     ``act``'s ``progress`` is the env steps (episodes, in the episode schedule) that set ε. ``learn``
     is one learning step, so ``loop`` goes unused: the runner loops over a learning phase's steps.
-    ``conv``: the Nature CNN's convolution backend (the entry point's choice).
+    ``conv``: the Nature CNN's convolution backend, ``precision`` the network's products' (the entry
+    point's choices).
     """
     cfg.validate()
     num_actions = discrete_actions(spec, "dqn")
@@ -561,7 +569,7 @@ def make_agent(spec: EnvSpec, cfg: DQNConfig, *, loop: Loop = jax.lax.scan, conv
     return Agent(
         name="dqn",
         init=lambda key: init(
-            key, jnp.zeros(spec.obs_shape, spec.obs_dtype), num_actions, cfg, conv, spec.layout
+            key, jnp.zeros(spec.obs_shape, spec.obs_dtype), num_actions, cfg, conv, spec.layout, precision
         ),
         act=act_epsilon_greedy,
         greedy_policy=greedy_policy,

@@ -129,14 +129,16 @@ class ActorCriticState:
     step: jax.Array  # int32 []
 
 
-def actor_critic_setup(name: str, spec: EnvSpec, cfg: ReplayConfig) -> tuple[int, Any, Any]:
+def actor_critic_setup(
+    name: str, spec: EnvSpec, cfg: ReplayConfig, precision: str = "f32"
+) -> tuple[int, Any, Any]:
     """``(action_dim, critic, tx)`` of actor-critic ``name`` on ``spec``: the twin critics (behind an
-    encoder of packed observations) and one Adam for every network, once ``cfg`` is valid and the env
-    has flat observations and continuous actions."""
+    encoder of packed observations; their products in ``precision``) and one Adam for every
+    network, once ``cfg`` is valid and the env has flat observations and continuous actions."""
     cfg.validate()
     action_dim = continuous_action_dim(spec, name)
     flat_observations(spec, name)
-    critic = with_encoder(TwinQ(tuple(cfg.hidden), cfg.activation), spec.layout)
+    critic = with_encoder(TwinQ(tuple(cfg.hidden), cfg.activation, precision), spec.layout, precision)
     return action_dim, critic, optax.adam(cfg.learning_rate)
 
 

@@ -188,14 +188,22 @@ def action_dim(spec: EnvSpec) -> int:
     return spec.action_space.shape[0]
 
 
-def network(cfg: PPOConfig, spec: EnvSpec, conv: str = "xla") -> ActorCritic:
-    """PPO's actor-critic for ``spec`` (on stacked frames the Nature CNN, its convolutions on ``conv``)."""
+def network(cfg: PPOConfig, spec: EnvSpec, conv: str = "xla", precision: str = "f32") -> ActorCritic:
+    """PPO's actor-critic for ``spec`` (on stacked frames the Nature CNN, its convolutions on ``conv``),
+    its products in ``precision``."""
     cnn = is_image(spec.obs_shape)
     image_shape = image_shape_for(cfg.conv_torso, spec)
     net = ActorCritic(
-        action_dim(spec), is_continuous(spec), tuple(cfg.hidden), cfg.activation, cnn, image_shape, conv
+        action_dim(spec),
+        is_continuous(spec),
+        tuple(cfg.hidden),
+        cfg.activation,
+        cnn,
+        image_shape,
+        conv,
+        precision,
     )
-    return with_encoder(net, spec.layout)
+    return with_encoder(net, spec.layout, precision)
 
 
 def optimizer(cfg: PPOConfig) -> optax.GradientTransformation:
@@ -267,10 +275,16 @@ def policy_output(net: Any, params: Any, obs: jax.Array, spec: EnvSpec) -> tuple
 
 
 def act(
-    params: Any, obs: jax.Array, key: jax.Array, spec: EnvSpec, cfg: PPOConfig, conv: str = "xla"
+    params: Any,
+    obs: jax.Array,
+    key: jax.Array,
+    spec: EnvSpec,
+    cfg: PPOConfig,
+    conv: str = "xla",
+    precision: str = "f32",
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Sample actions for observations ``[E, *obs_shape]``: ``(action, log_prob [E], value [E])``."""
-    actor_out, value = policy_output(network(cfg, spec, conv), params, obs, spec)
+    actor_out, value = policy_output(network(cfg, spec, conv, precision), params, obs, spec)
     if is_continuous(spec):
         mean, log_std = actor_out
         action = mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape)
@@ -292,10 +306,11 @@ def greedy_policy(
     cfg: PPOConfig,
     obs_stats: running.RunningMeanStd | None = None,
     conv: str = "xla",
+    precision: str = "f32",
 ) -> Policy:
     """The deterministic policy for evaluation: the most probable action (the Gaussian's mean), on
     raw observations standardised by ``obs_stats`` where given."""
-    net = network(cfg, spec, conv)
+    net = network(cfg, spec, conv, precision)
 
     def policy(obs: jax.Array, key: jax.Array) -> jax.Array:
         actor_out, _ = policy_output(net, params, observe(obs_stats, obs, cfg), spec)
@@ -327,12 +342,13 @@ def loss_fn(
     spec: EnvSpec,
     cfg: PPOConfig,
     conv: str = "xla",
+    precision: str = "f32",
 ):
     """The PPO loss of one minibatch (flat ``[B, ...]`` arrays); returns ``(loss, metrics)``.
 
     With ``batch["valid"]`` (bool ``[B]``) every mean runs over the valid entries only."""
     valid = batch.get("valid")
-    actor_out, value = policy_output(network(cfg, spec, conv), params, batch["obs"], spec)
+    actor_out, value = policy_output(network(cfg, spec, conv, precision), params, batch["obs"], spec)
     new_log_prob, entropies = _log_prob_entropy(actor_out, batch["action"], spec)
     advantage = normalize(batch["advantage"], valid) if cfg.normalize_advantages else batch["advantage"]
     policy_loss = clipped_surrogate_loss(new_log_prob, batch["log_prob"], advantage, clip_eps, valid)
@@ -357,12 +373,14 @@ def learn(
     cfg: PPOConfig,
     loop: Loop = jax.lax.scan,
     conv: str = "xla",
+    precision: str = "f32",
 ) -> tuple[PPOAgent, dict[str, jax.Array]]:
     """One PPO iteration on a rollout ``[T, E, ...]`` (``info["log_prob"]`` from :func:`act`, the
     behaviour policy's; ``info["valid"]``, if there, the steps to learn from): the normalisers take
     the rollout in (:func:`take_in`), then GAE, then epochs of minibatch SGD, each run by ``loop``
-    (``lax.scan``'s signature; the runner chooses it); ``conv``: the Nature CNN's convolution backend."""
-    net, tx = network(cfg, spec, conv), optimizer(cfg)
+    (``lax.scan``'s signature; the runner chooses it); ``conv``: the Nature CNN's convolution backend;
+    ``precision``: the products' (the statistics, targets and losses stay float32)."""
+    net, tx = network(cfg, spec, conv, precision), optimizer(cfg)
     agent, rollout = take_in(agent, rollout, cfg)
     # Both values from the learner's parameters: a rollout collected with older ones (a parallel
     # runner's policy lag) would otherwise feed each change of V into the targets again.
@@ -394,7 +412,7 @@ def learn(
 
     def sgd_step(carry, minibatch):
         params, opt_state = carry
-        grads, metrics = grad_fn(params, minibatch, clip_eps, spec, cfg, conv)
+        grads, metrics = grad_fn(params, minibatch, clip_eps, spec, cfg, conv, precision)
         updates, opt_state = tx.update(grads, opt_state, params)
         return (optax.apply_updates(params, updates), opt_state), metrics
 
@@ -415,10 +433,13 @@ def learn(
     return agent, jax.tree.map(jnp.mean, metrics)
 
 
-def make_agent(spec: EnvSpec, cfg: PPOConfig, *, loop: Loop = jax.lax.scan, conv: str = "xla") -> Agent:
+def make_agent(
+    spec: EnvSpec, cfg: PPOConfig, *, loop: Loop = jax.lax.scan, conv: str = "xla", precision: str = "f32"
+) -> Agent:
     """PPO's pure functions for every runner (see ``agentax.agents.protocol``);
     ``loop`` runs the learning steps (the runner's :func:`agentax.kernels.learning_loop`), ``conv``
-    is the Nature CNN's convolution backend (the entry point's choice)."""
+    is the Nature CNN's convolution backend and ``precision`` the networks' products' (the entry
+    point's choices; acting and learning alike)."""
     cfg.validate()
     action_dim(spec)  # a clear error for actions PPO cannot take
     if cfg.normalize_observations and (is_image(spec.obs_shape) or spec.layout is not None):
@@ -427,15 +448,15 @@ def make_agent(spec: EnvSpec, cfg: PPOConfig, *, loop: Loop = jax.lax.scan, conv
 
     def act_with_info(state: PPOAgent, obs: jax.Array, key: jax.Array, progress: jax.Array):
         obs = observe(state.obs_stats, obs, cfg)
-        action, action_log_prob, _ = act(state.params, obs, key, spec, cfg, conv)
+        action, action_log_prob, _ = act(state.params, obs, key, spec, cfg, conv, precision)
         return action, {"log_prob": action_log_prob}
 
     return Agent(
         name="ppo",
         init=lambda key: init(key, spec, cfg),
         act=act_with_info,
-        greedy_policy=lambda state: greedy_policy(state.params, spec, cfg, state.obs_stats, conv),
-        learn=lambda state, rollout, key: learn(state, rollout, key, spec, cfg, loop, conv),
+        greedy_policy=lambda state: greedy_policy(state.params, spec, cfg, state.obs_stats, conv, precision),
+        learn=lambda state, rollout, key: learn(state, rollout, key, spec, cfg, loop, conv, precision),
         experience=OnPolicy(cfg.num_envs, cfg.num_steps),
         total_steps=cfg.total_steps,
         env_action=lambda action: env_action(action, spec),

@@ -50,7 +50,7 @@ from agentax.agents.protocol import (
     image_shape_for,
 )
 from agentax.errors import UsageError
-from agentax.nets import MLP, MinAtarCNN, NatureCNN, is_image, legal_max, masked, with_encoder
+from agentax.nets import MLP, MinAtarCNN, NatureCNN, dense_layer, is_image, legal_max, masked, with_encoder
 from agentax.policies import Policy, epsilon_greedy, linear_schedule
 from agentax.replay import Transition
 from agentax.returns import masked_mean, q_lambda_returns
@@ -129,17 +129,20 @@ class PQNState:
     updates: jax.Array  # int32 []: learning iterations so far
 
 
-def q_network(cfg: PQNConfig, spec: EnvSpec, conv: str = "xla") -> nn.Module:
+def q_network(cfg: PQNConfig, spec: EnvSpec, conv: str = "xla", precision: str = "f32") -> nn.Module:
     """``obs [..., *obs_shape] -> Q [..., num_actions]`` with LayerNorm after every hidden layer: an
     MLP of ``hidden`` on flat observations (packed ones through their encoder first), the Nature CNN
-    on stacked frames (its convolutions on backend ``conv``), MinAtar's conv torso with ``conv_torso``."""
+    on stacked frames (its convolutions on backend ``conv``), MinAtar's conv torso with ``conv_torso``;
+    the products in ``precision``."""
     num_actions = discrete_actions(spec, "pqn")
+    head = dense_layer(num_actions, precision)
     if is_image(spec.obs_shape):
-        return nn.Sequential([NatureCNN(layer_norm=True, conv=conv), nn.Dense(num_actions)])
+        return nn.Sequential([NatureCNN(layer_norm=True, conv=conv, precision=precision), head])
     image_shape = image_shape_for(cfg.conv_torso, spec)
     if image_shape is not None:
-        return nn.Sequential([MinAtarCNN(image_shape, layer_norm=True), nn.Dense(num_actions)])
-    return with_encoder(MLP(cfg.hidden, cfg.activation, out=num_actions, layer_norm=True), spec.layout)
+        return nn.Sequential([MinAtarCNN(image_shape, layer_norm=True, precision=precision), head])
+    mlp = MLP(cfg.hidden, cfg.activation, out=num_actions, layer_norm=True, precision=precision)
+    return with_encoder(mlp, spec.layout, precision)
 
 
 QValues = Callable[[Any, jax.Array], jax.Array]
@@ -230,13 +233,16 @@ def learn(
     return PQNState(params, opt_state, state.updates + 1), metrics
 
 
-def make_agent(spec: EnvSpec, cfg: PQNConfig, *, loop: Loop = jax.lax.scan, conv: str = "xla") -> Agent:
+def make_agent(
+    spec: EnvSpec, cfg: PQNConfig, *, loop: Loop = jax.lax.scan, conv: str = "xla", precision: str = "f32"
+) -> Agent:
     """PQN's pure functions for every runner (see ``agentax.agents.protocol``); ``act``'s ``progress``
-    is the env steps that set ε; ``conv``: the Nature CNN's convolution backend."""
+    is the env steps that set ε; ``conv``: the Nature CNN's convolution backend; ``precision``: the
+    network's products' (acting and learning alike)."""
     cfg.validate()
     if len(spec.obs_shape) != 1 and not is_image(spec.obs_shape):
         raise UsageError(f"PQN takes flat observations or stacked frames [C, H, W], not {spec.obs_shape}")
-    net = q_network(cfg, spec, conv)
+    net = q_network(cfg, spec, conv, precision)
     q_values = q_values_of(net, spec)
 
     def init(key: jax.Array) -> PQNState:

@@ -6,10 +6,12 @@ functions over pytrees. Its contract, written once here:
 - a frozen config dataclass with ``total_steps`` and ``validate()``, named in the registry
   (``agentax.agents.ALGORITHMS``), its tuned presets (``"default"`` among them) in
   ``agentax.agents.presets``;
-- ``make_agent(spec: EnvSpec, cfg, *, loop=jax.lax.scan, conv="xla") -> Agent``: the four pure
-  functions below, closed over the env's spec and the config, and the experience they learn from
-  (``conv``: the convolution backend the entry point chose, :mod:`agentax.kernel_choice`). Every runner drives
-  this one object; the compiled runner builds its program from it (:mod:`agentax.runners.rollout`).
+- ``make_agent(spec: EnvSpec, cfg, *, loop=jax.lax.scan, conv="xla", precision="f32") -> Agent``: the
+  four pure functions below, closed over the env's spec and the config, and the experience they
+  learn from (``conv``: the convolution backend the entry point chose, :mod:`agentax.kernel_choice`;
+  ``precision``: its networks' products, ``f32`` or ``bf16``, for acting and learning alike).
+  Every runner drives this one object; the compiled runner builds its program from it
+  (:mod:`agentax.runners.rollout`).
 
 An :class:`Agent` is TF-Agents' agent in JAX terms:
 
@@ -59,8 +61,8 @@ Experience = Any
 Loop = Callable[[Callable, Any, Any], tuple[Any, Any]]
 """How a learning phase runs its steps: ``loop(f, carry, xs) -> (carry, ys)``, ``jax.lax.scan``'s
 signature. The runner chooses it for its platform (:func:`agentax.kernels.learning_loop`) and hands it
-to ``make_agent(spec, cfg, loop=..., conv=...)`` with the convolution backend; an agent never asks
-which backend it is on."""
+to ``make_agent(spec, cfg, loop=..., conv=..., precision=...)`` with the convolution backend and the
+networks' precision; an agent never asks which backend it is on."""
 
 
 @dataclass(frozen=True)

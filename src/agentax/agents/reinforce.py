@@ -118,16 +118,18 @@ Actions = Any
 space (one choice per entry), or the Box of continuous ones."""
 
 
-def policy_network(cfg: ReinforceConfig, actions: Actions, layout: Layout | None = None) -> Any:
+def policy_network(
+    cfg: ReinforceConfig, actions: Actions, layout: Layout | None = None, precision: str = "f32"
+) -> Any:
     """The policy ``obs -> logits [..., n]`` (or a Gaussian's ``(mean, log_std)``), behind an
-    encoder where observations are packed by ``layout``."""
+    encoder where observations are packed by ``layout``; its products in ``precision``."""
     if isinstance(actions, Box):
-        net = GaussianPolicyNet(actions.shape[0], tuple(cfg.hidden), cfg.activation)
+        net = GaussianPolicyNet(actions.shape[0], tuple(cfg.hidden), cfg.activation, precision)
     else:
         n = actions if isinstance(actions, int) else num_logits(actions)
         sigmoid = cfg.sigmoid_head and n == 2 and action_nvec(actions) is None
-        net = PolicyNet(n, tuple(cfg.hidden), cfg.activation, sigmoid)
-    return with_encoder(net, layout)
+        net = PolicyNet(n, tuple(cfg.hidden), cfg.activation, sigmoid, precision)
+    return with_encoder(net, layout, precision)
 
 
 def policy_output(net: Any, params: Any, obs: jax.Array) -> Any:
@@ -156,8 +158,9 @@ def env_action(action: jax.Array, actions: Actions) -> jax.Array:
     return jnp.clip(action, actions.low, actions.high) if isinstance(actions, Box) else action
 
 
-def value_network(cfg: ReinforceConfig, layout: Layout | None = None) -> Any:
-    return with_encoder(MLP(tuple(cfg.baseline_hidden), cfg.activation, out=1), layout)
+def value_network(cfg: ReinforceConfig, layout: Layout | None = None, precision: str = "f32") -> Any:
+    mlp = MLP(tuple(cfg.baseline_hidden), cfg.activation, out=1, precision=precision)
+    return with_encoder(mlp, layout, precision)
 
 
 def init(
@@ -166,12 +169,13 @@ def init(
     actions: Actions,
     cfg: ReinforceConfig,
     layout: Layout | None = None,
+    precision: str = "f32",
 ) -> ReinforceAgent:
     policy_key, value_key = jax.random.split(key)
     obs = jnp.zeros(obs_shape, jnp.float32)
-    params = {"policy": policy_network(cfg, actions, layout).init(policy_key, obs)}
+    params = {"policy": policy_network(cfg, actions, layout, precision).init(policy_key, obs)}
     if cfg.baseline:
-        params["value"] = value_network(cfg, layout).init(value_key, obs)
+        params["value"] = value_network(cfg, layout, precision).init(value_key, obs)
     return ReinforceAgent(params, optax.adam(cfg.learning_rate).init(params))
 
 
@@ -181,16 +185,17 @@ def loss_fn(
     actions: Actions,
     cfg: ReinforceConfig,
     layout: Layout | None = None,
+    precision: str = "f32",
 ):
     """REINFORCE's loss over the valid steps of ``[T, N]`` arrays; returns ``(loss, metrics)``."""
     valid = batch["valid"].astype(jnp.float32)
     count = jnp.maximum(valid.sum(), 1.0)
-    out = policy_output(policy_network(cfg, actions, layout), params["policy"], batch["obs"])
+    out = policy_output(policy_network(cfg, actions, layout, precision), params["policy"], batch["obs"])
     log_probs = action_log_prob(out, batch["action"], actions)
     returns = batch["returns"]
     metrics = {}
     if cfg.baseline:
-        values = value_network(cfg, layout).apply(params["value"], batch["obs"])[..., 0]
+        values = value_network(cfg, layout, precision).apply(params["value"], batch["obs"])[..., 0]
         advantage = normalize(returns - jax.lax.stop_gradient(values), valid)
         value_loss = (((values - returns) ** 2) * valid).sum() / count
         metrics["value_loss"] = value_loss
@@ -208,18 +213,19 @@ def learn(
     actions: Actions,
     cfg: ReinforceConfig,
     layout: Layout | None = None,
+    precision: str = "f32",
 ):
-    grads, metrics = jax.grad(loss_fn, has_aux=True)(agent.params, batch, actions, cfg, layout)
+    grads, metrics = jax.grad(loss_fn, has_aux=True)(agent.params, batch, actions, cfg, layout, precision)
     updates, opt_state = optax.adam(cfg.learning_rate).update(grads, agent.opt_state, agent.params)
     return ReinforceAgent(optax.apply_updates(agent.params, updates), opt_state), metrics
 
 
 def greedy_policy(
-    params: Any, actions: Actions, cfg: ReinforceConfig, layout: Layout | None = None
+    params: Any, actions: Actions, cfg: ReinforceConfig, layout: Layout | None = None, precision: str = "f32"
 ) -> Policy:
     """The most probable (legal) action, one per entry of a MultiDiscrete or MultiBinary space, or
     the Gaussian's mean clipped to the bounds."""
-    net = policy_network(cfg, actions, layout)
+    net = policy_network(cfg, actions, layout, precision)
 
     def policy(obs: jax.Array, key: jax.Array) -> jax.Array:
         out = policy_output(net, params["policy"], obs)
@@ -248,17 +254,24 @@ def returns_to_go(reward: jax.Array, ended: jax.Array, discount_factor: float) -
     return discounted_returns(reward, discounts, jnp.zeros(reward.shape[1:]))
 
 
-def make_agent(spec: EnvSpec, cfg: ReinforceConfig, *, loop: Loop = jax.lax.scan, conv: str = "xla") -> Agent:
+def make_agent(
+    spec: EnvSpec,
+    cfg: ReinforceConfig,
+    *,
+    loop: Loop = jax.lax.scan,
+    conv: str = "xla",
+    precision: str = "f32",
+) -> Agent:
     """REINFORCE's pure functions for every runner (see ``agentax.agents.protocol``).
 
     It learns from whole episodes: ``Episodes(episodes_per_update, max_steps)``, the steps after an
     episode's end masked out by ``info["valid"]``. ``learn`` is one gradient step (``loop`` unused;
-    ``conv`` too: no convolutions).
+    ``conv`` too: no convolutions); ``precision``: the networks' products'.
     """
     cfg.validate()
     actions = actions_of(spec)
     flat_observations(spec, "reinforce")
-    net = policy_network(cfg, actions, spec.layout)
+    net = policy_network(cfg, actions, spec.layout, precision)
 
     def act(state: ReinforceAgent, obs: jax.Array, key: jax.Array, progress: jax.Array):
         return sample(policy_output(net, state.params["policy"], obs), key, actions), {}
@@ -273,13 +286,13 @@ def make_agent(spec: EnvSpec, cfg: ReinforceConfig, *, loop: Loop = jax.lax.scan
             "valid": valid,
             "returns": returns_to_go(reward, ended, cfg.discount_factor),
         }
-        return learn(state, batch, actions, cfg, spec.layout)
+        return learn(state, batch, actions, cfg, spec.layout, precision)
 
     return Agent(
         name="reinforce",
-        init=lambda key: init(key, spec.obs_shape, actions, cfg, spec.layout),
+        init=lambda key: init(key, spec.obs_shape, actions, cfg, spec.layout, precision),
         act=act,
-        greedy_policy=lambda state: greedy_policy(state.params, actions, cfg, spec.layout),
+        greedy_policy=lambda state: greedy_policy(state.params, actions, cfg, spec.layout, precision),
         learn=learn_episodes,
         experience=Episodes(cfg.episodes_per_update, cfg.max_steps),
         total_steps=cfg.total_steps,

@@ -74,7 +74,9 @@ SACState = ActorCriticState
 states, learning steps taken."""
 
 
-def make_agent(spec: EnvSpec, cfg: SACConfig, *, loop: Loop = jax.lax.scan, conv: str = "xla") -> Agent:
+def make_agent(
+    spec: EnvSpec, cfg: SACConfig, *, loop: Loop = jax.lax.scan, conv: str = "xla", precision: str = "f32"
+) -> Agent:
     """SAC's pure functions for every runner (see ``agentax.agents.protocol``).
 
     ``act``'s ``progress`` counts env steps (uniform actions before ``learning_starts``); ``learn`` is
@@ -82,13 +84,16 @@ def make_agent(spec: EnvSpec, cfg: SACConfig, *, loop: Loop = jax.lax.scan, conv
     XLA's). Actions live in ``[-1, 1]^d``: the replay stores them so, ``env_action`` and the greedy
     policy rescale them to the env's bounds. Packed observations (:mod:`agentax.envs.spaces`) go
     through an encoder per leaf, the actor's and the critics' own; stacked frames are refused.
+    ``precision``: the networks' products' (acting and learning alike; the parameters, Adam's
+    moments, the targets, losses and replay stay float32).
     """
-    action_dim, critic, tx = actor_critic_setup("sac", spec, cfg)
+    action_dim, critic, tx = actor_critic_setup("sac", spec, cfg, precision)
     actor = with_encoder(
         SquashedGaussianActor(
-            action_dim, tuple(cfg.hidden), cfg.activation, cfg.log_std_min, cfg.log_std_max
+            action_dim, tuple(cfg.hidden), cfg.activation, cfg.log_std_min, cfg.log_std_max, precision
         ),
         spec.layout,
+        precision,
     )
     target_entropy = -cfg.target_entropy_scale * action_dim
 

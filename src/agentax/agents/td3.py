@@ -74,7 +74,9 @@ TD3State = ActorCriticState
 learning steps taken."""
 
 
-def make_agent(spec: EnvSpec, cfg: TD3Config, *, loop: Loop = jax.lax.scan, conv: str = "xla") -> Agent:
+def make_agent(
+    spec: EnvSpec, cfg: TD3Config, *, loop: Loop = jax.lax.scan, conv: str = "xla", precision: str = "f32"
+) -> Agent:
     """TD3's pure functions for every runner (see ``agentax.agents.protocol``).
 
     ``act``'s ``progress`` counts env steps (uniform actions before ``learning_starts``); ``learn`` is
@@ -82,9 +84,11 @@ def make_agent(spec: EnvSpec, cfg: TD3Config, *, loop: Loop = jax.lax.scan, conv
     XLA's). Actions live in ``[-1, 1]^d``: the replay stores them so, ``env_action`` and the greedy
     policy rescale them to the env's bounds. Packed observations (:mod:`agentax.envs.spaces`) go
     through an encoder per leaf, the actor's and the critics' own; stacked frames are refused.
+    ``precision``: the networks' products' (acting and learning alike).
     """
-    action_dim, critic, tx = actor_critic_setup("td3", spec, cfg)
-    actor = with_encoder(MLP(tuple(cfg.hidden), cfg.activation, out=action_dim), spec.layout)
+    action_dim, critic, tx = actor_critic_setup("td3", spec, cfg, precision)
+    mlp = MLP(tuple(cfg.hidden), cfg.activation, out=action_dim, precision=precision)
+    actor = with_encoder(mlp, spec.layout, precision)
 
     def mu(actor_params: Any, obs: jax.Array) -> jax.Array:
         return jnp.tanh(actor.apply(actor_params, obs.astype(jnp.float32)))

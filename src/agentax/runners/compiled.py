@@ -21,6 +21,7 @@ the XLA CPU hang this program, called over and over, once met.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import time
@@ -38,8 +39,8 @@ from agentax.envs import make_jax
 from agentax.envs.core import Environment
 from agentax.errors import UsageError
 from agentax.policies import Policy
-from agentax.runners import algorithm_of, programs, workers
-from agentax.runners.launch import agent_maker, env_specs, parse_return
+from agentax.runners import algorithm_of, cost, programs, workers
+from agentax.runners.launch import agent_maker, env_specs, parse_return, precision_of
 from agentax.runners.programs import CHUNK_COMPILER_OPTIONS, init_from_seeds
 from agentax.runners.replay_program import Freeze, off_policy_program
 from agentax.runners.rollout import Program, VectorEnv, episodes_program, on_policy_program
@@ -378,7 +379,8 @@ Config = RunnerConfig
 def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[RunnerConfig, str]:
     """The compiled run ``run_args`` describe (:mod:`agentax.runners.launch`), refused before
     anything is written where the program cannot run it (or more seeds than memory holds)."""
-    stop = run_args.stop_at_return
+    stop, env = run_args.stop_at_return, make_jax(run_args.env)
+    seed_flops = functools.partial(cost.program_flops, program_of(agent, env))  # by default, the split's
     runner = RunnerConfig(
         seed=run_args.seed,
         num_seeds=run_args.seeds,
@@ -388,10 +390,10 @@ def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[RunnerConfig, s
             "--freeze-at-return", run_args.freeze_at_return, preset.freeze_at_return
         ),
         freeze_episodes=run_args.freeze_episodes,
-        workers=run_args.workers or workers.default_for(run_args.seeds, agent.total_steps, stop),
+        workers=run_args.workers or workers.default_for(run_args.seeds, seed_flops, stop),
         ray_address=run_args.ray_address,
     )
-    check_fits(program_of(agent, make_jax(run_args.env), runner), runner)
+    check_fits(program_of(agent, env, runner), runner)
     if runner.ray_address is not None and runner.workers == 1:
         raise UsageError(
             "--ray-address sends the compiled runner's --workers to a Ray cluster: give --workers N "
@@ -423,8 +425,9 @@ def train(
     env = make_jax(env_id)
     algorithm = program_of(agent, env, runner)
     description = None
-    if run is not None:  # algo, env, config, encoders and the freeze determine the program (no env params)
+    if run is not None:  # algo, env, config, encoders, precision and the freeze determine the program
         description = {k: run.config[k] for k in ("algo", "env", "config", "encoders") if k in run.config}
+        description["precision"] = precision_of(run.config)  # bf16 products: another program
         description["freeze"] = [runner.freeze_at_return, runner.freeze_episodes]
     result = train_program(
         algorithm, env, runner, run, resume=resume, progress=progress, program_description=description
@@ -440,7 +443,7 @@ def train_worker(
     """One worker's seeds (``runner``) of the run ``config`` describes, in this process, into ``run``."""
     module, cfg = algorithm_of(config)
     spec, _ = env_specs("compiled", config["env"], encoders=config.get("encoders"))  # as launch.prepare's
-    agent = agent_maker(module, spec, cfg)()
+    agent = agent_maker(module, spec, cfg, precision=precision_of(config))()
     return train(agent, config["env"], runner, run, resume=resume, progress=progress)
 
 

@@ -44,18 +44,43 @@ class Launch:
     train: Callable[[Run, bool, bool], TrainResult]
     """``train(run, resume, progress) -> result`` (``result.policy``: the greedy policy of its best
     seed, or None where the state stayed in other processes)"""
+    precision: dict[str, Any] = dataclasses.field(default_factory=lambda: {"precision": "f32"})
+    """the networks' precision and why (:func:`agentax.kernel_choice.precision_choice`; config.json
+    keeps it, so that resuming, evaluating and exporting use the same)"""
 
 
-def agent_maker(module: Any, spec: Any, cfg: Any, conv: str | None = None) -> Callable[[], Any]:
+def agent_maker(
+    module: Any, spec: Any, cfg: Any, conv: str | None = None, precision: str = "f32"
+) -> Callable[[], Any]:
     """``make()``: the algorithm's agent for ``spec``, learning in the loop this platform runs best,
-    its convolutions on ``conv``, else on the backend chosen here (``AGENTAX_CONV``; a picklable
-    callable: Ray's actor processes build the agent with it)."""
+    its convolutions on ``conv``, else on the backend chosen here (``AGENTAX_CONV``), its networks'
+    products in ``precision`` (a picklable callable: Ray's actor processes build the agent with it)."""
     from agentax import kernel_choice, kernels
 
     if conv is None:  # chosen once here, before anything is traced
         conv = kernel_choice.backend_for(spec.obs_shape)
     loop = kernels.learning_loop(spec.obs_shape, conv)
-    return functools.partial(module.make_agent, spec, cfg, loop=loop, conv=conv)
+    return functools.partial(
+        module.make_agent, spec, cfg, loop=loop, conv=conv, precision=kernels.check_precision(precision)
+    )
+
+
+def precision_of(config: dict[str, Any]) -> str:
+    """The precision a run folder's config.json records (a folder written before precisions were:
+    ``f32``, what it trained in)."""
+    return config.get("precision", "f32")
+
+
+def network_width(cfg: Any) -> int:
+    """The widest hidden layer of an algorithm's config (its fields named ``*hidden*``), 256 where it
+    names none: the width ``--precision auto`` measures a learning step at."""
+    widths = [
+        width
+        for field in dataclasses.fields(cfg)
+        if "hidden" in field.name and isinstance(getattr(cfg, field.name), tuple | list)
+        for width in getattr(cfg, field.name)
+    ]
+    return max(widths, default=256)
 
 
 def parse_return(flag: str, value: str, auto: float | None) -> float | None:
@@ -94,14 +119,18 @@ def env_specs(
 
 def prepare(module: Any, run_args: Any, cfg: Any, preset: Any, kind: str) -> Launch:
     """The ``kind`` run ``run_args`` describe (``module``: the algorithm's, ``cfg`` its config); what
-    the runner or the agent cannot train is refused here, before anything is written."""
+    the runner or the agent cannot train is refused here, before anything is written; the networks'
+    precision is chosen here, once, before anything is traced."""
+    from agentax import kernel_choice
+
     runner_module = RUNNERS[kind].load()
     if hasattr(runner_module, "algorithm_config"):  # a runner with actors splits the envs between them
         cfg = runner_module.algorithm_config(cfg, run_args)
     spec, solved_by = env_specs(
         kind, run_args.env, run_args.env_backend, run_args.sticky_actions, run_args.encoders
     )
-    remake = agent_maker(module, spec, cfg)
+    precision = kernel_choice.precision_choice(run_args.precision, network_width(cfg))
+    remake = agent_maker(module, spec, cfg, precision=precision["precision"])
     agent = remake()  # refuses what the agent cannot train before anything is written
     check_learning_fits(module.make_agent(spec, cfg), spec, run_args.seeds)  # (plain: see its docstring)
     solved = getattr(solved_by, "reward_threshold", None)  # 'auto': the env's, in a solving preset
@@ -109,15 +138,16 @@ def prepare(module: Any, run_args: Any, cfg: Any, preset: Any, kind: str) -> Lau
     stop = parse_return("--stop-at-return", run_args.stop_at_return, auto)
     run_args = dataclasses.replace(run_args, stop_at_return=stop)  # what every configure reads
     runner, where = runner_module.configure(run_args, agent, preset)
-    return _launch(runner_module, agent, remake, run_args.env, runner, where)
+    return _launch(runner_module, agent, remake, run_args.env, runner, where, precision)
 
 
 def reopen(config: dict[str, Any], module: Any, cfg: Any, runner: Any) -> Launch:
     """The run of ``config`` (a config.json; ``runner``: its settings, parsed), to resume."""
     kind = kind_of(config)
     spec, _ = env_specs(kind, config["env"], *_host_options(config), config.get("encoders"))
-    remake = agent_maker(module, spec, cfg)
-    return _launch(RUNNERS[kind].load(), remake(), remake, config["env"], runner, "")
+    remake = agent_maker(module, spec, cfg, precision=precision_of(config))
+    precision = {"precision": precision_of(config), **config.get("precision_choice", {})}
+    return _launch(RUNNERS[kind].load(), remake(), remake, config["env"], runner, "", precision)
 
 
 def _host_options(config: dict[str, Any]) -> tuple[str, float]:
@@ -126,19 +156,22 @@ def _host_options(config: dict[str, Any]) -> tuple[str, float]:
     return runner.get("env_backend", "auto"), runner.get("sticky_actions", 0.25)
 
 
-def _launch(runner_module: Any, agent: Any, remake: Any, env_id: str, runner: Any, where: str) -> Launch:
+def _launch(
+    runner_module: Any, agent: Any, remake: Any, env_id: str, runner: Any, where: str, precision: dict
+) -> Launch:
     """``remake()`` builds ``agent`` again (in the actor processes of a runner whose actors do)."""
     options = {"make_agent": remake} if getattr(runner_module, "REMAKES_AGENT", False) else {}
 
     def train(run: Run, resume: bool, progress: bool) -> TrainResult:
         return runner_module.train(agent, env_id, runner, run, resume=resume, progress=progress, **options)
 
-    return Launch(runner, where, train)
+    return Launch(runner, where, train, precision)
 
 
 def restore(run_dir: Path, config: dict[str, Any], module: Any, cfg: Any, conv: str | None = None) -> Policy:
     """The greedy policy of the run's best seed, from its newest good checkpoint (its convolutions on
-    ``conv``, else on :func:`agent_maker`'s choice)."""
+    ``conv``, else on :func:`agent_maker`'s choice; its products in the run's precision)."""
     kind = kind_of(config)
     spec, _ = env_specs(kind, config["env"], *_host_options(config), config.get("encoders"))
-    return RUNNERS[kind].load().restore(Path(run_dir), config, agent_maker(module, spec, cfg, conv)())
+    agent = agent_maker(module, spec, cfg, conv, precision_of(config))()
+    return RUNNERS[kind].load().restore(Path(run_dir), config, agent)

@@ -45,12 +45,19 @@ FINAL_RETURNS = "final-returns.json"
 
 
 BREAK_EVEN_AGENT_STEPS = 4_000_000
-"""Agent steps (summed over seeds, and over a sweep's settings) from which a run split over the cores
-finishes sooner than one process: below it, the workers' own start-up (each spawns, imports jax and
-loads its program, ~7-9 s on 2 cores) costs more than the split saves. Measured with PPO on
-CartPole, the cheapest agent step agentax has, so a costlier step gains sooner
-(``benchmarks/bench_break_even.py``, AMD EPYC, 2 cores: 4.1M agent steps over 2 workers 1.35×
-faster than one process, 1M 0.78× and 0.55×)."""
+"""PPO CartPole agent steps (summed over seeds) from which a run split over the cores finished
+sooner than one process: below it, the workers' own start-up (each spawns, imports jax and loads
+its program, ~7-9 s on 2 cores) costs more than the split saves (``benchmarks/bench_break_even.py``,
+AMD EPYC, 2 cores: 4.1M agent steps over 2 workers 1.35× faster than one process, 1M 0.78× and
+0.55×). The split itself goes by the programs' cost, :data:`BREAK_EVEN_FLOPS`."""
+PPO_CARTPOLE_FLOPS_PER_STEP = 2.49e5
+"""XLA's count of floating-point operations per agent step of that measured program (PPO's
+``default`` preset on CartPole-v1; :func:`agentax.runners.cost.program_flops` ÷ its steps)."""
+BREAK_EVEN_FLOPS = BREAK_EVEN_AGENT_STEPS * PPO_CARTPOLE_FLOPS_PER_STEP
+"""The floating-point operations (XLA's count, summed over seeds and a sweep's settings) from which
+the cores are worth their workers' start-up: the break-even measured in PPO CartPole's steps, in
+their cost (~1e12). An agent whose step costs more (wider networks, SAC's update every step, a
+convolution) splits after fewer steps, one that costs less after more."""
 
 
 def usable_cores() -> int:
@@ -58,18 +65,23 @@ def usable_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
-def default_count(jobs: int, agent_steps: int) -> int:
+def default_count(jobs: int, flops: float | Callable[[], float]) -> int:
     """The ``--workers`` of a run that does not give it: one per usable core (never more than
-    ``jobs``, its seeds or a sweep's settings) once ``agent_steps`` reach
-    :data:`BREAK_EVEN_AGENT_STEPS`, else 1."""
-    return max(1, min(usable_cores(), jobs)) if agent_steps >= BREAK_EVEN_AGENT_STEPS else 1
+    ``jobs``, its seeds or a sweep's settings) once its programs' ``flops`` (summed over the jobs;
+    a callable is asked only where there are several cores and jobs) reach :data:`BREAK_EVEN_FLOPS`,
+    else 1."""
+    cores = max(1, min(usable_cores(), jobs))
+    if cores == 1:
+        return 1
+    return cores if (flops() if callable(flops) else flops) >= BREAK_EVEN_FLOPS else 1
 
 
-def default_for(seeds: int, total_steps: int, stop_at_return: float | None) -> int:
-    """Without ``--workers``: every core for a run of all its steps long enough to gain; one process
-    for a run that stops at a return (how long it runs is not known, and a split would stop each
-    worker on its own seeds' return)."""
-    return 1 if stop_at_return is not None else default_count(seeds, seeds * total_steps)
+def default_for(seeds: int, seed_flops: Callable[[], float], stop_at_return: float | None) -> int:
+    """Without ``--workers``: every core for a run of all its steps costly enough to gain
+    (``seed_flops()``: one seed's whole training, :func:`agentax.runners.cost.program_flops`); one
+    process for a run that stops at a return (how long it runs is not known, and a split would
+    stop each worker on its own seeds' return)."""
+    return 1 if stop_at_return is not None else default_count(seeds, lambda: seeds * seed_flops())
 
 
 def announced(runner: Any, chosen: bool) -> str:
