@@ -92,6 +92,7 @@ def prepare(module: Any, run_args: Any, cfg: Any, preset: Any, kind: str) -> Lau
     spec, solved_by = env_specs(kind, run_args.env, run_args.env_backend, run_args.sticky_actions)
     remake = agent_maker(module, spec, cfg)
     agent = remake()  # refuses what the agent cannot train before anything is written
+    check_memory_carried(agent, kind)
     check_learning_fits(module.make_agent(spec, cfg), spec, run_args.seeds)  # (plain: see its docstring)
     solved = getattr(solved_by, "reward_threshold", None)  # 'auto': the env's, in a solving preset
     auto = float(solved) if preset.stop_at_solved and solved is not None else None
@@ -99,6 +100,16 @@ def prepare(module: Any, run_args: Any, cfg: Any, preset: Any, kind: str) -> Lau
     run_args = dataclasses.replace(run_args, stop_at_return=stop)  # what every configure reads
     runner, where = runner_module.configure(run_args, agent, preset)
     return _launch(runner_module, agent, remake, run_args.env, runner, where)
+
+
+def check_memory_carried(agent: Any, kind: str) -> None:
+    """A ``UsageError`` for an agent with memory (a recurrent core) on a runner that does not carry
+    it: only the compiled runner keeps each env's memory from step to step."""
+    if agent.recurrent is not None and kind != "compiled":
+        raise UsageError(
+            f"a recurrent core (--core) trains on the compiled runner only (--runner compiled on a JAX env "
+            f"such as CartPoleNoVel-v1), not on the {kind} runner"
+        )
 
 
 def reopen(config: dict[str, Any], module: Any, cfg: Any, runner: Any) -> Launch:
