@@ -2,6 +2,7 @@
 sequences, the compiled runner and evaluation carrying memory, CartPoleNoVel and the refusals."""
 
 import dataclasses
+import functools
 
 import gymnasium
 import jax
@@ -82,6 +83,7 @@ def collect(cfg: ppo.PPOConfig, key: int = 3):
     return carry, trajectory
 
 
+@functools.partial(jax.jit, static_argnums=3)
 def replay(state, trajectory, first, length):
     """The learner's view of a rollout: its sequences replayed through the core from the memory
     stored where each starts, resetting where ``first`` says (``small("lstm")``'s network, sequences
@@ -97,7 +99,7 @@ def replay(state, trajectory, first, length):
         step, start, in_sequences(trajectory.obs, length), in_sequences(first, length)
     )
     log_probs = ppo._log_prob_entropy(logits, in_sequences(trajectory.action, length), SPEC)[0]
-    return np.asarray(jax.tree.leaves(memories)[-1]), np.asarray(log_probs)
+    return jax.tree.leaves(memories)[-1], log_probs
 
 
 def in_sequences(x, length):
