@@ -236,7 +236,7 @@ def test_feed_forward_ppo_is_as_it_was():
         (["train", "ppo", "--core", "lstm", "--bptt", "7"], "--bptt 7 does not split num_steps"),
         (
             ["train", "ppo", "--env", "CartPoleNoVel-v1", "--core", "lstm", "--runner", "host"],
-            "compiled runner only",
+            "runner carries its memory (--runner compiled",
         ),
     ],
 )

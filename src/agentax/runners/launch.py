@@ -104,11 +104,14 @@ def prepare(module: Any, run_args: Any, cfg: Any, preset: Any, kind: str) -> Lau
 
 def check_memory_carried(agent: Any, kind: str) -> None:
     """A ``UsageError`` for an agent with memory (a recurrent core) on a runner that does not carry
-    it: only the compiled runner keeps each env's memory from step to step."""
-    if agent.recurrent is not None and kind != "compiled":
+    it from step to step (:attr:`agentax.runners.Runner.carries_memory`)."""
+    if agent.recurrent is not None and not RUNNERS[kind].carries_memory:
+        carriers = " or ".join(
+            f"--runner {RUNNERS[k].chosen_as}" for k in RUNNERS if RUNNERS[k].carries_memory
+        )
         raise UsageError(
-            f"a recurrent core (--core) trains on the compiled runner only (--runner compiled on a JAX env "
-            f"such as CartPoleNoVel-v1), not on the {kind} runner"
+            f"a recurrent core (--core) trains only where a runner carries its memory ({carriers}, on a JAX "
+            f"env such as CartPoleNoVel-v1), not on the {kind} runner"
         )
 
 
