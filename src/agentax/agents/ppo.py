@@ -32,6 +32,16 @@ when it was acted on): the behaviour log-probabilities were taken under the olde
 iteration's first ratios also carry the statistics' change, large in the first iteration and small
 once they settle. They are no parameters: gradients never reach them.
 
+**Memory** (``core``: ``"lstm"`` or ``"gru"``; the last section): a recurrent core between the torso
+and the heads (:class:`~agentax.nets.RecurrentActorCritic`). The agent then acts through
+``Agent.recurrent``: each env's carry travels with the rollout, reset to zeros where an episode
+starts, and every step's ``info`` keeps the carry it received and its ``first`` flag. ``learn``
+recomputes the values through the whole rollout with the learner's parameters, then takes its
+minibatches as whole env sequences (``bptt`` steps, or the rollout), each run through the core from
+its stored carry, resetting where ``first`` says: backpropagation through time, as PureJaxRL's
+``ppo_rnn`` (whole rollouts) and R2D2's stored state (shorter sequences). Only the compiled runner
+carries the memory.
+
 Pure functions: ``init``, ``act`` and ``learn`` serve every runner through ``make_agent``; the
 compiled runner builds its rollout program from them (:mod:`agentax.runners.rollout`).
 """
