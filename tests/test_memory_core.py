@@ -18,8 +18,9 @@ from agentax.envs.cartpole import CartPoleNoVel
 from agentax.envs.core import RecurrentPolicy, episode_returns
 from agentax.evaluate import host_episode_returns
 from agentax.nets import reset_where, unroll
-from agentax.runners.compiled import program_of
+from agentax.runners.compiled import RunnerConfig, program_of, train_program
 from agentax.runners.rollout import OnPolicyCarry, RecurrentCarry, VectorEnv, on_policy_rollout
+from agentax.runs import Run
 
 NOVEL = make_jax("CartPoleNoVel-v1")
 SPEC = EnvSpec.of(NOVEL)
@@ -245,3 +246,29 @@ def test_bad_core_input_is_one_line_and_exit_code_2(argv, message, capsys, tmp_p
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1, err
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.long  # three compiled trainings (~90 s on 2 shared cores): make test-long
+def test_an_interrupted_recurrent_run_resumes_to_the_same_end(tmp_path):
+    """The checkpoint holds each env's memory and ``first`` flags (the :class:`RecurrentCarry`), so a
+    run cut after its first chunk resumes to the very numbers of the run never cut."""
+    cfg = small("lstm", total_steps=64 * 8, bptt=8)
+    program = program_of(ppo.make_agent(SPEC, cfg), NOVEL)
+    runner = RunnerConfig(seed=0, num_seeds=2, updates_per_chunk=4, eval_episodes=3)
+    whole = train_program(
+        program, NOVEL, runner, Run.create(tmp_path / "whole", {"algo": "ppo", "env": NOVEL.id})
+    )
+    run = Run.create(tmp_path / "cut", {"algo": "ppo", "env": NOVEL.id})
+    train_program(program, NOVEL, runner, run, max_chunks=1)
+    resumed = train_program(program, NOVEL, runner, run, resume=True)
+    assert type(resumed.state) is RecurrentCarry
+
+    def numbers(state):  # the key chain, each env's memory and first flag, the parameters
+        return [
+            jax.random.key_data(state.key),
+            *jax.tree.leaves((state.memory, state.first, state.agent.params)),
+        ]
+
+    for a, b in zip(numbers(whole.state), numbers(resumed.state), strict=True):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(whole.final_returns[0], resumed.final_returns[0])
