@@ -115,8 +115,8 @@ PPO_PRESETS: dict[str, Preset] = {
             core="lstm",
             core_size=64,
         ),
-        "an LSTM core (64 units) for partially observed tasks (CartPoleNoVel-v1), cartpole-fast's "
-        "settings otherwise; benchmarks/bench_memory.py",
+        "an LSTM core (64 units) for partially observed tasks, cartpole-fast's settings otherwise: on "
+        "CartPoleNoVel-v1 8 of 8 seeds evaluate 500 after 153,600 steps, feed-forward PPO 46 (bench_memory)",
     ),
     "small-games": Preset(
         PPOConfig(
