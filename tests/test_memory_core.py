@@ -147,7 +147,7 @@ def trained_returns(cfg: ppo.PPOConfig, seeds: int = 2) -> tuple[np.ndarray, dic
     return np.asarray(returns), jax.tree.map(np.asarray, metrics)
 
 
-@pytest.mark.long  # ~70 s on 2 shared cores (two training programs to compile): make test-long
+@pytest.mark.slow  # two training programs to compile: ~30 s of the file's ~56 s on 2 idle cores
 def test_memory_learns_what_a_feed_forward_policy_cannot():
     """The same PPO and env steps (20,480 per seed, the ``memory`` preset's settings with a small GRU):
     with the core the greedy policy balances far longer than without, which sees no velocities.
@@ -248,7 +248,7 @@ def test_bad_core_input_is_one_line_and_exit_code_2(argv, message, capsys, tmp_p
     assert not (tmp_path / "run").exists()
 
 
-@pytest.mark.long  # three compiled trainings (~90 s on 2 shared cores): make test-long
+@pytest.mark.long  # three compiled trainings (~17 s on 2 idle cores, ~90 s loaded): make test-long
 def test_an_interrupted_recurrent_run_resumes_to_the_same_end(tmp_path):
     """The checkpoint holds each env's memory and ``first`` flags (the :class:`RecurrentCarry`), so a
     run cut after its first chunk resumes to the very numbers of the run never cut."""
