@@ -14,13 +14,14 @@ import json
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from functools import partial
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from agentax.envs import Discrete, Environment, GymnasiumEnv, make
-from agentax.envs.core import EnvParams, episode_returns
+from agentax.envs.core import EnvParams, RecurrentPolicy, batched_policy, episode_returns
 from agentax.errors import UsageError
 from agentax.policies import Policy
 
@@ -75,20 +76,40 @@ def _act_batch(policy: Policy, obs: jax.Array, key: jax.Array) -> tuple[jax.Arra
     return jax.vmap(policy)(obs, jax.random.split(act_key, obs.shape[0])), key
 
 
-def host_actor(policy: Policy | HostPolicy, seed: int) -> Callable[[np.ndarray], np.ndarray]:
-    """A stateful ``act(obs [num_envs, ...]) -> actions`` for a host env, its randomness from ``seed``.
+@partial(jax.jit, static_argnums=0)
+def _act_recurrent(
+    policy: RecurrentPolicy, memory: Any, obs: jax.Array, first: jax.Array, key: jax.Array
+) -> tuple[Any, jax.Array, jax.Array]:
+    """:func:`_act_batch` for a policy with memory: ``(memory, actions, next key)``, each env's
+    memory started afresh where ``first`` marks an episode's start."""
+    key, act_key = jax.random.split(key)
+    _, act = batched_policy(policy, obs.shape[0])
+    memory, actions = act(memory, obs, jax.random.split(act_key, obs.shape[0]), first)
+    return memory, actions, key
+
+
+def host_actor(policy: Policy | RecurrentPolicy | HostPolicy, seed: int) -> Callable[..., np.ndarray]:
+    """A stateful ``act(obs [num_envs, ...], first=None) -> actions`` for a host env, its randomness
+    from ``seed``; ``first`` (bool ``[num_envs]``) marks the observations that start an episode, where
+    a :class:`RecurrentPolicy` starts its memory afresh (it starts fresh at the first call anyway).
 
     A JAX policy draws step ``t``'s keys as ``key_t, act_key = split(key_{t-1})`` from
     ``key_0 = jax.random.key(seed)``, then ``split(act_key, num_envs)``.
     """
     if isinstance(policy, HostPolicy):
         rng = np.random.default_rng(seed)
-        return lambda obs: np.asarray(policy.act(obs, rng))
-    key = jax.random.key(seed)
+        return lambda obs, first=None: np.asarray(policy.act(obs, rng))
+    key, memory = jax.random.key(seed), None
 
-    def act(obs: np.ndarray) -> np.ndarray:
-        nonlocal key
-        actions, key = _act_batch(policy, jnp.asarray(obs), key)
+    def act(obs: np.ndarray, first: np.ndarray | None = None) -> np.ndarray:
+        nonlocal key, memory
+        if not isinstance(policy, RecurrentPolicy):
+            actions, key = _act_batch(policy, jnp.asarray(obs), key)
+            return np.asarray(actions)
+        if memory is None:  # fresh: each env's memory at an episode's start
+            memory = batched_policy(policy, len(obs))[0]
+        first = np.zeros(len(obs), bool) if first is None else np.asarray(first, bool)
+        memory, actions, key = _act_recurrent(policy, memory, jnp.asarray(obs), jnp.asarray(first), key)
         return np.asarray(actions)
 
     return act
@@ -120,8 +141,10 @@ def host_episode_returns(
     episode = np.where(slots < num_episodes, slots, -1)  # the counted episode each sub-env plays, or -1
     started = min(env.num_envs, num_episodes)
     returns, lengths = np.zeros(num_episodes), np.zeros(num_episodes, np.int64)
+    first = np.ones(env.num_envs, bool)
     while (episode >= 0).any():
-        ts = env.step(act(obs))
+        ts = env.step(act(obs, first))
+        first = np.asarray(ts.terminated | ts.truncated)
         counted = episode >= 0
         returns[episode[counted]] += ts.reward[counted]
         lengths[episode[counted]] += 1
@@ -143,7 +166,12 @@ def check_policy_fits(env: Environment | GymnasiumEnv, policy: Policy | HostPoli
     obs_space, action_space = env.observation_space(), env.action_space()
     obs = jax.ShapeDtypeStruct(obs_space.shape, jnp.int32 if isinstance(obs_space, Discrete) else jnp.float32)
     try:
-        action = jax.eval_shape(policy, obs, jax.random.key(0))
+        if isinstance(policy, RecurrentPolicy):
+            action = jax.eval_shape(
+                lambda o, k: policy.step(policy.initial(), o, k)[1], obs, jax.random.key(0)
+            )
+        else:
+            action = jax.eval_shape(policy, obs, jax.random.key(0))
     except (TypeError, ValueError, IndexError) as error:
         reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
         raise UsageError(f"the policy cannot read {env_id}'s observations {obs_space}: {reason}") from error

@@ -54,6 +54,7 @@ import numpy as np
 
 from agentax.agents.protocol import Agent, AgentState
 from agentax.envs import Box, Discrete, make
+from agentax.envs.core import RecurrentPolicy
 from agentax.envs.spaces import Layout, Leaf, MultiBinary, MultiDiscrete
 from agentax.errors import UsageError
 from agentax.policies import Policy
@@ -386,7 +387,13 @@ def export_run(
     if layout is not None:  # the card says how the network encodes each leaf, as the run chose
         layout = layout.with_encoders(config.get("encoders", {}))
     obs = jax.ShapeDtypeStruct(tuple(spaces[0].shape), jnp.dtype(spaces[0].dtype))
-    f, action = batched(restore(), obs, stochastic)
+    policy = restore()
+    if isinstance(policy, RecurrentPolicy):
+        raise UsageError(
+            f"export writes policies obs -> action; {run_dir}'s has a recurrent core (--core), whose memory "
+            "an exported function would have to take and return: evaluate it with agentax evaluate instead"
+        )
+    f, action = batched(policy, obs, stochastic)
     if format == "onnx":
         metadata = {} if layout is None else {LAYOUT_METADATA: json.dumps(layout_card(layout))}
         data = to_onnx(f, obs, metadata=metadata)

@@ -601,6 +601,79 @@ class ActorCritic(nn.Module):
         return (gaussian_head(self, actor_out) if self.continuous else actor_out), value
 
 
+CORES = ("none", "lstm", "gru")
+"""The recurrent cores an actor-critic may carry after its torso ("none": feed-forward)."""
+Memory = Any
+"""A recurrent core's carry: LSTM ``(c, h)``, GRU ``h``, each ``[..., core_size]``."""
+
+
+def zero_memory(core: str, core_size: int, batch_shape: tuple[int, ...] = ()) -> Memory:
+    """The carry of a core at an episode's start: zeros ``[*batch_shape, core_size]``."""
+    zeros = jnp.zeros((*batch_shape, core_size), jnp.float32)
+    return (zeros, zeros) if core == "lstm" else zeros
+
+
+def reset_where(first: jax.Array, memory: Memory) -> Memory:
+    """``memory`` with the carry of each env whose observation starts an episode (``first``, bool
+    ``[...]``) set back to zeros; the others' as they are."""
+    return jax.tree.map(lambda m: jnp.where(first[..., None], jnp.zeros_like(m), m), memory)
+
+
+def unroll(step: Any, memory: Memory, obs: jax.Array, first: jax.Array) -> tuple[Memory, Any]:
+    """A one-step recurrent network ``step(obs_t, memory, first_t) -> (memory, out_t)`` run through a
+    sequence ``obs [T, B, ...]``, ``first [T, B]`` from ``memory`` ``[B, ...]``: ``(the memory after
+    each step [T, B, ...], outs [T, B, ...])``, each step resetting where its ``first`` says."""
+
+    def body(memory: Memory, inputs: tuple[jax.Array, jax.Array]) -> tuple[Memory, Any]:
+        memory, out = step(inputs[0], memory, inputs[1])
+        return memory, (memory, out)
+
+    _, (memories, outs) = jax.lax.scan(body, memory, (obs, first))
+    return memories, outs
+
+
+class RecurrentActorCritic(nn.Module):
+    """PPO's actor-critic with memory, one step: ``(obs [..., *obs_shape], memory, first [...]) ->
+    (memory, (actor_out, value [...]))``.
+
+    The torso (the MLP of ``hidden``, or the Nature / MinAtar CNN) encodes the observation, the core
+    (``"lstm"``: flax's ``OptimizedLSTMCell``, ``"gru"``: ``GRUCell``, ``core_size`` units) takes it
+    with its carry, reset to zeros first where ``first`` marks an episode's start (PureJaxRL's
+    ``ppo_rnn``, CleanRL's ``ppo_atari_lstm``), and an actor and a critic head of one hidden layer
+    (``core_size`` units) each read the core's output. ``actor_out`` as :class:`ActorCritic`'s.
+    """
+
+    action_dim: int
+    continuous: bool = False
+    hidden: Sequence[int] = (64,)
+    activation: str = "tanh"
+    core: str = "lstm"
+    core_size: int = 128
+    cnn: bool = False
+    image_shape: tuple[int, ...] | None = None
+    conv: str = "xla"
+
+    @nn.compact
+    def __call__(self, obs: jax.Array, memory: Memory, first: jax.Array):
+        act = ACTIVATIONS[self.activation]
+        hidden_init = nn.initializers.orthogonal(jnp.sqrt(2.0))
+        if self.cnn:
+            x = NatureCNN(conv=self.conv)(obs)
+        elif self.image_shape is not None:
+            x = MinAtarCNN(tuple(self.image_shape))(obs)
+        else:
+            x = obs.astype(jnp.float32)
+            for width in self.hidden:
+                x = act(nn.Dense(width, kernel_init=hidden_init)(x))
+        cell = nn.OptimizedLSTMCell(self.core_size) if self.core == "lstm" else nn.GRUCell(self.core_size)
+        memory, x = cell(reset_where(first, memory), x)
+        actor = act(nn.Dense(self.core_size, kernel_init=hidden_init)(x))
+        critic = act(nn.Dense(self.core_size, kernel_init=hidden_init)(x))
+        actor_out = nn.Dense(self.action_dim, kernel_init=nn.initializers.orthogonal(0.01))(actor)
+        value = nn.Dense(1, kernel_init=nn.initializers.orthogonal(1.0))(critic)[..., 0]
+        return memory, ((gaussian_head(self, actor_out) if self.continuous else actor_out), value)
+
+
 def gaussian_log_prob(mean: jax.Array, log_std: jax.Array, action: jax.Array) -> jax.Array:
     """``log N(action; mean, exp(log_std)^2)`` summed over the action dimensions: ``[..., d] -> [...]``."""
     z = (action - mean) * jnp.exp(-log_std)

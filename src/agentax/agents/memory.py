@@ -61,7 +61,14 @@ def learn_input(agent: Agent, spec: EnvSpec) -> tuple[Any, Any]:
     state = jax.eval_shape(agent.init, a_key())
     experience = agent.experience
     obs = abstract((experience.num_envs, *spec.obs_shape), spec.obs_dtype)
-    action, info = jax.eval_shape(agent.act, state, obs, a_key(), abstract((), jnp.int32))
+    if agent.recurrent is None:
+        action, info = jax.eval_shape(agent.act, state, obs, a_key(), abstract((), jnp.int32))
+    else:
+        memory = jax.eval_shape(lambda: agent.recurrent.initial(experience.num_envs))
+        first = abstract((experience.num_envs,), bool)
+        _, action, info = jax.eval_shape(
+            agent.recurrent.act, state, memory, obs, first, a_key(), abstract((), jnp.int32)
+        )
     one_action = abstract(
         action.shape[1:], jnp.float32 if jnp.issubdtype(action.dtype, jnp.floating) else jnp.int32
     )

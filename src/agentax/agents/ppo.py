@@ -32,12 +32,23 @@ when it was acted on): the behaviour log-probabilities were taken under the olde
 iteration's first ratios also carry the statistics' change, large in the first iteration and small
 once they settle. They are no parameters: gradients never reach them.
 
+**Memory** (``core``: ``"lstm"`` or ``"gru"``; the last section): a recurrent core between the torso
+and the heads (:class:`~agentax.nets.RecurrentActorCritic`). The agent then acts through
+``Agent.recurrent``: each env's carry travels with the rollout, reset to zeros where an episode
+starts, and every step's ``info`` keeps the carry it received and its ``first`` flag. ``learn``
+recomputes the values through the whole rollout with the learner's parameters, then takes its
+minibatches as whole env sequences (``bptt`` steps, or the rollout), each run through the core from
+its stored carry, resetting where ``first`` says: backpropagation through time, as PureJaxRL's
+``ppo_rnn`` (whole rollouts) and R2D2's stored state (shorter sequences). Only the compiled runner
+carries the memory.
+
 Pure functions: ``init``, ``act`` and ``learn`` serve every runner through ``make_agent``; the
 compiled runner builds its rollout program from them (:mod:`agentax.runners.rollout`).
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Any
 
@@ -52,15 +63,19 @@ from agentax.agents.protocol import (
     EnvSpec,
     Loop,
     OnPolicy,
+    Recurrent,
     action_nvec,
     check_fields,
     discrete_actions,
     image_shape_for,
 )
-from agentax.envs.core import Box
+from agentax.envs.core import Box, RecurrentPolicy
 from agentax.errors import UsageError
 from agentax.nets import (
+    CORES,
     ActorCritic,
+    Memory,
+    RecurrentActorCritic,
     entropy,
     gaussian_entropy,
     gaussian_log_prob,
@@ -69,7 +84,9 @@ from agentax.nets import (
     log_prob,
     masked,
     sample_action,
+    unroll,
     with_encoder,
+    zero_memory,
 )
 from agentax.policies import Policy
 from agentax.replay import Transition
@@ -127,6 +144,14 @@ class PPOConfig:
     factor; Gymnasium's NormalizeReward, SB3's VecNormalize), kept in the agent state"""
     reward_clip: float = 10.0
     """clip normalised rewards to [−this, this]"""
+    core: str = "none"
+    """a recurrent core after the torso: lstm, gru, or none (feed-forward); its memory of each env is
+    reset where an episode starts and learned by backpropagation through time (compiled runner)"""
+    core_size: int = 128
+    """units of the recurrent core (and of the actor's and the critic's hidden layer after it)"""
+    bptt: int = 0
+    """steps of the sequences the core is learned on, each from the memory stored where it starts
+    (0: the whole rollout of num_steps); num_steps must split into them"""
 
     def validate(self) -> PPOConfig:
         """Raise a UsageError naming the first bad value (run by ``make_agent`` and the CLI)."""
@@ -150,7 +175,32 @@ class PPOConfig:
                 f"num_envs × num_steps = {self.num_envs * self.num_steps} does not split into "
                 f"{self.num_minibatches} minibatches"
             )
+        if self.core != "none":
+            self.validate_core()
         return self
+
+    def validate_core(self) -> None:
+        """The recurrent core's settings: a known core, a positive size, sequences that split the
+        rollout and minibatches of whole sequences."""
+        if self.core not in CORES:
+            raise UsageError(f"unknown core {self.core!r}; choose from {', '.join(CORES)}")
+        check_fields(self, positive=("core_size",), non_negative=("bptt",))
+        if self.bptt and self.num_steps % self.bptt:
+            raise UsageError(f"--bptt {self.bptt} does not split num_steps {self.num_steps} into sequences")
+        if self.num_sequences % self.num_minibatches:
+            raise UsageError(
+                f"the {self.num_sequences} sequences of a rollout (num_envs × num_steps / bptt) do not split "
+                f"into {self.num_minibatches} minibatches of whole sequences; lower --num-minibatches"
+            )
+
+    @property
+    def sequence_length(self) -> int:
+        """Steps of each sequence the core learns on (``bptt``, or the whole rollout)."""
+        return self.bptt or self.num_steps
+
+    @property
+    def num_sequences(self) -> int:
+        return self.num_envs * (self.num_steps // self.sequence_length)
 
     @property
     def steps_per_update(self) -> int:
@@ -215,7 +265,11 @@ def optimizer(cfg: PPOConfig) -> optax.GradientTransformation:
 
 
 def init(key: jax.Array, spec: EnvSpec, cfg: PPOConfig) -> PPOAgent:
-    params = network(cfg, spec).init(key, jnp.zeros(spec.obs_shape, spec.obs_dtype))
+    obs = jnp.zeros(spec.obs_shape, spec.obs_dtype)
+    if cfg.core == "none":
+        params = network(cfg, spec).init(key, obs)
+    else:
+        params = recurrent_network(cfg, spec).init(key, obs, initial_memory(cfg), jnp.bool_(True))
     agent = PPOAgent(params, optimizer(cfg).init(params), jnp.int32(0))
     if cfg.normalize_observations:
         agent = agent.replace(obs_stats=running.init(spec.obs_shape))
@@ -285,12 +339,23 @@ def act(
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Sample actions for observations ``[E, *obs_shape]``: ``(action, log_prob [E], value [E])``."""
     actor_out, value = policy_output(network(cfg, spec, conv, precision), params, obs, spec)
+    action = sample(actor_out, key, spec)
+    return action, _log_prob_entropy(actor_out, action, spec)[0], value
+
+
+def sample(actor_out: Any, key: jax.Array, spec: EnvSpec) -> jax.Array:
+    """Actions drawn from the policy's output (logits already masked, or the Gaussian's)."""
     if is_continuous(spec):
         mean, log_std = actor_out
-        action = mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape)
-    else:
-        action = sample_action(key, actor_out, action_nvec(spec.action_space))
-    return action, _log_prob_entropy(actor_out, action, spec)[0], value
+        return mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape)
+    return sample_action(key, actor_out, action_nvec(spec.action_space))
+
+
+def most_probable(actor_out: Any, spec: EnvSpec) -> jax.Array:
+    """The greedy action of the policy's output: the most probable one, or the Gaussian's mean clipped."""
+    if is_continuous(spec):
+        return env_action(actor_out[0], spec)
+    return greedy_action(actor_out, action_nvec(spec.action_space)).astype(jnp.int32)
 
 
 def env_action(action: jax.Array, spec: EnvSpec) -> jax.Array:
@@ -314,9 +379,7 @@ def greedy_policy(
 
     def policy(obs: jax.Array, key: jax.Array) -> jax.Array:
         actor_out, _ = policy_output(net, params, observe(obs_stats, obs, cfg), spec)
-        if is_continuous(spec):
-            return env_action(actor_out[0], spec)
-        return greedy_action(actor_out, action_nvec(spec.action_space)).astype(jnp.int32)
+        return most_probable(actor_out, spec)
 
     return policy
 
@@ -344,11 +407,23 @@ def loss_fn(
     conv: str = "xla",
     precision: str = "f32",
 ):
-    """The PPO loss of one minibatch (flat ``[B, ...]`` arrays); returns ``(loss, metrics)``.
-
-    With ``batch["valid"]`` (bool ``[B]``) every mean runs over the valid entries only."""
-    valid = batch.get("valid")
+    """The PPO loss of one minibatch (flat ``[B, ...]`` arrays); returns ``(loss, metrics)``."""
     actor_out, value = policy_output(network(cfg, spec, conv, precision), params, batch["obs"], spec)
+    return ppo_loss(actor_out, value, batch, clip_eps, spec, cfg)
+
+
+def ppo_loss(
+    actor_out: Any,
+    value: jax.Array,
+    batch: dict[str, jax.Array],
+    clip_eps: jax.Array,
+    spec: EnvSpec,
+    cfg: PPOConfig,
+):
+    """The PPO loss of the network's outputs on a minibatch, ``(loss, metrics)``: arrays of any leading
+    shape (flat steps ``[B]``, or sequences ``[L, B]``). With ``batch["valid"]`` (bool, the same
+    shape) every mean runs over the valid entries only."""
+    valid = batch.get("valid")
     new_log_prob, entropies = _log_prob_entropy(actor_out, batch["action"], spec)
     advantage = normalize(batch["advantage"], valid) if cfg.normalize_advantages else batch["advantage"]
     policy_loss = clipped_surrogate_loss(new_log_prob, batch["log_prob"], advantage, clip_eps, valid)
@@ -395,7 +470,6 @@ def learn(
         cfg.discount_factor,
         cfg.gae_lambda,
     )
-    batch_size = advantages.size
     flat = {
         "obs": rollout.obs,
         "action": rollout.action,
@@ -405,30 +479,186 @@ def learn(
     }
     if "valid" in rollout.info:
         flat["valid"] = rollout.info["valid"]
-    flat = jax.tree.map(lambda x: x.reshape(batch_size, *x.shape[2:]), flat)
+    flat = jax.tree.map(lambda x: x.reshape(advantages.size, *x.shape[2:]), flat)
+    loss = functools.partial(loss_fn, spec=spec, cfg=cfg, conv=conv, precision=precision)
+    (params, opt_state), metrics = sgd_epochs(loss, flat, agent, key, cfg, tx, loop)
+    agent = agent.replace(params=params, opt_state=opt_state, updates=agent.updates + 1)
+    return agent, jax.tree.map(jnp.mean, metrics)
+
+
+def sgd_epochs(
+    loss: Any, data: dict[str, Any], agent: PPOAgent, key: jax.Array, cfg: PPOConfig, tx: Any, loop: Loop
+) -> tuple[tuple[Any, Any], dict[str, jax.Array]]:
+    """``update_epochs`` passes of minibatch SGD from the agent's parameters: ``data``'s leaves
+    ``[N, ...]`` (N steps, or N sequences) shuffled each epoch and split into ``num_minibatches``;
+    ``loss(params, minibatch, clip_eps) -> (loss, metrics)``. Returns ``((params, opt_state), metrics)``."""
+    size = jax.tree.leaves(data)[0].shape[0]
     progress = agent.updates.astype(jnp.float32) / cfg.num_updates
     clip_eps = cfg.clip_eps * (1.0 - progress) if cfg.anneal_clip else jnp.float32(cfg.clip_eps)
-    grad_fn = jax.grad(loss_fn, has_aux=True)
+    grad_fn = jax.grad(loss, has_aux=True)
 
     def sgd_step(carry, minibatch):
         params, opt_state = carry
-        grads, metrics = grad_fn(params, minibatch, clip_eps, spec, cfg, conv, precision)
+        grads, metrics = grad_fn(params, minibatch, clip_eps)
         updates, opt_state = tx.update(grads, opt_state, params)
         return (optax.apply_updates(params, updates), opt_state), metrics
 
     def epoch(carry, epoch_key):
         if cfg.num_minibatches == 1:
-            minibatches = jax.tree.map(lambda x: x[None], flat)
+            minibatches = jax.tree.map(lambda x: x[None], data)
         else:
-            order = jax.random.permutation(epoch_key, batch_size)
+            order = jax.random.permutation(epoch_key, size)
             minibatches = jax.tree.map(
-                lambda x: x[order].reshape(cfg.num_minibatches, -1, *x.shape[1:]), flat
+                lambda x: x[order].reshape(cfg.num_minibatches, -1, *x.shape[1:]), data
             )
         return loop(sgd_step, carry, minibatches)
 
-    (params, opt_state), metrics = loop(
-        epoch, (agent.params, agent.opt_state), jax.random.split(key, cfg.update_epochs)
+    return loop(epoch, (agent.params, agent.opt_state), jax.random.split(key, cfg.update_epochs))
+
+
+# ---------------------------------------------------------------- with a recurrent core (cfg.core)
+
+
+def recurrent_network(cfg: PPOConfig, spec: EnvSpec, conv: str = "xla") -> Any:
+    """PPO's actor-critic with the core ``cfg.core`` after its torso (:class:`RecurrentActorCritic`),
+    one step ``(obs, memory, first) -> (memory, (actor_out, value))``."""
+    net = RecurrentActorCritic(
+        action_dim(spec),
+        is_continuous(spec),
+        tuple(cfg.hidden),
+        cfg.activation,
+        cfg.core,
+        cfg.core_size,
+        is_image(spec.obs_shape),
+        image_shape_for(cfg.conv_torso, spec),
+        conv,
     )
+    return with_encoder(net, spec.layout)
+
+
+def initial_memory(cfg: PPOConfig, batch_shape: tuple[int, ...] = ()) -> Memory:
+    """The core's memory at an episode's start, zeros ``[*batch_shape, core_size]`` (LSTM: a pair)."""
+    return zero_memory(cfg.core, cfg.core_size, batch_shape)
+
+
+def recurrent_output(net: Any, params: Any, obs: jax.Array, memory: Memory, first: jax.Array, spec: EnvSpec):
+    """One step of the recurrent network, ``(memory, (actor_out, value))``, its illegal actions'
+    logits masked as :func:`policy_output`'s."""
+    memory, (actor_out, value) = net.apply(params, obs, memory, first)
+    return memory, (masked(actor_out, spec.legal(obs)), value)
+
+
+def act_with_memory(
+    state: PPOAgent,
+    memory: Memory,
+    obs: jax.Array,
+    first: jax.Array,
+    key: jax.Array,
+    spec: EnvSpec,
+    cfg: PPOConfig,
+    conv: str = "xla",
+) -> tuple[Memory, jax.Array, dict[str, Any]]:
+    """Sample actions for observations ``[E, *obs_shape]`` with the core's ``memory`` ``[E, ...]``,
+    reset where ``first`` (bool ``[E]``): ``(memory after the step, action [E], info)``, ``info``
+    holding the log-probabilities and, for :func:`learn_sequences`, the memory received and ``first``."""
+    net = recurrent_network(cfg, spec, conv)
+    seen = observe(state.obs_stats, obs, cfg)
+    new_memory, (actor_out, _) = recurrent_output(net, state.params, seen, memory, first, spec)
+    action = sample(actor_out, key, spec)
+    info = {"log_prob": _log_prob_entropy(actor_out, action, spec)[0], "memory": memory, "first": first}
+    return new_memory, action, info
+
+
+def recurrent_greedy_policy(
+    params: Any,
+    spec: EnvSpec,
+    cfg: PPOConfig,
+    obs_stats: running.RunningMeanStd | None = None,
+    conv: str = "xla",
+) -> RecurrentPolicy:
+    """The deterministic policy with memory for evaluation: the most probable action given the
+    episode so far, the core's memory carried by whoever plays it."""
+    net = recurrent_network(cfg, spec, conv)
+
+    def step(memory: Memory, obs: jax.Array, key: jax.Array) -> tuple[Memory, jax.Array]:
+        seen = observe(obs_stats, obs, cfg)
+        memory, (actor_out, _) = recurrent_output(net, params, seen, memory, jnp.bool_(False), spec)
+        return memory, most_probable(actor_out, spec)
+
+    return RecurrentPolicy(lambda: initial_memory(cfg), step)
+
+
+def as_sequences(x: jax.Array, length: int) -> jax.Array:
+    """A rollout's ``[T, E, ...]`` cut into ``N = E·T/length`` sequences ``[N, length, ...]``,
+    sequence ``k·E + e`` being env ``e``'s steps ``k·length ... (k + 1)·length − 1``."""
+    steps, envs = x.shape[:2]
+    chunks = x.reshape(steps // length, length, envs, *x.shape[2:])  # (T/length, length, E, ...)
+    return jnp.moveaxis(chunks, 2, 1).reshape(-1, length, *x.shape[2:])
+
+
+def sequence_loss(
+    params: Any, batch: dict[str, Any], clip_eps: jax.Array, net: Any, spec: EnvSpec, cfg: PPOConfig
+):
+    """The PPO loss of a minibatch of sequences (``[B, L, ...]``, ``batch["memory"]`` ``[B, ...]``
+    the memory each starts from): the core run through each sequence with ``params``, reset where
+    ``batch["first"]`` marks an episode's start, then :func:`ppo_loss` on every step."""
+    steps = {k: jnp.swapaxes(v, 0, 1) for k, v in batch.items() if k != "memory"}  # (L, B, ...)
+
+    def step(obs, memory, first):
+        return recurrent_output(net, params, obs, memory, first, spec)
+
+    _, (actor_out, value) = unroll(step, batch["memory"], steps["obs"], steps["first"])
+    return ppo_loss(actor_out, value, steps, clip_eps, spec, cfg)
+
+
+def learn_sequences(
+    agent: PPOAgent,
+    rollout: Transition,
+    key: jax.Array,
+    spec: EnvSpec,
+    cfg: PPOConfig,
+    loop: Loop = jax.lax.scan,
+    conv: str = "xla",
+) -> tuple[PPOAgent, dict[str, jax.Array]]:
+    """One PPO iteration of a recurrent agent on a rollout ``[T, E, ...]`` from :func:`act_with_memory`
+    (``info["memory"]``, ``info["first"]``): the values for GAE from the core run through the
+    whole rollout with the learner's parameters (the value of each observation reached from the
+    memory after its step), then SGD on minibatches of whole sequences of ``cfg.sequence_length``
+    steps, each from the memory stored where it starts (backpropagation through time)."""
+    net, tx = recurrent_network(cfg, spec, conv), optimizer(cfg)
+    agent, rollout = take_in(agent, rollout, cfg)
+    first, stored = rollout.info["first"], rollout.info["memory"]  # (T, E), (T, E, ...)
+
+    def step(obs, memory, first_t):
+        return net.apply(agent.params, obs, memory, first_t)
+
+    start = jax.tree.map(lambda m: m[0], stored)
+    memories, (_, values) = unroll(step, start, rollout.obs, first)  # (T, E, ...), (T, E)
+    _, (_, next_values) = net.apply(agent.params, rollout.next_obs, memories, jnp.zeros_like(first))
+    advantages, targets = gae(
+        rollout.reward,
+        values,
+        next_values,
+        rollout.terminated,
+        rollout.terminated | rollout.truncated,
+        cfg.discount_factor,
+        cfg.gae_lambda,
+    )
+    length = cfg.sequence_length
+    steps = {
+        "obs": rollout.obs,
+        "action": rollout.action,
+        "log_prob": rollout.info["log_prob"],
+        "advantage": advantages,
+        "target": targets,
+        "first": first,
+    }
+    if "valid" in rollout.info:
+        steps["valid"] = rollout.info["valid"]
+    data = jax.tree.map(lambda x: as_sequences(x, length), steps)  # (N, L, ...)
+    data["memory"] = jax.tree.map(lambda m: m[::length].reshape(-1, *m.shape[2:]), stored)  # (N, ...)
+    loss = functools.partial(sequence_loss, net=net, spec=spec, cfg=cfg)
+    (params, opt_state), metrics = sgd_epochs(loss, data, agent, key, cfg, tx, loop)
     agent = agent.replace(params=params, opt_state=opt_state, updates=agent.updates + 1)
     return agent, jax.tree.map(jnp.mean, metrics)
 
@@ -446,6 +676,11 @@ def make_agent(
         what = f"frames {spec.obs_shape}" if spec.layout is None else f"packed observations ({spec.layout})"
         raise UsageError(f"normalize_observations standardises flat observations, not {what}")
 
+    if cfg.core != "none":
+        if precision != "f32":
+            raise UsageError(f"a recurrent core learns in f32 only, not --precision {precision}")
+        return recurrent_agent(spec, cfg, loop, conv)
+
     def act_with_info(state: PPOAgent, obs: jax.Array, key: jax.Array, progress: jax.Array):
         obs = observe(state.obs_stats, obs, cfg)
         action, action_log_prob, _ = act(state.params, obs, key, spec, cfg, conv, precision)
@@ -460,4 +695,31 @@ def make_agent(
         experience=OnPolicy(cfg.num_envs, cfg.num_steps),
         total_steps=cfg.total_steps,
         env_action=lambda action: env_action(action, spec),
+    )
+
+
+def recurrent_agent(spec: EnvSpec, cfg: PPOConfig, loop: Loop = jax.lax.scan, conv: str = "xla") -> Agent:
+    """PPO with the core ``cfg.core``: acting with memory (:class:`~agentax.agents.protocol.Recurrent`),
+    learning on whole sequences (:func:`learn_sequences`); ``act`` alone acts from fresh memory."""
+
+    def act_with_memory_of(state, memory, obs, first, key, progress):
+        return act_with_memory(state, memory, obs, first, key, spec, cfg, conv)
+
+    def act_fresh(state: PPOAgent, obs: jax.Array, key: jax.Array, progress: jax.Array):
+        batch = obs.shape[: obs.ndim - len(spec.obs_shape)]
+        _, action, info = act_with_memory_of(
+            state, initial_memory(cfg, batch), obs, jnp.ones(batch, bool), key, progress
+        )
+        return action, info
+
+    return Agent(
+        name="ppo",
+        init=lambda key: init(key, spec, cfg),
+        act=act_fresh,
+        greedy_policy=lambda state: recurrent_greedy_policy(state.params, spec, cfg, state.obs_stats, conv),
+        learn=lambda state, rollout, key: learn_sequences(state, rollout, key, spec, cfg, loop, conv),
+        experience=OnPolicy(cfg.num_envs, cfg.num_steps),
+        total_steps=cfg.total_steps,
+        env_action=lambda action: env_action(action, spec),
+        recurrent=Recurrent(lambda num_envs: initial_memory(cfg, (num_envs,)), act_with_memory_of),
     )

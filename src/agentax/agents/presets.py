@@ -98,6 +98,26 @@ PPO_PRESETS: dict[str, Preset] = {
         updates_per_chunk=10,
         stop_at_solved=True,
     ),
+    "memory": Preset(
+        PPOConfig(
+            total_steps=153_600,
+            num_envs=8,
+            num_steps=32,
+            learning_rate=3e-3,
+            discount_factor=0.98,
+            gae_lambda=0.8,
+            num_minibatches=2,
+            update_epochs=10,
+            clip_eps=0.2,
+            anneal_clip=True,
+            ent_coef=0.0,
+            hidden=(64,),
+            core="lstm",
+            core_size=64,
+        ),
+        "an LSTM core (64 units) for partially observed tasks, cartpole-fast's settings otherwise: on "
+        "CartPoleNoVel-v1 8 of 8 seeds evaluate 500 after 153,600 steps, feed-forward PPO 46 (bench_memory)",
+    ),
     "small-games": Preset(
         PPOConfig(
             total_steps=32_768,
@@ -486,6 +506,7 @@ DEFAULT_PRESETS: dict[str, dict[str, str]] = {
         "atari": "atari",
         "CartPole-v0": "cartpole-fast",
         "CartPole-v1": "cartpole-fast",
+        "CartPoleNoVel-v1": "memory",
         "Pendulum-v1": "pendulum",
         "GridWorld-v0": "small-games",
         "TicTacToe-v0": "small-games",

@@ -21,7 +21,8 @@ An :class:`Agent` is TF-Agents' agent in JAX terms:
 key, progress)``       [E], info)``; ``info`` holds per-env arrays learning needs (PPO's
                        log-probabilities and values); ``progress`` counts env steps (or episodes)
                        for exploration schedules
-``greedy_policy(st)``  the evaluation policy ``(obs, key) -> action`` on one observation
+``greedy_policy(st)``  the evaluation policy ``(obs, key) -> action`` on one observation (with
+                       memory: a :class:`~agentax.envs.core.RecurrentPolicy`)
 ``learn(state, exp,    one learning step on ``experience``: a trajectory (a
 key)``                 :class:`~agentax.replay.Transition` ``[T, E]``, its ``info`` from ``act``)
                        for on-policy agents, a :class:`~agentax.replay.ReplaySample` for off-policy
@@ -217,6 +218,27 @@ class OffPolicy:
         return self.gradient_steps / (self.train_frequency * self.num_envs)
 
 
+Memory = Any
+"""A recurrent agent's memory of each env: its core's carry, leaves ``[num_envs, ...]``."""
+
+
+@dataclass(frozen=True)
+class Recurrent:
+    """How an agent with memory acts (its ``Agent.recurrent``): the runner carries each env's memory
+    beside the observation from step to step, and marks the observations that start an episode.
+
+    ``initial(num_envs)``: the memory at the start, zeros ``[num_envs, ...]``.
+    ``act(state, memory, obs, first, key, progress) -> (memory, action, info)``: the collect policy,
+    ``memory`` reset where ``first`` (bool ``[num_envs]``) marks an episode's start before the step;
+    its ``info`` keeps the ``memory`` it received and ``first``, so that ``learn`` replays the
+    rollout's sequences through the core (backpropagation through time).
+    The agent's ``greedy_policy`` gives a :class:`~agentax.envs.core.RecurrentPolicy`. Only the
+    compiled runner carries memory (:func:`agentax.runners.launch.prepare` refuses the others)."""
+
+    initial: Callable[[int], Memory]
+    act: Callable[..., tuple[Memory, jax.Array, dict[str, jax.Array]]]
+
+
 @dataclass(frozen=True)
 class Agent:
     """One algorithm's pure functions for one env spec and config (see the module docstring)."""
@@ -232,6 +254,9 @@ class Agent:
     """what the env receives for a sampled action (PPO clips continuous actions to the bounds)"""
     learning_steps: Callable[[AgentState], jax.Array] | None = field(default=None, compare=False)
     """the learning steps a state has taken, for the runners' ``learning_steps`` column (None: not logged)"""
+    recurrent: Recurrent | None = field(default=None, compare=False)
+    """how the agent acts with memory (None: feed-forward; then ``act`` is all there is). A recurrent
+    agent's ``act`` is its policy at an episode's first step (the memory fresh)"""
 
 
 ACTING_UNUSED = ("opt_state", "target_params")

@@ -27,7 +27,7 @@ from typing import Annotated, Any
 import tyro
 
 from agentax import api, runfile
-from agentax.agents import ALGORITHMS, presets_of
+from agentax.agents import ALGORITHMS, algorithm_config, presets_of
 from agentax.api import RunArgs
 from agentax.errors import UsageError
 
@@ -119,6 +119,7 @@ def parse(algo: str, argv: list[str], base: runfile.RunFile | None = None) -> tu
         default_run, default_config, preset = base.run_args, base.config, base.preset
     presets = presets_of(algo)
     config_type = type(preset.config)
+    check_core_flags(algo, config_type, argv)
     cli_type = with_aliases(config_type, ALIASES.get(algo, {}))
     run_type = cli_run_args()
 
@@ -145,6 +146,22 @@ def parse(algo: str, argv: list[str], base: runfile.RunFile | None = None) -> tu
     if base is not None:  # --env or --preset beside --config: the preset of the run as it is
         preset = api.choose_preset(algo, args.run.env, args.run.preset)[1]
     return _as(RunArgs, args.run).check(), config, preset
+
+
+CORE_FLAGS = ("--core", "--core-size", "--bptt")
+"""The recurrent core's flags, which only the algorithms with a ``core`` field take."""
+
+
+def check_core_flags(algo: str, config_type: type, argv: list[str]) -> None:
+    """A one-line ``UsageError`` for a recurrent core's flag given to a feed-forward algorithm."""
+    given = [flag for flag in CORE_FLAGS if any(a == flag or a.startswith(flag + "=") for a in argv)]
+    if given and not has_core(config_type):
+        takers = ", ".join(name for name in ALGORITHMS if has_core(algorithm_config(name)))
+        raise UsageError(f"{given[0]}: {algo} has no recurrent core; {takers} takes one (--core lstm|gru)")
+
+
+def has_core(config_type: type) -> bool:
+    return "core" in {field.name for field in dataclasses.fields(config_type)}
 
 
 def parse_file(argv: list[str]) -> tuple[str, RunArgs, Any, Any]:

@@ -9,7 +9,7 @@ from typing import Any
 import gymnasium
 
 from agentax.envs.atari import AtariEnv, atari_games, is_atari_id, make_atari
-from agentax.envs.cartpole import CartPole, cartpole_v0, cartpole_v1
+from agentax.envs.cartpole import CartPole, CartPoleNoVel, cartpole_v0, cartpole_v1
 from agentax.envs.core import Box, Discrete, Environment, TimeStep
 from agentax.envs.gridworld import GridWorld
 from agentax.envs.gym import (
@@ -30,6 +30,7 @@ from agentax.errors import UsageError
 JAX_ENVS: dict[str, Callable[[], Environment]] = {
     "CartPole-v0": cartpole_v0,
     "CartPole-v1": cartpole_v1,
+    "CartPoleNoVel-v1": CartPoleNoVel,
     "Vacuum-v0": Vacuum,
     "LectureMDP-v0": lecture_mdp_env,
     "Pendulum-v1": Pendulum,

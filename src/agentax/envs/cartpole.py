@@ -131,6 +131,26 @@ class CartPole(Environment):
         )
 
 
+class CartPoleNoVel(CartPole):
+    """CartPole with its velocities hidden (RL Zoo's ``CartPoleNoVel``, a partially observed task):
+    observation ``[2]`` float32, cart position and pole angle, equal to :class:`CartPole`'s positions
+    step for step. A policy must infer the velocities from what it saw before: a task for memory."""
+
+    def __init__(
+        self, max_steps_in_episode: int = 500, id: str = "CartPoleNoVel-v1", reward_threshold: float = 475.0
+    ):
+        super().__init__(max_steps_in_episode, id, reward_threshold)
+
+    @staticmethod
+    def get_obs(state: CartPoleState) -> jax.Array:
+        return jnp.stack([state.x, state.theta]).astype(jnp.float32)
+
+    def observation_space(self, params: CartPoleParams | None = None) -> Box:
+        params = self.default_params() if params is None else params
+        high = np.array([params.x_threshold * 2, params.theta_threshold_radians * 2], dtype=np.float32)
+        return Box(-high, high, (2,), jnp.float32)
+
+
 def draw_cartpole(x: float, theta: float, x_threshold: float, length: float, width: int = 600) -> np.ndarray:
     """The cart at ``x`` metres, its pole at ``theta`` radians (positive: leaning right), as Gymnasium."""
     height, scale = width * 2 // 3, width / (2 * x_threshold)

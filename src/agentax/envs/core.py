@@ -38,6 +38,34 @@ Policy = Callable[[Array, Array], Array]
 """A policy: ``(obs, key) -> action`` on one observation; callers batch it with ``jax.vmap``."""
 
 
+@dataclass(frozen=True)
+class RecurrentPolicy:
+    """A policy with memory (a recurrent agent's greedy policy), on one observation:
+    ``step(memory, obs, key) -> (memory, action)``, ``initial()`` the memory an episode starts from.
+    Whoever plays it carries each env's memory from step to step and starts it afresh with each
+    episode (:func:`episode_returns`, :func:`agentax.evaluate.host_actor`)."""
+
+    initial: Callable[[], Any]
+    step: Callable[[Any, Array, Array], tuple[Any, Array]]
+
+
+def batched_policy(policy: Policy | RecurrentPolicy, num_envs: int) -> tuple[Any, Callable]:
+    """``(memory, act)`` to play ``policy`` on ``num_envs`` envs side by side: ``act(memory, obs
+    [num_envs, ...], keys [num_envs], first bool [num_envs]) -> (memory, actions)``, the memory of
+    each env whose observation starts an episode (``first``) set back to ``initial()`` first. A
+    memoryless policy carries ``()`` and is ``vmap(policy)`` itself."""
+    if not isinstance(policy, RecurrentPolicy):
+        return (), lambda memory, obs, keys, first: ((), jax.vmap(policy)(obs, keys))
+    fresh = jax.tree.map(lambda m: jnp.broadcast_to(m, (num_envs, *jnp.shape(m))), policy.initial())
+
+    def act(memory: Any, obs: Array, keys: Array, first: Array) -> tuple[Any, Array]:
+        starts = lambda m: first.reshape(-1, *[1] * (m.ndim - 1))  # noqa: E731  [num_envs, 1, ...]
+        reset = jax.tree.map(lambda f, m: jnp.where(starts(m), f, m), fresh, memory)
+        return jax.vmap(policy.step)(reset, obs, keys)
+
+    return fresh, act
+
+
 @struct.dataclass
 class TimeStep:
     """What one ``step`` returns (each field gains a leading axis per ``vmap``)."""
@@ -228,7 +256,7 @@ def rollout(env: Environment, policy: Policy, key: Array, num_steps: int, params
 
 def episode_returns(
     env: Environment,
-    policy: Policy,
+    policy: Policy | RecurrentPolicy,
     key: Array,
     num_episodes: int,
     env_params: EnvParams | None = None,
@@ -236,26 +264,29 @@ def episode_returns(
     """Play ``num_episodes`` episodes side by side (with auto-reset) until each has ended once.
 
     Returns ``(returns, lengths)``, each ``[num_episodes]``. ``policy(obs, key) -> action`` acts on
-    one observation. Jittable (``env``, ``policy`` and ``num_episodes`` static).
+    one observation, or is a :class:`RecurrentPolicy`, its memory carried through each episode from
+    ``initial()``. Jittable (``env``, ``policy`` and ``num_episodes`` static).
     """
     params = env.default_params() if env_params is None else env_params
     reset_key, key = jax.random.split(key)
     obs, state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(reset_key, num_episodes), params)
     zeros = jnp.zeros(num_episodes, jnp.float32)
     alive = jnp.ones(num_episodes, bool)
+    memory, act = batched_policy(policy, num_episodes)
+    first = jnp.zeros(num_episodes, bool)  # each slot plays one counted episode: no reset inside it
 
     def body(carry):
-        obs, state, returns, lengths, alive, key = carry
+        obs, state, returns, lengths, alive, key, memory = carry
         key, act_key, step_key = jax.random.split(key, 3)
-        actions = jax.vmap(policy)(obs, jax.random.split(act_key, num_episodes))
+        memory, actions = act(memory, obs, jax.random.split(act_key, num_episodes), first)
         ts, state = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
             jax.random.split(step_key, num_episodes), state, actions, params
         )
         returns = returns + ts.reward * alive
         lengths = lengths + alive
         alive = alive & ~ts.done
-        return ts.obs, state, returns, lengths, alive, key
+        return ts.obs, state, returns, lengths, alive, key, memory
 
-    carry = (obs, state, zeros, zeros.astype(jnp.int32), alive, key)
-    _, _, returns, lengths, _, _ = jax.lax.while_loop(lambda c: c[4].any(), body, carry)
+    carry = (obs, state, zeros, zeros.astype(jnp.int32), alive, key, memory)
+    _, _, returns, lengths, _, _, _ = jax.lax.while_loop(lambda c: c[4].any(), body, carry)
     return returns, lengths

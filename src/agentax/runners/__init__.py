@@ -31,13 +31,15 @@ class Runner:
     (any Gymnasium id or Atari), "atari", "mujoco" (EnvPool's MuJoCo v5 tasks)"""
     chosen_as: str
     """the ``--runner`` choice (a name in :data:`CHOICES`) that picks it for an env of its family"""
+    carries_memory: bool = False
+    """whether it carries a recurrent agent's memory from step to step (``Agent.recurrent``)"""
 
     def load(self) -> ModuleType:
         return importlib.import_module(self.module)
 
 
 RUNNERS: dict[str, Runner] = {
-    "compiled": Runner("agentax.runners.compiled", "jax", "compiled"),
+    "compiled": Runner("agentax.runners.compiled", "jax", "compiled", carries_memory=True),
     "host": Runner("agentax.runners.host", "any", "host"),
     "parallel": Runner("agentax.runners.parallel", "any", "parallel"),
     "ray": Runner("agentax.runners.ray", "any", "ray"),

@@ -132,6 +132,7 @@ def prepare(module: Any, run_args: Any, cfg: Any, preset: Any, kind: str) -> Lau
     precision = kernel_choice.precision_choice(run_args.precision, network_width(cfg))
     remake = agent_maker(module, spec, cfg, precision=precision["precision"])
     agent = remake()  # refuses what the agent cannot train before anything is written
+    check_memory_carried(agent, kind)
     check_learning_fits(module.make_agent(spec, cfg), spec, run_args.seeds)  # (plain: see its docstring)
     solved = getattr(solved_by, "reward_threshold", None)  # 'auto': the env's, in a solving preset
     auto = float(solved) if preset.stop_at_solved and solved is not None else None
@@ -139,6 +140,19 @@ def prepare(module: Any, run_args: Any, cfg: Any, preset: Any, kind: str) -> Lau
     run_args = dataclasses.replace(run_args, stop_at_return=stop)  # what every configure reads
     runner, where = runner_module.configure(run_args, agent, preset)
     return _launch(runner_module, agent, remake, run_args.env, runner, where, precision)
+
+
+def check_memory_carried(agent: Any, kind: str) -> None:
+    """A ``UsageError`` for an agent with memory (a recurrent core) on a runner that does not carry
+    it from step to step (:attr:`agentax.runners.Runner.carries_memory`)."""
+    if agent.recurrent is not None and not RUNNERS[kind].carries_memory:
+        carriers = " or ".join(
+            f"--runner {RUNNERS[k].chosen_as}" for k in RUNNERS if RUNNERS[k].carries_memory
+        )
+        raise UsageError(
+            f"a recurrent core (--core) trains only where a runner carries its memory ({carriers}, on a JAX "
+            f"env such as CartPoleNoVel-v1), not on the {kind} runner"
+        )
 
 
 def reopen(config: dict[str, Any], module: Any, cfg: Any, runner: Any) -> Launch:

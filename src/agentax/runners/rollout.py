@@ -7,7 +7,9 @@ iteration does follows from ``agent.experience`` (:func:`agentax.runners.compile
 =================  ==============================================================================
 ``OnPolicy``       a rollout of ``num_steps`` steps from ``num_envs`` envs with ``agent.act``, then
                    ``agent.learn`` on the trajectory ``[T, E]`` (PPO); :func:`on_policy_rollout`,
-                   over any :class:`BatchedEnv`, is also the compiled EnvPool runner's rollout
+                   over any :class:`BatchedEnv`, is also the compiled EnvPool runner's rollout; an
+                   agent with memory acts with ``agent.recurrent.act``, the carry holding each
+                   env's memory (:class:`RecurrentCarry`)
 ``Episodes``       ``num_envs`` whole episodes from fresh resets, steps after an episode's end marked
                    in ``info["valid"]``, then ``agent.learn`` (REINFORCE)
 ``OffPolicy``      collection into a jittable replay and gated learning phases (DQN, SAC, TD3):
@@ -136,6 +138,28 @@ class OnPolicyCarry:
     episodes: EpisodeStats  # its env_steps (every env step) are the collect policy's progress
 
 
+@struct.dataclass
+class RecurrentCarry(OnPolicyCarry):
+    """An on-policy carry of an agent with memory (``agent.recurrent``): also each env's memory and
+    whether its observation starts an episode."""
+
+    memory: Any  # leaves [num_envs, ...]
+    first: jax.Array  # bool [num_envs]
+
+
+def act_in(agent: Agent, carry: OnPolicyCarry, key: jax.Array) -> tuple[OnPolicyCarry, jax.Array, Any]:
+    """``(carry, action, info)`` of the collect policy on ``carry.obs``: ``agent.act``, or with
+    memory ``agent.recurrent.act``, whose new memory the carry takes."""
+    progress = carry.episodes.env_steps
+    if agent.recurrent is None:
+        action, info = agent.act(carry.agent, carry.obs, key, progress)
+        return carry, action, info
+    memory, action, info = agent.recurrent.act(
+        carry.agent, carry.memory, carry.obs, carry.first, key, progress
+    )
+    return carry.replace(memory=memory), action, info
+
+
 def on_policy_rollout(
     agent: Agent, envs: BatchedEnv, loop: Callable = jax.lax.scan
 ) -> Callable[[OnPolicyCarry], tuple[OnPolicyCarry, Transition]]:
@@ -151,11 +175,14 @@ def on_policy_rollout(
 
     def env_step(carry: OnPolicyCarry, _) -> tuple[OnPolicyCarry, Transition]:
         key, act_key, step_key = jax.random.split(carry.key, 3)
-        action, info = agent.act(carry.agent, carry.obs, act_key, carry.episodes.env_steps)
+        acted, action, info = act_in(agent, carry, act_key)
         time_step, env_state, env_info = envs.step(step_key, carry.env_state, agent.env_action(action))
         transition = transition_of(carry.obs, action, time_step, {**info, **env_info})
         episodes = carry.episodes.record(time_step.reward, time_step.done)
-        return carry.replace(env_state=env_state, obs=time_step.obs, key=key, episodes=episodes), transition
+        carry = acted.replace(env_state=env_state, obs=time_step.obs, key=key, episodes=episodes)
+        if agent.recurrent is not None:
+            carry = carry.replace(first=time_step.done)
+        return carry, transition
 
     def rollout(carry: OnPolicyCarry) -> tuple[OnPolicyCarry, Transition]:
         return loop(env_step, carry, None, agent.experience.num_steps)
@@ -170,7 +197,11 @@ def on_policy_program(agent: Agent, envs: VectorEnv) -> Program:
     def init(key: jax.Array) -> OnPolicyCarry:
         key, agent_key, reset_key = jax.random.split(key, 3)
         obs, env_state = envs.reset(reset_key)
-        return OnPolicyCarry(agent.init(agent_key), env_state, obs, key, EpisodeStats.create(envs.num_envs))
+        fields = (agent.init(agent_key), env_state, obs, key, EpisodeStats.create(envs.num_envs))
+        if agent.recurrent is None:
+            return OnPolicyCarry(*fields)
+        memory, first = agent.recurrent.initial(envs.num_envs), jnp.ones(envs.num_envs, bool)
+        return RecurrentCarry(*fields, memory, first)
 
     def update(carry: OnPolicyCarry) -> tuple[OnPolicyCarry, dict[str, jax.Array]]:
         carry, trajectory = rollout(carry)
