@@ -169,7 +169,7 @@ def per_seed(play):
     )(states, keys)
 
 
-@pytest.mark.long  # 8 seeds to the optimum, ~45 s: make test-long (make test trains the gridworld in test_encoders_override)
+@pytest.mark.long  # 8 seeds to the optimum, ~45 s: make test-long (test_encoders_override trains it)
 @pytest.mark.timeout(600)
 def test_ppo_solves_the_gridworld_on_every_seed():
     env = make_jax("GridWorld-v0")
