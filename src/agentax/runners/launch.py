@@ -129,7 +129,10 @@ def prepare(module: Any, run_args: Any, cfg: Any, preset: Any, kind: str) -> Lau
     spec, solved_by = env_specs(
         kind, run_args.env, run_args.env_backend, run_args.sticky_actions, run_args.encoders
     )
-    precision = kernel_choice.precision_choice(run_args.precision, network_width(cfg))
+    if run_args.precision == "auto" and getattr(cfg, "core", "none") != "none":
+        precision = {"mode": "auto", "precision": "f32", "why": "a recurrent core learns in f32"}
+    else:
+        precision = kernel_choice.precision_choice(run_args.precision, network_width(cfg))
     remake = agent_maker(module, spec, cfg, precision=precision["precision"])
     agent = remake()  # refuses what the agent cannot train before anything is written
     check_memory_carried(agent, kind)
