@@ -461,6 +461,20 @@ def learn(
     # runner's policy lag) would otherwise feed each change of V into the targets again.
     _, values = net.apply(agent.params, rollout.obs)  # (T, E)
     _, next_values = net.apply(agent.params, rollout.next_obs)  # (T, E): V of the observation reached
+    steps = learning_batch(rollout, values, next_values, cfg)
+    flat = jax.tree.map(lambda x: x.reshape(values.size, *x.shape[2:]), steps)
+    loss = functools.partial(loss_fn, spec=spec, cfg=cfg, conv=conv, precision=precision)
+    (params, opt_state), metrics = sgd_epochs(loss, flat, agent, key, cfg, tx, loop)
+    agent = agent.replace(params=params, opt_state=opt_state, updates=agent.updates + 1)
+    return agent, jax.tree.map(jnp.mean, metrics)
+
+
+def learning_batch(
+    rollout: Transition, values: jax.Array, next_values: jax.Array, cfg: PPOConfig
+) -> dict[str, jax.Array]:
+    """What the loss reads of each step ``[T, E]``: the rollout's observations, actions and
+    log-probabilities, GAE's advantages and value targets from ``values`` and ``next_values``
+    ``[T, E]``, and ``valid`` where the rollout marks it."""
     advantages, targets = gae(
         rollout.reward,
         values,
@@ -470,7 +484,7 @@ def learn(
         cfg.discount_factor,
         cfg.gae_lambda,
     )
-    flat = {
+    steps = {
         "obs": rollout.obs,
         "action": rollout.action,
         "log_prob": rollout.info["log_prob"],
@@ -478,12 +492,8 @@ def learn(
         "target": targets,
     }
     if "valid" in rollout.info:
-        flat["valid"] = rollout.info["valid"]
-    flat = jax.tree.map(lambda x: x.reshape(advantages.size, *x.shape[2:]), flat)
-    loss = functools.partial(loss_fn, spec=spec, cfg=cfg, conv=conv, precision=precision)
-    (params, opt_state), metrics = sgd_epochs(loss, flat, agent, key, cfg, tx, loop)
-    agent = agent.replace(params=params, opt_state=opt_state, updates=agent.updates + 1)
-    return agent, jax.tree.map(jnp.mean, metrics)
+        steps["valid"] = rollout.info["valid"]
+    return steps
 
 
 def sgd_epochs(
@@ -635,26 +645,8 @@ def learn_sequences(
     start = jax.tree.map(lambda m: m[0], stored)
     memories, (_, values) = unroll(step, start, rollout.obs, first)  # (T, E, ...), (T, E)
     _, (_, next_values) = net.apply(agent.params, rollout.next_obs, memories, jnp.zeros_like(first))
-    advantages, targets = gae(
-        rollout.reward,
-        values,
-        next_values,
-        rollout.terminated,
-        rollout.terminated | rollout.truncated,
-        cfg.discount_factor,
-        cfg.gae_lambda,
-    )
     length = cfg.sequence_length
-    steps = {
-        "obs": rollout.obs,
-        "action": rollout.action,
-        "log_prob": rollout.info["log_prob"],
-        "advantage": advantages,
-        "target": targets,
-        "first": first,
-    }
-    if "valid" in rollout.info:
-        steps["valid"] = rollout.info["valid"]
+    steps = {**learning_batch(rollout, values, next_values, cfg), "first": first}
     data = jax.tree.map(lambda x: as_sequences(x, length), steps)  # (N, L, ...)
     data["memory"] = jax.tree.map(lambda m: m[::length].reshape(-1, *m.shape[2:]), stored)  # (N, ...)
     loss = functools.partial(sequence_loss, net=net, spec=spec, cfg=cfg)
