@@ -35,6 +35,13 @@ XLA's convolutions and products (the backend ``xla``, which the exporting entry 
 agent): oneDNN's FFI calls exist in neither format.
 ONNX gets no stochastic head: its random operators take their seed as a fixed attribute of the
 graph, not as an input, so a key could not drive them.
+
+A recurrent policy (PPO's ``--core lstm|gru``) exports as ``(action, next_state) = f(obs, state)``:
+``state [N, S]`` float32 is its core's carry, flat (LSTM: ``c`` then ``h``, ``S = 2 * core_size``;
+GRU: ``h``, ``S = core_size``), zeros at an episode's start, and ``next_state`` is what the caller
+feeds back as the next step's ``state`` (zeros again where the next observation starts an episode,
+as the agent's own evaluation resets its carry). One flat tensor rather than one input per part:
+a caller carries one array per env whatever the core, and the card's ``state`` names the parts.
 """
 
 from __future__ import annotations
@@ -51,6 +58,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.flatten_util import ravel_pytree
 
 from agentax.agents.protocol import Agent, AgentState
 from agentax.envs import Box, Discrete, make
@@ -64,6 +72,8 @@ FORMATS: dict[str, str] = {"onnx": ".onnx", "stablehlo": ".stablehlo"}
 """Each format and the suffix of its files."""
 OBS, KEY, ACTION = "obs", "key", "action"
 """The names of the exported function's inputs and output."""
+STATE, NEXT_STATE = "state", "next_state"
+"""The names of a recurrent policy's state input and output (its core's carry, flat)."""
 BATCH = "N"
 """The name of the batch dimension (any size at run time)."""
 EXTRA = "pip install 'agentax[export]' && pip install --no-deps jax2onnx==0.17.1"
@@ -154,23 +164,56 @@ def batched(
     return f, action
 
 
+def batched_recurrent(
+    policy: RecurrentPolicy, obs: jax.ShapeDtypeStruct
+) -> tuple[Callable[..., tuple[jax.Array, jax.Array]], jax.ShapeDtypeStruct, jax.ShapeDtypeStruct]:
+    """``(f, action, state)``: ``f(obs [N, *obs_shape], state [N, S]) -> (action [N, ...], next_state
+    [N, S])``, one action's and one state's shape and dtype.
+
+    The policy's memory (a pytree, zeros at an episode's start) travels flat, its leaves raveled in
+    order (LSTM ``(c, h)``: ``[c, h]``); ``policy.step`` is traced once to ``lax`` primitives, as in
+    :func:`batched`, then vmapped over obs and state together, with a constant key.
+    """
+    initial, unravel = ravel_pytree(policy.initial())
+    state = jax.ShapeDtypeStruct(initial.shape, initial.dtype)
+    key_data = jax.ShapeDtypeStruct((2,), jnp.uint32)
+
+    def flat_step(obs: jax.Array, state: jax.Array, key_data: jax.Array) -> tuple[jax.Array, jax.Array]:
+        memory, action = policy.step(unravel(state), obs, jax.random.wrap_key_data(key_data))
+        return action, ravel_pytree(memory)[0]
+
+    closed, (action, _) = jax.make_jaxpr(flat_step, return_shape=True)(obs, state, key_data)
+
+    def one(obs: jax.Array, state: jax.Array, key_data: jax.Array) -> tuple[jax.Array, jax.Array]:
+        action, next_state = jax.core.eval_jaxpr(closed.jaxpr, closed.consts, obs, state, key_data)
+        return action, next_state
+
+    def f(obs: jax.Array, state: jax.Array) -> tuple[jax.Array, jax.Array]:
+        return jax.vmap(one, in_axes=(0, 0, None))(obs, state, jnp.zeros(2, jnp.uint32))
+
+    return f, action, state
+
+
 def to_onnx(
     f: Callable,
     obs: jax.ShapeDtypeStruct,
     name: str = "agentax_policy",
     metadata: dict[str, str] | None = None,
+    state: jax.ShapeDtypeStruct | None = None,
 ) -> bytes:
-    """The ONNX model (opset jax2onnx's default) of the greedy ``f``, input ``obs`` ``[N, ...]``;
-    ``metadata``: entries of the model's ``metadata_props`` (what onnxruntime's ``custom_metadata_map``
-    reads back)."""
+    """The ONNX model (opset jax2onnx's default) of the greedy ``f``, input ``obs`` ``[N, ...]`` (and
+    ``state`` ``[N, S]`` with output ``next_state`` for a recurrent ``f``, given ``state``'s one-row
+    spec); ``metadata``: entries of the model's ``metadata_props`` (what onnxruntime's
+    ``custom_metadata_map`` reads back)."""
     from jax2onnx import to_onnx as convert
 
-    spec = jax.ShapeDtypeStruct((BATCH, *obs.shape), obs.dtype)
+    specs = [jax.ShapeDtypeStruct((BATCH, *s.shape), s.dtype) for s in (obs, state) if s is not None]
+    inputs, outputs = ([OBS, STATE], [ACTION, NEXT_STATE]) if state is not None else ([OBS], [ACTION])
     serde = logging.getLogger("onnx_ir.serde")  # warns of shape constants it leaves untyped: harmless
     level = serde.level
     serde.setLevel(logging.ERROR)
     try:
-        model = convert(f, [spec], model_name=name, input_names=[OBS], output_names=[ACTION])
+        model = convert(f, specs, model_name=name, input_names=inputs, output_names=outputs)
     finally:
         serde.setLevel(level)
     for key, value in (metadata or {}).items():
@@ -179,10 +222,16 @@ def to_onnx(
     return model.SerializeToString()
 
 
-def to_stablehlo(f: Callable, obs: jax.ShapeDtypeStruct, stochastic: bool = False) -> bytes:
-    """``jax.export``'s serialized module of ``f`` for :data:`STABLEHLO_PLATFORMS`, batch symbolic."""
+def to_stablehlo(
+    f: Callable,
+    obs: jax.ShapeDtypeStruct,
+    stochastic: bool = False,
+    state: jax.ShapeDtypeStruct | None = None,
+) -> bytes:
+    """``jax.export``'s serialized module of ``f`` for :data:`STABLEHLO_PLATFORMS`, batch symbolic
+    (a recurrent ``f``'s second argument ``state [N, S]``, given its one-row spec)."""
     (n,) = jax.export.symbolic_shape(BATCH)
-    args = [jax.ShapeDtypeStruct((n, *obs.shape), obs.dtype)]
+    args = [jax.ShapeDtypeStruct((n, *s.shape), s.dtype) for s in (obs, state) if s is not None]
     if stochastic:
         args.append(jax.ShapeDtypeStruct((2,), jnp.uint32))
     exported = jax.export.export(jax.jit(f), platforms=STABLEHLO_PLATFORMS)(*args)
@@ -297,13 +346,19 @@ def model_card(
     stochastic: bool,
     run: dict[str, Any],
     layout: Layout | None = None,
+    state: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """What ``FILE.json`` holds: the format, env and spaces, the inputs and output, the layout of a
-    packed observation (null where the env's observations are plain), the run it came from (``run``:
-    its algo, folder, final evaluation and evaluation settings) and the versions."""
+    packed observation (null where the env's observations are plain), a recurrent policy's ``state``
+    (:func:`state_card`; no such entry for a feed-forward one), the run it came from (``run``: its
+    algo, folder, final evaluation and evaluation settings) and the versions."""
     inputs = [_tensor(OBS, obs.shape, obs.dtype)]
+    outputs = [_tensor(ACTION, action.shape, action.dtype)]
     if stochastic:
         inputs.append(_tensor(KEY, (2,), jnp.uint32, batch=False))
+    if state is not None:
+        inputs.append({"name": STATE, "shape": state["shape"], "dtype": state["dtype"]})
+        outputs.append({"name": NEXT_STATE, "shape": state["shape"], "dtype": state["dtype"]})
     versions = {"agentax": _version("agentax"), "jax": jax.__version__}
     if format == "onnx":
         versions.update(jax2onnx=_version("jax2onnx"), onnx=_version("onnx"))
@@ -316,10 +371,32 @@ def model_card(
         "action_space": space_card(spaces[1]),
         "layout": layout_card(layout),
         "inputs": inputs,
-        "outputs": [_tensor(ACTION, action.shape, action.dtype)],
+        "outputs": outputs,
+        **({"state": state} if state is not None else {}),
         **({"platforms": list(STABLEHLO_PLATFORMS)} if format == "stablehlo" else {}),
         **run,
         "versions": versions,
+    }
+
+
+def state_card(state: jax.ShapeDtypeStruct, config: dict[str, Any]) -> dict[str, Any]:
+    """A recurrent policy's state as JSON: its ``shape`` ``[N, S]`` and dtype, its ``initial`` value
+    (``"zeros"``), the ``core`` (the run's ``--core``) and the ``parts`` of the flat carry (LSTM: ``c``
+    then ``h``, GRU: ``h``, each ``start`` and ``size``), and how it is carried (``feed_back``)."""
+    core = config.get("config", {}).get("core", "none")
+    names = ["c", "h"] if core == "lstm" else ["h"]
+    size = state.shape[0] // len(names)
+    if size * len(names) != state.shape[0]:  # a carry of another shape: one part, as it is
+        names, size = ["memory"], state.shape[0]
+    return {
+        **_tensor(STATE, state.shape, state.dtype),
+        "initial": "zeros",
+        "core": core,
+        "parts": [{"name": name, "start": i * size, "size": size} for i, name in enumerate(names)],
+        "feed_back": (
+            f"feed each step's {NEXT_STATE} back as the next step's {STATE}, row by row; zeros at "
+            "the first observation of each episode"
+        ),
     }
 
 
@@ -387,18 +464,12 @@ def export_run(
     if layout is not None:  # the card says how the network encodes each leaf, as the run chose
         layout = layout.with_encoders(config.get("encoders", {}))
     obs = jax.ShapeDtypeStruct(tuple(spaces[0].shape), jnp.dtype(spaces[0].dtype))
-    policy = restore()
-    if isinstance(policy, RecurrentPolicy):
+    if stochastic and config.get("config", {}).get("core", "none") != "none":
         raise UsageError(
-            f"export writes policies obs -> action; {run_dir}'s has a recurrent core (--core), whose memory "
-            "an exported function would have to take and return: evaluate it with agentax evaluate instead"
+            f"--stochastic: {run_dir}'s policy has a recurrent core (--core), whose sampling head "
+            "export does not write; export its greedy policy (without --stochastic)"
         )
-    f, action = batched(policy, obs, stochastic)
-    if format == "onnx":
-        metadata = {} if layout is None else {LAYOUT_METADATA: json.dumps(layout_card(layout))}
-        data = to_onnx(f, obs, metadata=metadata)
-    else:
-        data = to_stablehlo(f, obs, stochastic)
+    data, action, state = convert(restore(), obs, format, stochastic, layout)
     write_atomic(path, data)
     card = model_card(
         format,
@@ -410,9 +481,30 @@ def export_run(
         stochastic,
         run_summary(run_dir, config),
         layout,
+        None if state is None else state_card(state, config),
     )
     write_json(card_path(path), card)
     return path
+
+
+def convert(
+    policy: Policy | RecurrentPolicy,
+    obs: jax.ShapeDtypeStruct,
+    format: str,
+    stochastic: bool = False,
+    layout: Layout | None = None,
+) -> tuple[bytes, jax.ShapeDtypeStruct, jax.ShapeDtypeStruct | None]:
+    """``(data, action, state)``: the file's bytes in ``format``, one action's spec and one row of a
+    recurrent policy's state (None for a policy without memory)."""
+    state = None
+    if isinstance(policy, RecurrentPolicy):
+        f, action, state = batched_recurrent(policy, obs)
+    else:
+        f, action = batched(policy, obs, stochastic)
+    if format == "onnx":
+        metadata = {} if layout is None else {LAYOUT_METADATA: json.dumps(layout_card(layout))}
+        return to_onnx(f, obs, metadata=metadata, state=state), action, state
+    return to_stablehlo(f, obs, stochastic, state), action, state
 
 
 # Running an exported file.
@@ -420,8 +512,9 @@ def export_run(
 
 @dataclasses.dataclass(frozen=True)
 class Exported:
-    """An exported file loaded back: its model card and ``run(obs [N, ...], key?) -> action [N, ...]``,
-    NumPy in and out, through onnxruntime (ONNX) or ``jax.export.deserialize`` (StableHLO)."""
+    """An exported file loaded back: its model card and ``run(obs [N, ...], key?) -> action [N, ...]``
+    (a recurrent policy's: ``run(obs, state [N, S]) -> (action, next_state)``), NumPy in and out,
+    through onnxruntime (ONNX) or ``jax.export.deserialize`` (StableHLO)."""
 
     card: dict[str, Any]
     run: Callable[..., np.ndarray]
@@ -434,6 +527,18 @@ class Exported:
     def obs(self) -> jax.ShapeDtypeStruct:
         spec = self.card["inputs"][0]
         return jax.ShapeDtypeStruct(tuple(spec["shape"][1:]), np.dtype(spec["dtype"]))
+
+    @property
+    def state(self) -> jax.ShapeDtypeStruct | None:
+        """One row of a recurrent policy's state (zeros at an episode's start); None without memory."""
+        spec = self.card.get("state")
+        return (
+            None if spec is None else jax.ShapeDtypeStruct(tuple(spec["shape"][1:]), np.dtype(spec["dtype"]))
+        )
+
+    def initial_state(self, n: int) -> np.ndarray:
+        """The state ``[n, S]`` that ``n`` episodes start from: zeros."""
+        return np.zeros((n, *self.state.shape), self.state.dtype)
 
     @property
     def layout(self) -> Layout | None:
@@ -461,16 +566,24 @@ def load(path: str | Path) -> Exported:
     card = read_json(card_path(path))
     if check_format(card.get("format", "")) == "stablehlo":
         call = jax.jit(jax.export.deserialize(bytearray(path.read_bytes())).call)
-        return Exported(card, lambda *args: np.asarray(call(*args)))
+        return Exported(card, lambda *args: jax.tree.map(np.asarray, call(*args)))
     import onnxruntime
 
     session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    if "state" in card:
+        return Exported(
+            card,
+            lambda obs, state: tuple(
+                session.run([ACTION, NEXT_STATE], {OBS: np.asarray(obs), STATE: np.asarray(state)})
+            ),
+        )
     return Exported(card, lambda obs: session.run([ACTION], {OBS: np.asarray(obs)})[0])
 
 
 def as_policy(exported: Exported) -> Policy:
     """The exported function as an agentax policy ``(obs, key) -> action`` on one observation, for
-    :func:`agentax.evaluate.evaluate` (inside ``jit``, vmapped over episodes).
+    :func:`agentax.evaluate.evaluate` (inside ``jit``, vmapped over episodes); a recurrent file's is a
+    :class:`~agentax.envs.core.RecurrentPolicy` (:func:`as_recurrent_policy`).
 
     The file runs as its own program, called back from the host (``jax.pure_callback``), as a user
     would run it: a StableHLO module compiled into the evaluation's loop instead acted differently
@@ -478,6 +591,8 @@ def as_policy(exported: Exported) -> Policy:
     policy ended at other lengths). Under ``vmap`` the batch goes to the file in one call; a stochastic
     file, whose keys are batched too, gets one call per key.
     """
+    if exported.state is not None:
+        return as_recurrent_policy(exported)
     obs_spec, action = exported.obs, exported.action
 
     @jax.custom_batching.custom_vmap
@@ -507,3 +622,34 @@ def as_policy(exported: Exported) -> Policy:
         return batch(obs.astype(obs_spec.dtype)[None], *keys)[0]
 
     return policy
+
+
+def as_recurrent_policy(exported: Exported) -> RecurrentPolicy:
+    """A recurrent file as an agentax :class:`~agentax.envs.core.RecurrentPolicy`: its memory the flat
+    state ``[S]``, zeros at an episode's start, each step one host call (``jax.pure_callback``, every
+    vmapped env in that one call) of ``run(obs, state) -> (action, next_state)``."""
+    obs_spec, action, state = exported.obs, exported.action, exported.state
+
+    def call(obs: np.ndarray, memory: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # [*B, ...], [*B, S]
+        batch = memory.shape[: memory.ndim - len(state.shape)]
+        actions, next_state = exported.run(
+            np.asarray(obs, obs_spec.dtype).reshape(-1, *obs_spec.shape),
+            np.asarray(memory, state.dtype).reshape(-1, *state.shape),
+        )
+        return (
+            np.asarray(actions, action.dtype).reshape(*batch, *action.shape),
+            np.asarray(next_state, state.dtype).reshape(*batch, *state.shape),
+        )
+
+    def step(memory: jax.Array, obs: jax.Array, key: jax.Array) -> tuple[jax.Array, jax.Array]:
+        if tuple(obs.shape) != obs_spec.shape:
+            raise ValueError(
+                f"the exported policy reads observations of shape {obs_spec.shape}, not {obs.shape}"
+            )
+        out = (action, state)
+        actions, next_state = jax.pure_callback(
+            call, out, obs.astype(obs_spec.dtype), memory, vmap_method="broadcast_all"
+        )
+        return next_state, actions
+
+    return RecurrentPolicy(lambda: jnp.zeros(state.shape, state.dtype), step)

@@ -2,8 +2,9 @@
 policy as one file that runs without agentax, its model card beside it (``FILE.json``).
 
 The file maps observations ``obs [N, *obs_shape]``, as agentax's env gives them, to the env's actions
-``action [N]`` or ``[N, action_dim]`` (see :mod:`agentax.export`); ``agentax evaluate --policy FILE``
-plays it on the env.
+``action [N]`` or ``[N, action_dim]`` (see :mod:`agentax.export`); a recurrent run's (``--core``) also
+takes and returns its core's state, ``(obs, state [N, S]) -> (action, next_state)``, zeros at an
+episode's start. ``agentax evaluate --policy FILE`` plays it on the env.
 """
 
 from __future__ import annotations
