@@ -75,13 +75,18 @@ def test_each_leaf_kind_has_its_encoder_and_the_mask_is_not_seen():
     kinds = [leaf.kind for leaf in layout.leaves]
     assert kinds == ["vector", "image", "image", "image", "discrete", "multi_discrete", "binary", "mask"]
     obs = jnp.zeros((2, layout.size))
-    params = Encoder(layout).init(jax.random.key(0), obs)
-    features = Encoder(layout).apply(params, obs)
+    # The parameters' shapes from init, their values from NumPy, and apply compiled once: compiling
+    # init (random conv and dense kernels) or running it op by op costs ~130 compiles and a minute.
+    shapes = jax.eval_shape(Encoder(layout).init, jax.random.key(0), obs)
+    rng = np.random.default_rng(0)
+    params = jax.tree.map(lambda s: (0.05 * rng.normal(size=s.shape)).astype(s.dtype), shapes)
+    apply = jax.jit(Encoder(layout).apply)
+    features = apply(params, obs)
     assert features.shape == (2, 3 + 256 + 512 + 256 + 5 + (2 + 3) + 4)  # nothing of the mask
 
     cell = layout.leaves[4]
     obs = obs.at[:, cell.start].set(jnp.array([2.0, 4.0]))
-    tail = Encoder(layout).apply(params, obs)[:, -(5 + 5 + 4) :]  # the discrete leaves' features
+    tail = apply(params, obs)[:, -(5 + 5 + 4) :]  # the discrete leaves' features
     assert jnp.array_equal(tail[:, :5], jax.nn.one_hot(jnp.array([2, 4]), 5))
     assert jnp.array_equal(tail[:, 5:10], jnp.tile(jnp.array([1.0, 0, 1, 0, 0]), (2, 1)))  # dice (0, 0)
 
