@@ -98,18 +98,19 @@ def test_sac_and_td3_encode_packed_observations_in_actor_and_critic(algo):
     spec = EnvSpec((layout.size,), Box(-2.0, 2.0, (2,)), jnp.float32, None, layout)
     module, config = (sac, sac.SACConfig) if algo == "sac" else (td3, td3.TD3Config)
     agent = module.make_agent(spec, config(hidden=(16,), learning_starts=0, batch_size=8))
-    state = agent.init(jax.random.key(0))
+    state = jax.jit(agent.init)(jax.random.key(0))  # each step compiled whole, not op by op (~290 compiles)
     inputs = sorted(k.shape[0] for k in jax.tree.leaves(state.params) if k.ndim == 2 and k.shape[0] != 16)
     assert inputs == [9, 11, 11], inputs  # one-hot cell (6) and velocity (3); the critics' + action (2)
     obs = jnp.asarray(packed_observations(8)[:, :4])
-    action, _ = agent.act(state, obs, jax.random.key(1), jnp.int32(100))
+    action, _ = jax.jit(agent.act)(state, obs, jax.random.key(1), jnp.int32(100))
     assert action.shape == (8, 2) and bool(jnp.all(jnp.abs(action) <= 1.0))
     batch = Transition(
         obs, action, jnp.ones(8), obs[::-1], jnp.zeros(8, bool), jnp.zeros(8, bool), jnp.ones(8, jnp.int32)
     )
-    _, metrics = agent.learn(state, ReplaySample(batch, jnp.arange(8), jnp.ones(8)), jax.random.key(2))
+    sample = ReplaySample(batch, jnp.arange(8), jnp.ones(8))
+    _, metrics = jax.jit(agent.learn)(state, sample, jax.random.key(2))
     assert np.isfinite(float(metrics["critic_loss"]))
-    assert agent.greedy_policy(state)(obs[0], jax.random.key(3)).shape == (2,)
+    assert jax.jit(agent.greedy_policy(state))(obs[0], jax.random.key(3)).shape == (2,)
 
 
 # --- masks: DQN and PQN ------------------------------------------------------------------------------
