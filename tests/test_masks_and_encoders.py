@@ -128,12 +128,14 @@ def test_dqn_acts_greedily_and_explores_among_the_legal_actions_only(variant):
     cfg = dqn.DQNConfig(hidden=(16,), **DQN_VARIANTS[variant])
     state = dqn.make_agent(SPEC, cfg).init(jax.random.key(0))
     obs = packed_observations(2_000)
+    act = jax.jit(dqn.act)  # one program for the three epsilons, not op by op
     for epsilon in (0.0, 0.3, 1.0):
-        actions = dqn.act(state, jnp.asarray(obs), jax.random.key(int(epsilon * 10)), jnp.float32(epsilon))
+        actions = act(state, jnp.asarray(obs), jax.random.key(int(epsilon * 10)), jnp.float32(epsilon))
         assert chosen_legally(obs, actions).all(), epsilon
-    greedy = jax.vmap(dqn.greedy_policy(state), in_axes=(0, None))(jnp.asarray(obs), jax.random.key(0))
+    greedy_policy = jax.jit(jax.vmap(dqn.greedy_policy(state), in_axes=(0, None)))
+    greedy = greedy_policy(jnp.asarray(obs), jax.random.key(0))
     assert chosen_legally(obs, greedy).all()
-    unmasked = jnp.argmax(dqn.greedy_q(state, jnp.asarray(obs)), axis=-1)
+    unmasked = jnp.argmax(jax.jit(dqn.greedy_q)(state, jnp.asarray(obs)), axis=-1)
     assert not chosen_legally(obs, unmasked).all()  # the network alone would pick illegal actions
 
 
