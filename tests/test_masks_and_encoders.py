@@ -175,11 +175,12 @@ def test_dqn_bootstraps_from_the_best_legal_action_of_the_next_observation(doubl
     state = dqn.make_agent(SPEC, cfg).init(jax.random.key(0))  # target = online at first
     sample = replay_sample()
     t = sample.transition
-    _, metrics = dqn.make_learn(cfg)(state, sample)
-    q_t = np.asarray(dqn.greedy_q(state, t.next_obs))
+    _, metrics = jax.jit(dqn.make_learn(cfg))(state, sample)  # one program, not op by op
+    greedy_q = jax.jit(dqn.greedy_q)
+    q_t = np.asarray(greedy_q(state, t.next_obs))
     legal_t = legal_of(np.asarray(t.next_obs))
     best_legal = np.array([q[legal].max() for q, legal in zip(q_t, legal_t, strict=True)])
-    q_tm1 = np.asarray(dqn.greedy_q(state, t.obs))[np.arange(64), np.asarray(t.action)]
+    q_tm1 = np.asarray(greedy_q(state, t.obs))[np.arange(64), np.asarray(t.action)]
     expected = np.asarray(t.reward) + cfg.discount_factor * best_legal - q_tm1
     np.testing.assert_allclose(np.asarray(metrics[PRIORITY]), expected, rtol=1e-5, atol=1e-5)
     assert not np.allclose(best_legal, q_t.max(axis=-1))  # the mask changed some maxima
@@ -191,15 +192,15 @@ def test_a_next_observation_without_legal_actions_bootstraps_finitely(variant):
     cfg = dqn.DQNConfig(hidden=(16,), n_step=1, loss="mse", **DQN_VARIANTS[variant])
     state = dqn.make_agent(SPEC, cfg).init(jax.random.key(0))
     no_legal = np.zeros((64, NUM_ACTIONS), bool)
-    key = jax.random.key(1)
+    key, learn = jax.random.key(1), jax.jit(dqn.make_learn(cfg))  # one program for both, not op by op
     for terminated in (True, False):  # a final observation: terminated, or truncated (bootstrapped)
         sample = replay_sample(no_legal, terminated)
-        _, metrics = dqn.make_learn(cfg)(state, sample, key)
+        _, metrics = learn(state, sample, key)
         priority = np.asarray(metrics[PRIORITY])
         assert np.all(np.isfinite(priority)) and np.all(np.abs(priority) < 1e3), (terminated, priority)
         if terminated and variant == "plain":  # no bootstrap at all: r − Q(s, a)
             t = sample.transition
-            q_tm1 = np.asarray(dqn.greedy_q(state, t.obs))[np.arange(64), np.asarray(t.action)]
+            q_tm1 = np.asarray(jax.jit(dqn.greedy_q)(state, t.obs))[np.arange(64), np.asarray(t.action)]
             np.testing.assert_allclose(priority, np.asarray(t.reward) - q_tm1, rtol=1e-5, atol=1e-5)
 
 
