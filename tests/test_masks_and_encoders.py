@@ -219,17 +219,18 @@ def test_pqn_explores_among_legal_actions_and_its_targets_use_the_legal_maximum(
     agent = pqn.make_agent(SPEC, cfg)
     state = agent.init(jax.random.key(0))
     obs = jnp.asarray(packed_observations(2_000))
+    act = jax.jit(agent.act)  # each step compiled whole, not op by op
     for progress in (0, cfg.total_steps):  # ε = 1, then 0.05
-        actions, info = agent.act(state, obs, jax.random.key(progress), jnp.int32(progress))
+        actions, info = act(state, obs, jax.random.key(progress), jnp.int32(progress))
         assert chosen_legally(np.asarray(obs), actions).all()
-    greedy = jax.vmap(agent.greedy_policy(state), in_axes=(0, None))(obs, jax.random.key(0))
+    greedy = jax.jit(jax.vmap(agent.greedy_policy(state), in_axes=(0, None)))(obs, jax.random.key(0))
     assert chosen_legally(np.asarray(obs), greedy).all()
 
     t = replay_sample(batch=8).transition
     rollout = jax.tree.map(lambda x: x.reshape(4, 2, *x.shape[1:]), t)
     rollout = rollout.replace(info={"epsilon": jnp.zeros((4, 2))})
-    _, metrics = agent.learn(state, rollout, jax.random.key(1))
-    q_values = pqn.q_values_of(pqn.q_network(cfg, SPEC), SPEC)
+    _, metrics = jax.jit(agent.learn)(state, rollout, jax.random.key(1))
+    q_values = jax.jit(pqn.q_values_of(pqn.q_network(cfg, SPEC), SPEC))
     q_t = np.asarray(q_values(state.params, t.next_obs))
     best_legal = np.array(
         [q[legal].max() for q, legal in zip(q_t, legal_of(np.asarray(t.next_obs)), strict=True)]
