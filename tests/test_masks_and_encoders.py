@@ -75,13 +75,18 @@ def test_each_leaf_kind_has_its_encoder_and_the_mask_is_not_seen():
     kinds = [leaf.kind for leaf in layout.leaves]
     assert kinds == ["vector", "image", "image", "image", "discrete", "multi_discrete", "binary", "mask"]
     obs = jnp.zeros((2, layout.size))
-    params = Encoder(layout).init(jax.random.key(0), obs)
-    features = Encoder(layout).apply(params, obs)
+    # The parameters' shapes from init, their values from NumPy, and apply compiled once: compiling
+    # init (random conv and dense kernels) or running it op by op costs ~130 compiles and a minute.
+    shapes = jax.eval_shape(Encoder(layout).init, jax.random.key(0), obs)
+    rng = np.random.default_rng(0)
+    params = jax.tree.map(lambda s: (0.05 * rng.normal(size=s.shape)).astype(s.dtype), shapes)
+    apply = jax.jit(Encoder(layout).apply)
+    features = apply(params, obs)
     assert features.shape == (2, 3 + 256 + 512 + 256 + 5 + (2 + 3) + 4)  # nothing of the mask
 
     cell = layout.leaves[4]
     obs = obs.at[:, cell.start].set(jnp.array([2.0, 4.0]))
-    tail = Encoder(layout).apply(params, obs)[:, -(5 + 5 + 4) :]  # the discrete leaves' features
+    tail = apply(params, obs)[:, -(5 + 5 + 4) :]  # the discrete leaves' features
     assert jnp.array_equal(tail[:, :5], jax.nn.one_hot(jnp.array([2, 4]), 5))
     assert jnp.array_equal(tail[:, 5:10], jnp.tile(jnp.array([1.0, 0, 1, 0, 0]), (2, 1)))  # dice (0, 0)
 
@@ -93,18 +98,19 @@ def test_sac_and_td3_encode_packed_observations_in_actor_and_critic(algo):
     spec = EnvSpec((layout.size,), Box(-2.0, 2.0, (2,)), jnp.float32, None, layout)
     module, config = (sac, sac.SACConfig) if algo == "sac" else (td3, td3.TD3Config)
     agent = module.make_agent(spec, config(hidden=(16,), learning_starts=0, batch_size=8))
-    state = agent.init(jax.random.key(0))
+    state = jax.jit(agent.init)(jax.random.key(0))  # each step compiled whole, not op by op (~290 compiles)
     inputs = sorted(k.shape[0] for k in jax.tree.leaves(state.params) if k.ndim == 2 and k.shape[0] != 16)
     assert inputs == [9, 11, 11], inputs  # one-hot cell (6) and velocity (3); the critics' + action (2)
     obs = jnp.asarray(packed_observations(8)[:, :4])
-    action, _ = agent.act(state, obs, jax.random.key(1), jnp.int32(100))
+    action, _ = jax.jit(agent.act)(state, obs, jax.random.key(1), jnp.int32(100))
     assert action.shape == (8, 2) and bool(jnp.all(jnp.abs(action) <= 1.0))
     batch = Transition(
         obs, action, jnp.ones(8), obs[::-1], jnp.zeros(8, bool), jnp.zeros(8, bool), jnp.ones(8, jnp.int32)
     )
-    _, metrics = agent.learn(state, ReplaySample(batch, jnp.arange(8), jnp.ones(8)), jax.random.key(2))
+    sample = ReplaySample(batch, jnp.arange(8), jnp.ones(8))
+    _, metrics = jax.jit(agent.learn)(state, sample, jax.random.key(2))
     assert np.isfinite(float(metrics["critic_loss"]))
-    assert agent.greedy_policy(state)(obs[0], jax.random.key(3)).shape == (2,)
+    assert jax.jit(agent.greedy_policy(state))(obs[0], jax.random.key(3)).shape == (2,)
 
 
 # --- masks: DQN and PQN ------------------------------------------------------------------------------
@@ -122,12 +128,14 @@ def test_dqn_acts_greedily_and_explores_among_the_legal_actions_only(variant):
     cfg = dqn.DQNConfig(hidden=(16,), **DQN_VARIANTS[variant])
     state = dqn.make_agent(SPEC, cfg).init(jax.random.key(0))
     obs = packed_observations(2_000)
+    act = jax.jit(dqn.act)  # one program for the three epsilons, not op by op
     for epsilon in (0.0, 0.3, 1.0):
-        actions = dqn.act(state, jnp.asarray(obs), jax.random.key(int(epsilon * 10)), jnp.float32(epsilon))
+        actions = act(state, jnp.asarray(obs), jax.random.key(int(epsilon * 10)), jnp.float32(epsilon))
         assert chosen_legally(obs, actions).all(), epsilon
-    greedy = jax.vmap(dqn.greedy_policy(state), in_axes=(0, None))(jnp.asarray(obs), jax.random.key(0))
+    greedy_policy = jax.jit(jax.vmap(dqn.greedy_policy(state), in_axes=(0, None)))
+    greedy = greedy_policy(jnp.asarray(obs), jax.random.key(0))
     assert chosen_legally(obs, greedy).all()
-    unmasked = jnp.argmax(dqn.greedy_q(state, jnp.asarray(obs)), axis=-1)
+    unmasked = jnp.argmax(jax.jit(dqn.greedy_q)(state, jnp.asarray(obs)), axis=-1)
     assert not chosen_legally(obs, unmasked).all()  # the network alone would pick illegal actions
 
 
@@ -167,11 +175,12 @@ def test_dqn_bootstraps_from_the_best_legal_action_of_the_next_observation(doubl
     state = dqn.make_agent(SPEC, cfg).init(jax.random.key(0))  # target = online at first
     sample = replay_sample()
     t = sample.transition
-    _, metrics = dqn.make_learn(cfg)(state, sample)
-    q_t = np.asarray(dqn.greedy_q(state, t.next_obs))
+    _, metrics = jax.jit(dqn.make_learn(cfg))(state, sample)  # one program, not op by op
+    greedy_q = jax.jit(dqn.greedy_q)
+    q_t = np.asarray(greedy_q(state, t.next_obs))
     legal_t = legal_of(np.asarray(t.next_obs))
     best_legal = np.array([q[legal].max() for q, legal in zip(q_t, legal_t, strict=True)])
-    q_tm1 = np.asarray(dqn.greedy_q(state, t.obs))[np.arange(64), np.asarray(t.action)]
+    q_tm1 = np.asarray(greedy_q(state, t.obs))[np.arange(64), np.asarray(t.action)]
     expected = np.asarray(t.reward) + cfg.discount_factor * best_legal - q_tm1
     np.testing.assert_allclose(np.asarray(metrics[PRIORITY]), expected, rtol=1e-5, atol=1e-5)
     assert not np.allclose(best_legal, q_t.max(axis=-1))  # the mask changed some maxima
@@ -183,15 +192,15 @@ def test_a_next_observation_without_legal_actions_bootstraps_finitely(variant):
     cfg = dqn.DQNConfig(hidden=(16,), n_step=1, loss="mse", **DQN_VARIANTS[variant])
     state = dqn.make_agent(SPEC, cfg).init(jax.random.key(0))
     no_legal = np.zeros((64, NUM_ACTIONS), bool)
-    key = jax.random.key(1)
+    key, learn = jax.random.key(1), jax.jit(dqn.make_learn(cfg))  # one program for both, not op by op
     for terminated in (True, False):  # a final observation: terminated, or truncated (bootstrapped)
         sample = replay_sample(no_legal, terminated)
-        _, metrics = dqn.make_learn(cfg)(state, sample, key)
+        _, metrics = learn(state, sample, key)
         priority = np.asarray(metrics[PRIORITY])
         assert np.all(np.isfinite(priority)) and np.all(np.abs(priority) < 1e3), (terminated, priority)
         if terminated and variant == "plain":  # no bootstrap at all: r − Q(s, a)
             t = sample.transition
-            q_tm1 = np.asarray(dqn.greedy_q(state, t.obs))[np.arange(64), np.asarray(t.action)]
+            q_tm1 = np.asarray(jax.jit(dqn.greedy_q)(state, t.obs))[np.arange(64), np.asarray(t.action)]
             np.testing.assert_allclose(priority, np.asarray(t.reward) - q_tm1, rtol=1e-5, atol=1e-5)
 
 
@@ -210,17 +219,18 @@ def test_pqn_explores_among_legal_actions_and_its_targets_use_the_legal_maximum(
     agent = pqn.make_agent(SPEC, cfg)
     state = agent.init(jax.random.key(0))
     obs = jnp.asarray(packed_observations(2_000))
+    act = jax.jit(agent.act)  # each step compiled whole, not op by op
     for progress in (0, cfg.total_steps):  # ε = 1, then 0.05
-        actions, info = agent.act(state, obs, jax.random.key(progress), jnp.int32(progress))
+        actions, info = act(state, obs, jax.random.key(progress), jnp.int32(progress))
         assert chosen_legally(np.asarray(obs), actions).all()
-    greedy = jax.vmap(agent.greedy_policy(state), in_axes=(0, None))(obs, jax.random.key(0))
+    greedy = jax.jit(jax.vmap(agent.greedy_policy(state), in_axes=(0, None)))(obs, jax.random.key(0))
     assert chosen_legally(np.asarray(obs), greedy).all()
 
     t = replay_sample(batch=8).transition
     rollout = jax.tree.map(lambda x: x.reshape(4, 2, *x.shape[1:]), t)
     rollout = rollout.replace(info={"epsilon": jnp.zeros((4, 2))})
-    _, metrics = agent.learn(state, rollout, jax.random.key(1))
-    q_values = pqn.q_values_of(pqn.q_network(cfg, SPEC), SPEC)
+    _, metrics = jax.jit(agent.learn)(state, rollout, jax.random.key(1))
+    q_values = jax.jit(pqn.q_values_of(pqn.q_network(cfg, SPEC), SPEC))
     q_t = np.asarray(q_values(state.params, t.next_obs))
     best_legal = np.array(
         [q[legal].max() for q, legal in zip(q_t, legal_of(np.asarray(t.next_obs)), strict=True)]
