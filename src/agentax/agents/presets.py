@@ -92,6 +92,22 @@ CARTPOLE_FAST = PPOConfig(
 )
 """PPO's settings that solve CartPole-v1 fast (RL-Zoo's, lr 3e-3, 10 epochs × 2 minibatches)"""
 
+LUNAR_PPO = dataclasses.replace(
+    PPOConfig(),
+    total_steps=1_000_000,
+    num_envs=16,
+    num_steps=1024,
+    num_minibatches=256,
+    update_epochs=4,
+    gae_lambda=0.98,
+    discount_factor=0.999,
+    ent_coef=0.01,
+    learning_rate=3e-4,
+    anneal_lr=False,
+)
+"""RL-Baselines3-Zoo's LunarLander PPO (hyperparams/ppo.yml): 16 envs × 1024 steps, batch 64 (256
+minibatches), 4 epochs, GAE 0.98, γ 0.999, entropy 0.01, lr 3e-4 constant, 1M steps."""
+
 PPO_PRESETS: dict[str, Preset] = {
     "default": Preset(PPOConfig(), "CleanRL's classic-control settings, 500k steps"),
     "cartpole-fast": Preset(
@@ -199,6 +215,12 @@ PPO_PRESETS: dict[str, Preset] = {
         "MuJoCo (HalfCheetah-v5, Hopper-v5, ...): CleanRL's ppo_continuous_action settings (1 env × 2048 "
         "steps, lr 3e-4 annealed, 10 epochs × 32 minibatches, entropy 0, net 64-64 tanh, observations "
         "and rewards normalised and clipped at 10; no value clipping), 1M steps",
+        eval_episodes=10,
+    ),
+    "lunar": Preset(
+        LUNAR_PPO,
+        "RL-Zoo's LunarLander settings (16 envs × 1024 steps, 4 epochs, γ 0.999), 1M steps "
+        "(solves LunarLander-v3: benchmarks/bench_lunar.py)",
         eval_episodes=10,
     ),
 }
@@ -325,6 +347,30 @@ C51 (51 atoms on ±10), noisy nets σ0 0.1 and no ε (Dopamine's DER.gin keeps �
 The paper's smaller torso (256 hidden units) is not reproduced: the Nature CNN's. ``--augment shift``
 adds DrQ's random shifts."""
 
+LUNAR_DQN = DQNConfig(
+    total_steps=150_000,
+    num_envs=1,
+    hidden=(256, 256),
+    double=True,
+    n_step=3,
+    learning_rate=6.3e-4,
+    anneal_learning_rate=True,
+    batch_size=128,
+    buffer_size=50_000,
+    learning_starts=128,
+    target_update_period=250,
+    train_frequency=4,
+    gradient_steps=4,
+    epsilon_start=1.0,
+    epsilon_end=0.1,
+    exploration_duration=12_000,
+    discount_factor=0.99,
+)
+"""RL-Baselines3-Zoo's LunarLander DQN (hyperparams/dqn.yml: Adam 6.3e-4, batch 128, 50k replay,
+target every 250 learning steps, 4 learning steps every 4 env steps, ε 1 → 0.1 over 12k steps,
+[256, 256]) made Double with 3-step returns, the step size decayed linearly to 0, over 150k steps
+(the Zoo's 100k, one-step and not double, does not solve it with seed 0: benchmarks/bench_lunar.py)."""
+
 DQN_PRESETS: dict[str, Preset] = {
     "default": Preset(
         DQNConfig(),
@@ -356,6 +402,11 @@ DQN_PRESETS: dict[str, Preset] = {
         updates_per_chunk=1_000,
         eval_every_chunks=1,
         eval_episodes=20,
+    ),
+    "lunar": Preset(
+        LUNAR_DQN,
+        "RL-Zoo's LunarLander settings made Double with 3-step returns and lr decayed to 0, 150k steps",
+        eval_episodes=10,
     ),
 }
 
@@ -498,11 +549,12 @@ DEFAULT_PRESETS: dict[str, dict[str, str]] = {
         "Pendulum-v1": "pendulum",
         "GridWorld-v0": "small-games",
         "TicTacToe-v0": "small-games",
+        "LunarLander-v3": "lunar",
         **MINATAR,
         **MUJOCO,
     },
     "reinforce": {"Pendulum-v1": "pendulum", "gymnax/Pendulum-v1": "pendulum"},
-    "dqn": {"atari": "lecture-atari"},
+    "dqn": {"atari": "lecture-atari", "LunarLander-v3": "lunar"},
     "pqn": {"atari": "atari", **MINATAR},
     "sac": {"Pendulum-v1": "pendulum", "gymnax/Pendulum-v1": "pendulum"},
     "td3": {"Pendulum-v1": "pendulum", "gymnax/Pendulum-v1": "pendulum"},
