@@ -19,6 +19,7 @@ agentax trains. SB3's PPO at 1M steps takes longer than this bench can: by defau
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -41,24 +42,10 @@ SB3_STEPS = {"ppo": 1_000_000 if FULL else 32_768, "dqn": 100_000 if FULL else 1
 """SB3's steps: RL-Zoo's with AGENTAX_LUNAR_SB3_FULL=1, else fewer (steps/s compared, not scores)"""
 
 PPO_ZOO = presets.LUNAR_PPO
-DQN_ZOO = dqn.DQNConfig(
-    total_steps=100_000,
-    num_envs=1,
-    hidden=(256, 256),
-    double=False,
-    n_step=1,
-    learning_rate=6.3e-4,
-    batch_size=128,
-    buffer_size=50_000,
-    learning_starts=128,
-    target_update_period=250,
-    train_frequency=4,
-    gradient_steps=4,
-    epsilon_start=1.0,
-    epsilon_end=0.1,
-    exploration_duration=12_000,
-    discount_factor=0.99,
+DQN_ZOO = dataclasses.replace(
+    presets.LUNAR_DQN, total_steps=100_000, double=False, n_step=1, anneal_learning_rate=False
 )
+"""RL-Zoo's own DQN: the preset's settings, 100k steps, one-step, not Double, a constant step size"""
 
 
 DQN_SOLVED = presets.LUNAR_DQN
