@@ -225,11 +225,18 @@ TRAINED = (
 )  # the folders of evidence/ whose scores the pages show
 
 
+LUNAR = {
+    "ppo": ("ppo", "RL Zoo"),
+    "dqn": ("dqn", "RL Zoo"),
+    "dqn_preset": ("dqn", "Zoo + Double, 3-step, lr → 0, 150k steps (preset lunar)"),
+}
+
+
 def _figures() -> dict[str, Figure]:
     figures: dict[str, Figure] = {}
     for name in ("envs", "evaluate", "tabular", "search", "ppo", "dqn", "parallel", "ray", "atari"):
         figures[f"{name}.cpu"] = cpu(name)
-    for name in ("learner", "sweep", "workers", "sac", "mujoco", "export"):
+    for name in ("learner", "sweep", "workers", "sac", "mujoco", "export", "lunar"):
         figures[f"{name}.cpu"] = cpu(name)
 
     # CartPole env steps/s (envs.json)
@@ -611,6 +618,15 @@ def _figures() -> dict[str, Figure]:
         figures[f"mujoco.{key}.sb3"] = bench(
             "mujoco", agent, "Stable-Baselines3 (torch, 1 thread(s))", col="agent steps/s", fmt="{:.1f}"
         )
+
+    # LunarLander-v3 (lunar.json): the RL Zoo's settings, and DQN's preset lunar
+    for key, labels in LUNAR.items():
+        figures[f"lunar.{key}.steps"] = bench("lunar", *labels, col="env steps", fmt=thousands)
+        figures[f"lunar.{key}.mean"] = bench("lunar", *labels, col="eval mean", fmt=minus("{:.1f}"))
+        figures[f"lunar.{key}.std"] = bench("lunar", *labels, col="eval std", fmt="{:.1f}")
+    for key in ("ppo", "dqn"):
+        figures[f"lunar.{key}.ratio"] = bench("lunar", *LUNAR[key], col="agentax / SB3 steps/s", fmt="{:.2f}")
+        figures[f"lunar.{key}.sb3_steps"] = bench("lunar", *LUNAR[key], col="SB3 env steps", fmt=thousands)
 
     # every core by default: where two workers start to pay (break_even.json)
     figures["break_even.cpu"] = cpu("break_even")
