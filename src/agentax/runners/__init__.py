@@ -40,9 +40,9 @@ class Runner:
 
 RUNNERS: dict[str, Runner] = {
     "compiled": Runner("agentax.runners.compiled", "jax", "compiled", carries_memory=True),
-    "host": Runner("agentax.runners.host", "any", "host"),
-    "parallel": Runner("agentax.runners.parallel", "any", "parallel"),
-    "ray": Runner("agentax.runners.ray", "any", "ray"),
+    "host": Runner("agentax.runners.host", "any", "host", carries_memory=True),
+    "parallel": Runner("agentax.runners.parallel", "any", "parallel", carries_memory=True),
+    "ray": Runner("agentax.runners.ray", "any", "ray", carries_memory=True),
     "compiled-atari": Runner("agentax.runners.compiled_pool", "atari", "compiled"),
     "compiled-mujoco": Runner("agentax.runners.compiled_pool", "mujoco", "compiled"),
 }

@@ -147,6 +147,12 @@ class RecurrentCarry(OnPolicyCarry):
     first: jax.Array  # bool [num_envs]
 
 
+def fresh_memory(agent: Agent, num_envs: int) -> tuple[Any, jax.Array]:
+    """``(memory, first)`` of ``num_envs`` envs whose observations start episodes: the recurrent
+    agent's initial memory and ``first`` all true (every runner that carries memory starts so)."""
+    return agent.recurrent.initial(num_envs), jnp.ones(num_envs, bool)
+
+
 def act_in(agent: Agent, carry: OnPolicyCarry, key: jax.Array) -> tuple[OnPolicyCarry, jax.Array, Any]:
     """``(carry, action, info)`` of the collect policy on ``carry.obs``: ``agent.act``, or with
     memory ``agent.recurrent.act``, whose new memory the carry takes."""
@@ -200,8 +206,7 @@ def on_policy_program(agent: Agent, envs: VectorEnv) -> Program:
         fields = (agent.init(agent_key), env_state, obs, key, EpisodeStats.create(envs.num_envs))
         if agent.recurrent is None:
             return OnPolicyCarry(*fields)
-        memory, first = agent.recurrent.initial(envs.num_envs), jnp.ones(envs.num_envs, bool)
-        return RecurrentCarry(*fields, memory, first)
+        return RecurrentCarry(*fields, *fresh_memory(agent, envs.num_envs))
 
     def update(carry: OnPolicyCarry) -> tuple[OnPolicyCarry, dict[str, jax.Array]]:
         carry, trajectory = rollout(carry)
