@@ -396,7 +396,6 @@ def train(
         session.env_steps,
     )
     actor.episodes.count = int(session.meta.get("episodes", 0))
-    keep_actor(session, actor)
     learn = jax.jit(agent.learn)
     replayed = isinstance(experience, OffPolicy)
     if replayed:
@@ -408,6 +407,7 @@ def train(
     # the returns of each row: from what was learned (on-policy, so a parallel run with lag 0 logs
     # the same), else from the actor (off-policy, or whole Atari games, which only the env knows)
     learned_returns = FinishedReturns()
+    keep_actor(session, actor, learned_returns)
     from_actor = replayed or actor.keeps_scores
     drain_returns = actor.finished_returns if from_actor else learned_returns.drain
     with session.begin(f"{agent.name} {env_id}", progress):

@@ -20,6 +20,7 @@ its envs on resume (from seeds that depend on how far it had come) and their mem
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,7 @@ from agentax import formats
 from agentax.agents.protocol import Agent, OffPolicy
 from agentax.envs.core import TimeStep
 from agentax.replay import Transition
+from agentax.runners.driver import EpisodeAverage
 from agentax.runners.rollout import fresh_memory
 from agentax.runners.session import Session
 from agentax.runs import CHECKPOINT_PREFIX, Run, checkpoints, load_tree, save_tree
@@ -77,9 +79,10 @@ def actors_beside(checkpoint: Path) -> Path:
     return checkpoint.with_name(f"{ACTORS_PREFIX}{updates}.msgpack")
 
 
-def actor_snapshot(actor: Any) -> tuple[dict[str, Any], dict[str, Any]] | None:
-    """``(arrays, meta)`` of where ``actor`` is: its envs' states, observations, memory and key (the
-    arrays) and its envs' random generators and seed (JSON); None where its envs cannot be saved."""
+def actor_snapshot(actor: Any, trackers: Sequence[EpisodeAverage] = ()) -> tuple[dict, dict] | None:
+    """``(arrays, meta)`` of where ``actor`` is: its envs' states, observations, memory and key and
+    the sums of the episodes under way of the returns ``trackers`` (the arrays), its envs' random
+    generators and seed (JSON); None where its envs cannot be saved."""
     envs = actor.env.snapshot() if hasattr(actor.env, "snapshot") else None
     if envs is None or actor.memory is None:
         return None
@@ -91,18 +94,23 @@ def actor_snapshot(actor: Any) -> tuple[dict[str, Any], dict[str, Any]] | None:
         "key": actor.key,
         "memory": jax.device_get(memory.memory),
         "first": memory.first,
+        "returns": [np.zeros(actor.num_envs) if t.running is None else t.running for t in trackers],
     }
     return arrays, {"generators": generators, "seed": actor.seed, "format": formats.FORMAT}
 
 
-def continue_actor(actor: Any, arrays: dict[str, Any], meta: dict[str, Any]) -> None:
-    """Put ``actor`` where :func:`actor_snapshot` found it."""
+def continue_actor(
+    actor: Any, arrays: dict[str, Any], meta: dict[str, Any], trackers: Sequence[EpisodeAverage] = ()
+) -> None:
+    """Put ``actor`` (and its returns ``trackers``) where :func:`actor_snapshot` found it."""
     actor.env.restore(arrays["envs"], meta["generators"])
     obs = np.asarray(arrays["obs"])
     zeros = np.zeros(len(obs), bool)
     actor.time_step = TimeStep(obs, np.zeros(len(obs), np.float32), zeros, zeros, obs)
     actor.key, actor.seed = arrays["key"], int(meta["seed"])
     actor.memory.memory, actor.memory.first = arrays["memory"], np.asarray(arrays["first"], bool)
+    for tracker, running in zip(trackers, arrays["returns"], strict=True):
+        tracker.running = np.array(running)  # a writable copy
 
 
 class ActorCheckpoints:
@@ -111,11 +119,11 @@ class ActorCheckpoints:
     (as :class:`~agentax.runners.session.ReplayCheckpoints`); those of checkpoints no longer kept
     are removed."""
 
-    def __init__(self, run: Run | None, actor: Any):
-        self.run, self.actor = run, actor
+    def __init__(self, run: Run | None, actor: Any, trackers: Sequence[EpisodeAverage] = ()):
+        self.run, self.actor, self.trackers = run, actor, trackers
 
     def before_checkpoint(self, updates: int, force: bool) -> None:
-        snapshot = actor_snapshot(self.actor)
+        snapshot = actor_snapshot(self.actor, self.trackers)
         if self.run is None or snapshot is None:
             return
         folder = self.run.path / "checkpoints"
@@ -128,20 +136,21 @@ class ActorCheckpoints:
 
     def restore(self, checkpoint: Path) -> bool:
         """Continue the actor saved with ``checkpoint``, if it was; whether it was."""
-        path, snapshot = actors_beside(checkpoint), actor_snapshot(self.actor)
+        path, snapshot = actors_beside(checkpoint), actor_snapshot(self.actor, self.trackers)
         if snapshot is None or not path.is_file():
             return False
         target = jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), x.dtype), snapshot[0])
-        continue_actor(self.actor, *load_tree(path, target))
+        continue_actor(self.actor, *load_tree(path, target), self.trackers)
         return True
 
 
-def keep_actor(session: Session, actor: Any) -> None:
-    """Keep the host runner's ``actor`` of a recurrent agent with ``session``'s checkpoints
-    (:class:`ActorCheckpoints`, where its envs can be saved), continued where the run resumed from."""
+def keep_actor(session: Session, actor: Any, *trackers: EpisodeAverage) -> None:
+    """Keep the host runner's ``actor`` of a recurrent agent (and the returns ``trackers`` of its
+    episodes beside its own) with ``session``'s checkpoints (:class:`ActorCheckpoints`, where its
+    envs can be saved), continued where the run resumed from."""
     if actor.memory is None or isinstance(actor.agent.experience, OffPolicy):
         return
-    kept = ActorCheckpoints(session.run, actor)
+    kept = ActorCheckpoints(session.run, actor, [actor.returns, *trackers])
     session.before_checkpoint = kept.before_checkpoint
     if "checkpoint" in session.meta:
         kept.restore(session.meta["checkpoint"])
