@@ -20,6 +20,7 @@ its envs on resume (from seeds that depend on how far it had come) and their mem
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -30,6 +31,7 @@ import numpy as np
 from agentax import formats
 from agentax.agents.protocol import Agent, OffPolicy
 from agentax.envs.core import TimeStep
+from agentax.errors import UsageError
 from agentax.replay import Transition
 from agentax.runners.driver import EpisodeAverage
 from agentax.runners.rollout import fresh_memory
@@ -135,12 +137,18 @@ class ActorCheckpoints:
                 old.unlink(missing_ok=True)
 
     def restore(self, checkpoint: Path) -> bool:
-        """Continue the actor saved with ``checkpoint``, if it was; whether it was."""
+        """Continue the actor saved with ``checkpoint``, if it was (a file that does not load: a
+        note on stderr, and the envs restart); whether it did."""
         path, snapshot = actors_beside(checkpoint), actor_snapshot(self.actor, self.trackers)
         if snapshot is None or not path.is_file():
             return False
         target = jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), x.dtype), snapshot[0])
-        continue_actor(self.actor, *load_tree(path, target), self.trackers)
+        try:
+            arrays, meta = load_tree(path, target)
+        except UsageError as error:
+            print(f"note: {error}; the envs restart, and their memory with them", file=sys.stderr)
+            return False
+        continue_actor(self.actor, arrays, meta, self.trackers)
         return True
 
 
