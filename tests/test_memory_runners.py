@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -14,7 +15,9 @@ from agentax.agents import ppo, presets
 from agentax.agents.protocol import EnvSpec
 from agentax.cli import main
 from agentax.envs import make_host_env
+from agentax.envs.core import RecurrentPolicy
 from agentax.errors import UsageError
+from agentax.policies import with_random_actions
 from agentax.runners import host, launch, parallel
 from agentax.runners.host import Actor, HostRunnerConfig
 from agentax.runners.host_memory import ACTORS_PREFIX
@@ -202,10 +205,28 @@ def test_an_actor_file_that_does_not_load_restarts_the_envs_with_a_note(tmp_path
 @pytest.mark.timeout(600)
 def test_an_lstm_learns_cartpole_novel_on_the_host_runner():
     """Preset ``memory`` on the host runner, 61,440 steps (seed 0 measured: 23 at the first row,
-    500 from 47,104 steps on, 20 evaluation episodes 475): far above what no memory reaches (46, its preset's note)."""
+    500 from 47,104 steps on, 20 evaluation episodes 475): far above what no memory reaches (46, its
+    preset's note)."""
     cfg = dataclasses.replace(presets.preset("ppo", "memory").config, total_steps=61_440)
     result = host.train(ppo.make_agent(spec_of(NOVEL), cfg), NOVEL, HostRunnerConfig(seed=0))
     assert result.rows[0]["mean_return"] < 40 and result.eval["mean_return"] >= 300, (
         result.rows[0]["mean_return"],
         result.eval["mean_return"],
     )
+
+
+def test_atari_evaluations_random_actions_keep_a_policy_with_memory(agent):
+    """The host runners evaluate Atari games with ε of random actions (``with_random_actions``): a
+    recurrent policy stays one, its memory taking in every observation whichever action is played."""
+    policy = agent.greedy_policy(jax.jit(agent.init)(jax.random.key(0)))
+    obs, key = jnp.array([0.1, -0.2]), jax.random.key(3)
+    memory, action = policy.step(policy.initial(), obs, jax.random.split(key, 3)[2])
+    for epsilon in (0.0, 1.0):
+        mixed = with_random_actions(policy, epsilon, 2)
+        assert isinstance(mixed, RecurrentPolicy)
+        mixed_memory, mixed_action = jax.jit(mixed.step)(mixed.initial(), obs, key)
+        assert_same_trees(mixed_memory, memory)
+        if epsilon == 0.0:
+            assert mixed_action == action
+    actions = {int(jax.jit(mixed.step)(mixed.initial(), obs, jax.random.key(k))[1]) for k in range(20)}
+    assert actions == {0, 1}  # ε = 1: uniformly random
