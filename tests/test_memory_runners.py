@@ -18,7 +18,7 @@ from agentax.envs import make_host_env
 from agentax.envs.core import RecurrentPolicy
 from agentax.errors import UsageError
 from agentax.policies import with_random_actions
-from agentax.runners import host, launch, parallel
+from agentax.runners import RUNNERS, Runner, host, launch, parallel
 from agentax.runners.host import Actor, HostRunnerConfig
 from agentax.runners.host_memory import ACTORS_PREFIX
 from agentax.runners.parallel import ParallelRunnerConfig
@@ -175,14 +175,17 @@ def test_the_parallel_runner_carries_memory_and_gives_the_host_runners_numbers_a
     assert lagged.updates == 2 and np.isfinite(lagged.rows[-1]["policy_loss"])
 
 
-def test_a_runner_that_does_not_carry_memory_refuses_a_core_in_one_line(agent):
-    with pytest.raises(UsageError) as refused:
-        launch.check_memory_carried(agent, "compiled-atari")
-    message = str(refused.value)
-    assert "\n" not in message and "not on the compiled-atari runner" in message
-    assert "--runner host or parallel or ray" in message
-    for kind in ("compiled", "host", "parallel", "ray"):
+def test_a_runner_that_does_not_carry_memory_refuses_a_core_in_one_line(agent, monkeypatch):
+    """Every runner carries memory today; one that did not (``carries_memory`` False, the default
+    of a new row) would refuse a core in one line, naming those that do on any env."""
+    for kind in RUNNERS:
         launch.check_memory_carried(agent, kind)
+    monkeypatch.setitem(RUNNERS, "elsewhere", Runner("agentax.runners.host", "any", "host"))
+    with pytest.raises(UsageError) as refused:
+        launch.check_memory_carried(agent, "elsewhere")
+    message = str(refused.value)
+    assert "\n" not in message and "not on the elsewhere runner" in message
+    assert "--runner host or parallel or ray" in message
 
 
 @pytest.mark.slow
