@@ -388,3 +388,30 @@ def test_policy_lag_1_runs_400_iterations_without_hanging():
     )
     ran = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=160)
     assert ran.returncode == 0 and "iterations 400" in ran.stdout, ran.stderr[-2000:]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(150)
+def test_a_recurrent_rollout_on_a_real_pool_starts_memory_after_each_reset_step():
+    """PPO with a core on the pool: the carry holds each env's memory; an episode starts at the
+    observation a reset step returns (the ending step returns the last observation itself), so
+    ``info["first"]`` follows each masked step, and is true for every env at the start."""
+    from agentax.runners.compiled_pool import PoolEnvs, start
+    from agentax.runners.rollout import RecurrentCarry, on_policy_rollout
+
+    env = XlaAtari(BREAKOUT, 2, seed=3, sticky_actions=0.25)
+    agent = _ppo_agent(env, num_envs=2, num_steps=64, num_minibatches=2, core="gru", core_size=8)
+    rollout = jax.jit(on_policy_rollout(agent, PoolEnvs(env)))
+    carry = start(agent.init(jax.random.key(0)), env, jax.random.key(1), 0, agent)
+    assert isinstance(carry, RecurrentCarry) and carry.first.all()
+    resets = 0
+    for _ in range(2):
+        first_in = np.asarray(carry.first)
+        carry, trajectory = rollout(carry)
+        valid, first = jax.device_get((trajectory.info["valid"], trajectory.info["first"]))
+        np.testing.assert_array_equal(first[0], first_in)
+        np.testing.assert_array_equal(first[1:], ~valid[:-1])
+        np.testing.assert_array_equal(np.asarray(carry.first), ~valid[-1])
+        resets += int((~valid).sum())
+    env.close()
+    assert resets >= 2  # random play loses a life every ~24 steps

@@ -236,10 +236,6 @@ def test_feed_forward_ppo_is_as_it_was():
         (["train", "ppo", "--core", "gru", "--core-size", "0"], "core_size must be positive"),
         (["train", "ppo", "--core", "lstm", "--bptt", "7"], "--bptt 7 does not split num_steps"),
         (["train", "ppo", "--core", "gru", "--precision", "bf16"], "a recurrent core learns in f32 only"),
-        (
-            ["train", "ppo", "--env", "CartPoleNoVel-v1", "--core", "lstm", "--runner", "host"],
-            "runner carries its memory (--runner compiled",
-        ),
     ],
 )
 def test_bad_core_input_is_one_line_and_exit_code_2(argv, message, capsys, tmp_path):

@@ -706,3 +706,33 @@ def test_the_watcher_says_how_to_resume_a_run_with_a_checkpoint_and_is_quiet_aft
         [sys.executable, "-c", code, str(tmp_path / "my run"), "end"], capture_output=True, text=True
     )
     assert quiet.returncode == 0 and quiet.stderr == "", quiet.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(180)
+def test_a_recurrent_ppo_on_ray_actors_gives_the_thread_actors_numbers(cluster, tmp_path):
+    """Each collector process carries its envs' memory across rollouts, as an actor thread does."""
+    env = make_host_env("CartPoleNoVel-v1", 1)
+    spec = EnvSpec.of(env)
+    env.close()
+    cfg = ppo.PPOConfig(
+        num_envs=4, num_steps=16, core="lstm", core_size=8, hidden=(8,), total_steps=256, num_minibatches=2
+    )
+    settings = {"seed": 1, "actors": 2, "policy_lag": 1, "eval_episodes": 2}
+    config = {"algo": "ppo", "env": "CartPoleNoVel-v1"}
+    agent = ppo.make_agent(spec, cfg)
+    on_ray = ray_runner.train(
+        agent,
+        "CartPoleNoVel-v1",
+        RayRunnerConfig(**settings),
+        Run.create(tmp_path / "ray", config),
+        make_agent=lambda: ppo.make_agent(spec, cfg),
+    )
+    in_threads = parallel.train(
+        agent, "CartPoleNoVel-v1", ParallelRunnerConfig(**settings), Run.create(tmp_path / "threads", config)
+    )
+    assert on_ray.updates == in_threads.updates == 4
+    for row_ray, row_threads in zip(on_ray.rows, in_threads.rows, strict=True):
+        for name in ("env_steps", "mean_return", "policy_loss", "value_loss"):
+            assert row_ray[name] == row_threads[name], (name, row_ray[name], row_threads[name])
+    assert on_ray.eval["mean_return"] == in_threads.eval["mean_return"]

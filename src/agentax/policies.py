@@ -7,11 +7,12 @@ batch it with ``jax.vmap``. Parametrised policies close over their parameters.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 
-from agentax.envs.core import Box, Discrete, Policy
+from agentax.envs.core import Box, Discrete, Policy, RecurrentPolicy
 
 
 def basic_policy(obs: jax.Array, key: jax.Array | None = None) -> jax.Array:
@@ -61,14 +62,26 @@ def exponential_schedule(start: float, end: float, decay: float) -> Callable[[ja
     )
 
 
-def with_random_actions(policy: Policy, epsilon: float, num_actions: int) -> Policy:
+def with_random_actions(
+    policy: Policy | RecurrentPolicy, epsilon: float, num_actions: int
+) -> Policy | RecurrentPolicy:
     """``policy`` with probability 1 − ε, a uniformly random action with probability ε: how Atari agents
     are evaluated (the Nature DQN with ε 0.05, Dopamine 0.001), so that a greedy policy that never
-    presses FIRE cannot stall a game until its frame cap."""
+    presses FIRE cannot stall a game until its frame cap. A policy with memory (:class:`RecurrentPolicy`)
+    stays one: its memory takes in every observation, whichever action is played."""
 
     def act(obs: jax.Array, key: jax.Array) -> jax.Array:
         explore_key, action_key, policy_key = jax.random.split(key, 3)
         random_action = jax.random.randint(action_key, (), 0, num_actions)
         return jnp.where(jax.random.uniform(explore_key) < epsilon, random_action, policy(obs, policy_key))
 
-    return act
+    if not isinstance(policy, RecurrentPolicy):
+        return act
+
+    def step(memory: Any, obs: jax.Array, key: jax.Array) -> tuple[Any, jax.Array]:
+        explore_key, action_key, policy_key = jax.random.split(key, 3)
+        memory, action = policy.step(memory, obs, policy_key)
+        random_action = jax.random.randint(action_key, (), 0, num_actions)
+        return memory, jnp.where(jax.random.uniform(explore_key) < epsilon, random_action, action)
+
+    return RecurrentPolicy(policy.initial, step)

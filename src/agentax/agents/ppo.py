@@ -39,8 +39,8 @@ starts, and every step's ``info`` keeps the carry it received and its ``first`` 
 recomputes the values through the whole rollout with the learner's parameters, then takes its
 minibatches as whole env sequences (``bptt`` steps, or the rollout), each run through the core from
 its stored carry, resetting where ``first`` says: backpropagation through time, as PureJaxRL's
-``ppo_rnn`` (whole rollouts) and R2D2's stored state (shorter sequences). Only the compiled runner
-carries the memory.
+``ppo_rnn`` (whole rollouts) and R2D2's stored state (shorter sequences). Every runner carries
+the memory.
 
 Pure functions: ``init``, ``act`` and ``learn`` serve every runner through ``make_agent``; the
 compiled runner builds its rollout program from them (:mod:`agentax.runners.rollout`).

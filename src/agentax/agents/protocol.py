@@ -232,8 +232,9 @@ class Recurrent:
     ``memory`` reset where ``first`` (bool ``[num_envs]``) marks an episode's start before the step;
     its ``info`` keeps the ``memory`` it received and ``first``, so that ``learn`` replays the
     rollout's sequences through the core (backpropagation through time).
-    The agent's ``greedy_policy`` gives a :class:`~agentax.envs.core.RecurrentPolicy`. Only the
-    compiled runner carries memory (:func:`agentax.runners.launch.prepare` refuses the others)."""
+    The agent's ``greedy_policy`` gives a :class:`~agentax.envs.core.RecurrentPolicy`. The runners
+    that carry memory say so (``carries_memory``); :func:`agentax.runners.launch.prepare` refuses the
+    others."""
 
     initial: Callable[[int], Memory]
     act: Callable[..., tuple[Memory, jax.Array, dict[str, jax.Array]]]

@@ -270,6 +270,24 @@ class GymnasiumEnv:
             final = {"obs": final, spaces.MASK_KEY: legal}
         return self.layout.pack(final)
 
+    def snapshot(self) -> tuple[list[dict[str, Any]], list[dict[str, Any]]] | None:
+        """Where every sub-env is, when each is an agentax JAX env (:class:`JaxToGymnasium`, in a
+        vector env of this process): each one's JAX state and key (arrays) and the state of its
+        NumPy generator, which draws the key of each next episode (JSON-able); else None (the state
+        of a Gymnasium env cannot be saved in general)."""
+        envs = [env.unwrapped for env in getattr(self.vector_env, "envs", [None])]
+        if not all(isinstance(env, JaxToGymnasium) and env.state is not None for env in envs):
+            return None
+        arrays = [{"state": env.state, "key": env._key} for env in envs]
+        return arrays, [env.np_random.bit_generator.state for env in envs]
+
+    def restore(self, arrays: list[dict[str, Any]], generators: list[dict[str, Any]]) -> None:
+        """Put every sub-env where :meth:`snapshot` found it (the vector env reset before)."""
+        for env, saved, generator in zip(self.vector_env.envs, arrays, generators, strict=True):
+            env = env.unwrapped
+            env.state, env._key = jax.tree.map(jnp.asarray, saved["state"]), saved["key"]
+            env.np_random.bit_generator.state = generator
+
     def close(self) -> None:
         self.vector_env.close()
 

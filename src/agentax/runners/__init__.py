@@ -32,7 +32,8 @@ class Runner:
     chosen_as: str
     """the ``--runner`` choice (a name in :data:`CHOICES`) that picks it for an env of its family"""
     carries_memory: bool = False
-    """whether it carries a recurrent agent's memory from step to step (``Agent.recurrent``)"""
+    """whether it carries a recurrent agent's memory from step to step (``Agent.recurrent``); a runner
+    that does not refuses an agent with memory (:func:`agentax.runners.launch.check_memory_carried`)"""
 
     def load(self) -> ModuleType:
         return importlib.import_module(self.module)
@@ -40,11 +41,11 @@ class Runner:
 
 RUNNERS: dict[str, Runner] = {
     "compiled": Runner("agentax.runners.compiled", "jax", "compiled", carries_memory=True),
-    "host": Runner("agentax.runners.host", "any", "host"),
-    "parallel": Runner("agentax.runners.parallel", "any", "parallel"),
-    "ray": Runner("agentax.runners.ray", "any", "ray"),
-    "compiled-atari": Runner("agentax.runners.compiled_pool", "atari", "compiled"),
-    "compiled-mujoco": Runner("agentax.runners.compiled_pool", "mujoco", "compiled"),
+    "host": Runner("agentax.runners.host", "any", "host", carries_memory=True),
+    "parallel": Runner("agentax.runners.parallel", "any", "parallel", carries_memory=True),
+    "ray": Runner("agentax.runners.ray", "any", "ray", carries_memory=True),
+    "compiled-atari": Runner("agentax.runners.compiled_pool", "atari", "compiled", carries_memory=True),
+    "compiled-mujoco": Runner("agentax.runners.compiled_pool", "mujoco", "compiled", carries_memory=True),
 }
 """Every kind of runner by its name in config.json's ``runner_kind``, which old run folders keep
 (``--runner compiled`` on an Atari id is ``compiled-atari``, on EnvPool's MuJoCo ids

@@ -57,7 +57,7 @@ from agentax.envs.envpool_xla import (
 from agentax.errors import UsageError
 from agentax.returns import EpisodeStats
 from agentax.runners import host, kind_for
-from agentax.runners.rollout import OnPolicyCarry, on_policy_rollout
+from agentax.runners.rollout import OnPolicyCarry, RecurrentCarry, fresh_memory, on_policy_rollout
 from agentax.runners.session import TrainResult
 from agentax.runs import Run
 
@@ -180,12 +180,18 @@ def make_pool(env_id: str, num_envs: int, seed: int, runner: Config) -> XlaPool:
     return XlaMujoco(env_id, num_envs, seed=seed)
 
 
-def start(agent_state: Any, env: XlaPool, key: jax.Array, env_steps: int) -> OnPolicyCarry:
+def start(
+    agent_state: Any, env: XlaPool, key: jax.Array, env_steps: int, agent: Agent | None = None
+) -> OnPolicyCarry:
     """New games in ``env``'s pool (a host call): the rollout's carry, the actor's key chain from
-    ``key``, ``env_steps`` the pool's steps so far (the collect policy's progress)."""
+    ``key``, ``env_steps`` the pool's steps so far (the collect policy's progress); for an ``agent``
+    with memory a :class:`RecurrentCarry`, every env's memory fresh."""
     handle, obs = env.reset()
     episodes = EpisodeStats.create(env.num_envs).replace(env_steps=jnp.int32(env_steps))
-    return OnPolicyCarry(agent_state, Pool(handle, EpisodeTracker.create(env.num_envs)), obs, key, episodes)
+    fields = (agent_state, Pool(handle, EpisodeTracker.create(env.num_envs)), obs, key, episodes)
+    if agent is None or agent.recurrent is None:
+        return OnPolicyCarry(*fields)
+    return RecurrentCarry(*fields, *fresh_memory(agent, env.num_envs))
 
 
 def make_collect(agent: Agent, env: XlaPool) -> Callable:
@@ -288,7 +294,7 @@ def train(
     games_done = int(session.meta.get("games", 0))
     experience: OnPolicy = agent.experience
     env = make_pool(env_id, experience.num_envs, host.actor_seed(runner.seed, 0, updates), runner)
-    carry = start(session.state, env, host.fold_actor_key(session.actors_key, 0, updates), env_steps)
+    carry = start(session.state, env, host.fold_actor_key(session.actors_key, 0, updates), env_steps, agent)
     total_updates, lag = host.num_updates(agent), runner.policy_lag
     if lag == 0:
         steps = in_one_program(jax.jit(make_update(agent, env), donate_argnums=0), carry, learner_key)

@@ -12,8 +12,9 @@ by :func:`fold_actor_key` and :func:`actor_seed`; so the host runner is the para
 policy-lag-0 run with one actor, number for number.
 
 Checkpoints hold the agent state and the learner's key, and beside them the replay buffer
-(:class:`~agentax.runners.session.ReplayCheckpoints`); a resumed run restarts its envs (a Gymnasium
-env's state cannot be saved) from seeds that depend on how far the run had come.
+(:class:`~agentax.runners.session.ReplayCheckpoints`) or a recurrent agent's actor, its envs' memory
+with them (:mod:`agentax.runners.host_memory`); a resumed run restarts envs whose state cannot be
+saved (a Gymnasium env's) from seeds that depend on how far the run had come.
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ from agentax.runners.driver import (
     TrajectoryObserver,
     first_time_step,
 )
+from agentax.runners.host_memory import CarriedMemory, keep_actor
 from agentax.runners.replay_program import example_action
 from agentax.runners.rollout import scalars
 from agentax.runners.session import Session, TrainResult, checkpoint_target
@@ -171,20 +173,17 @@ class Actor:
     """
 
     def __init__(self, agent: Agent, env: Any, seed: int, key: jax.Array, done_steps: int = 0):
-        self.agent = agent
-        self.env = env
-        self.num_envs = env.num_envs
+        self.agent, self.env, self.num_envs = agent, env, env.num_envs
         self.obs_shape = tuple(env.observation_space().shape)
         self.keeps_scores = hasattr(env, "drain_scores")
         """whether the env keeps the true scores of whole games (Atari), which the rows then report"""
-        self.seed = seed
-        self.key = key
-        self.act = jax.jit(act_and_split(agent.act))
+        self.seed, self.key = seed, key
+        self.memory = CarriedMemory(agent, self.num_envs) if agent.recurrent is not None else None
+        self.act = self.memory.act if self.memory is not None else jax.jit(act_and_split(agent.act))
         self.state: Any = None
         self.steps, self.episodes = EnvironmentSteps(done_steps), NumberOfEpisodes()
         self.returns = FinishedReturns()
-        experience = agent.experience
-        self.by_episode = isinstance(experience, OffPolicy) and experience.by_episode
+        self.by_episode = isinstance(agent.experience, OffPolicy) and agent.experience.by_episode
         self.progress = lambda: self.episodes.count if self.by_episode else self.steps.count
         self.time_step = first_time_step(self.env, seed)
 
@@ -201,7 +200,7 @@ class Actor:
         return action, key, info or None
 
     def _run(self, observers: list, **limits: int) -> None:
-        counters = [self.steps, self.episodes, self.returns]
+        counters = [self.steps, self.episodes, self.returns, *([self.memory] if self.memory else [])]
         driver = Driver(
             self.env, self.policy, [*counters, *observers], action_to_env=self.agent.env_action, **limits
         )
@@ -219,6 +218,8 @@ class Actor:
         self.state, trajectory = state, TrajectoryObserver()
         self.seed += self.env.num_envs
         self.time_step = first_time_step(self.env, self.seed)
+        if self.memory is not None:
+            self.memory.restart()
         alive = np.ones(self.env.num_envs, bool)
         steps_before = self.steps.count
         for _ in range(max_steps):
@@ -396,7 +397,8 @@ def train(
     )
     actor.episodes.count = int(session.meta.get("episodes", 0))
     learn = jax.jit(agent.learn)
-    if isinstance(experience, OffPolicy):
+    replayed = isinstance(experience, OffPolicy)
+    if replayed:
         replay = replay_for(agent, actor.obs_shape, runner.seed)
         observer = ReplayObserver(replay, experience.n_step, experience.discount_factor)
         learner = OffPolicyLearner(agent, replay, loop=kernel_choice.learning_loop_for(actor.obs_shape))
@@ -405,7 +407,8 @@ def train(
     # the returns of each row: from what was learned (on-policy, so a parallel run with lag 0 logs
     # the same), else from the actor (off-policy, or whole Atari games, which only the env knows)
     learned_returns = FinishedReturns()
-    from_actor = isinstance(experience, OffPolicy) or actor.keeps_scores
+    keep_actor(session, actor, learned_returns)
+    from_actor = replayed or actor.keeps_scores
     drain_returns = actor.finished_returns if from_actor else learned_returns.drain
     with session.begin(f"{agent.name} {env_id}", progress):
         try:
@@ -428,11 +431,7 @@ def train(
                 finished = collection_over(agent, env_steps, actor.episodes.count, updates)
                 if not session.row_due(env_steps, finished):
                     continue
-                extra = (
-                    {"replay_size": replay.size, "replay_bytes": replay.nbytes}
-                    if isinstance(experience, OffPolicy)
-                    else {}
-                )
+                extra = {"replay_size": replay.size, "replay_bytes": replay.nbytes} if replayed else {}
                 counts = {"episodes": actor.episodes.count}
                 returns = drain_returns()
                 args = (state, learner_key, env_steps, updates, returns, metrics)

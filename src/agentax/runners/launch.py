@@ -149,12 +149,10 @@ def check_memory_carried(agent: Any, kind: str) -> None:
     """A ``UsageError`` for an agent with memory (a recurrent core) on a runner that does not carry
     it from step to step (:attr:`agentax.runners.Runner.carries_memory`)."""
     if agent.recurrent is not None and not RUNNERS[kind].carries_memory:
-        carriers = " or ".join(
-            f"--runner {RUNNERS[k].chosen_as}" for k in RUNNERS if RUNNERS[k].carries_memory
-        )
+        carriers = [k for k, runner in RUNNERS.items() if runner.carries_memory and runner.envs == "any"]
         raise UsageError(
-            f"a recurrent core (--core) trains only where a runner carries its memory ({carriers}, on a JAX "
-            f"env such as CartPoleNoVel-v1), not on the {kind} runner"
+            f"a recurrent core (--core) trains only where a runner carries its memory, not on the {kind} "
+            f"runner: use --runner {' or '.join(carriers)}"
         )
 
 

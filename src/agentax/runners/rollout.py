@@ -147,6 +147,22 @@ class RecurrentCarry(OnPolicyCarry):
     first: jax.Array  # bool [num_envs]
 
 
+def fresh_memory(agent: Agent, num_envs: int) -> tuple[Any, jax.Array]:
+    """``(memory, first)`` of ``num_envs`` envs whose observations start episodes: the recurrent
+    agent's initial memory and ``first`` all true (every runner that carries memory starts so)."""
+    return agent.recurrent.initial(num_envs), jnp.ones(num_envs, bool)
+
+
+def starts_episode(time_step: TimeStep, env_info: dict[str, Any]) -> jax.Array:
+    """Whether each env's next observation starts an episode (bool ``[num_envs]``): where the step
+    ended one, the env having auto-reset; on envs with reset steps (the EnvPool pool: an ending step
+    returns the last observation, the next step resets, ``env_info["valid"]`` False on it) where the
+    step was a reset step."""
+    if "valid" in env_info:
+        return ~env_info["valid"]
+    return time_step.done
+
+
 def act_in(agent: Agent, carry: OnPolicyCarry, key: jax.Array) -> tuple[OnPolicyCarry, jax.Array, Any]:
     """``(carry, action, info)`` of the collect policy on ``carry.obs``: ``agent.act``, or with
     memory ``agent.recurrent.act``, whose new memory the carry takes."""
@@ -181,7 +197,7 @@ def on_policy_rollout(
         episodes = carry.episodes.record(time_step.reward, time_step.done)
         carry = acted.replace(env_state=env_state, obs=time_step.obs, key=key, episodes=episodes)
         if agent.recurrent is not None:
-            carry = carry.replace(first=time_step.done)
+            carry = carry.replace(first=starts_episode(time_step, env_info))
         return carry, transition
 
     def rollout(carry: OnPolicyCarry) -> tuple[OnPolicyCarry, Transition]:
@@ -200,8 +216,7 @@ def on_policy_program(agent: Agent, envs: VectorEnv) -> Program:
         fields = (agent.init(agent_key), env_state, obs, key, EpisodeStats.create(envs.num_envs))
         if agent.recurrent is None:
             return OnPolicyCarry(*fields)
-        memory, first = agent.recurrent.initial(envs.num_envs), jnp.ones(envs.num_envs, bool)
-        return RecurrentCarry(*fields, memory, first)
+        return RecurrentCarry(*fields, *fresh_memory(agent, envs.num_envs))
 
     def update(carry: OnPolicyCarry) -> tuple[OnPolicyCarry, dict[str, jax.Array]]:
         carry, trajectory = rollout(carry)
