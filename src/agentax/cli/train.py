@@ -156,8 +156,9 @@ def check_core_flags(algo: str, config_type: type, argv: list[str]) -> None:
     """A one-line ``UsageError`` for a recurrent core's flag given to a feed-forward algorithm."""
     given = [flag for flag in CORE_FLAGS if any(a == flag or a.startswith(flag + "=") for a in argv)]
     if given and not has_core(config_type):
-        takers = ", ".join(name for name in ALGORITHMS if has_core(algorithm_config(name)))
-        raise UsageError(f"{given[0]}: {algo} has no recurrent core; {takers} takes one (--core lstm|gru)")
+        takers = [name for name in ALGORITHMS if has_core(algorithm_config(name))]
+        who = takers[0] + " takes" if len(takers) == 1 else ", ".join(takers[:-1]) + f" and {takers[-1]} take"
+        raise UsageError(f"{given[0]}: {algo} has no recurrent core; {who} one (--core lstm|gru)")
 
 
 def has_core(config_type: type) -> bool:
