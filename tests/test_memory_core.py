@@ -1,5 +1,6 @@
-"""Issue 42, memory: PPO's and PQN's recurrent core (LSTM, GRU), its resets at episode starts, learning
-on whole sequences, the compiled runner and evaluation carrying memory, CartPoleNoVel and the refusals."""
+"""Issue 42, memory: PPO's, PQN's and REINFORCE's recurrent core (LSTM, GRU), its resets at episode
+starts, learning on whole sequences, the compiled runner and evaluation carrying memory, CartPoleNoVel
+and the refusals."""
 
 import dataclasses
 import functools
@@ -10,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from agentax.agents import config_from_dict, ppo, pqn, presets, sequences
+from agentax.agents import config_from_dict, ppo, pqn, presets, reinforce, sequences
 from agentax.agents.protocol import EnvSpec
 from agentax.cli import main
 from agentax.envs import GymnasiumEnv, make, make_jax
@@ -204,10 +205,34 @@ def test_pqn_replays_the_actor_on_whole_sequences_and_a_learning_step_changes_th
     assert all(moved), moved
 
 
-def trained_returns(cfg: ppo.PPOConfig, seeds: int = 2) -> tuple[np.ndarray, dict]:
-    """``cfg``'s PPO trained on CartPoleNoVel by the compiled runner's program, ``seeds`` seeds vmapped:
-    each seed's mean return over 16 greedy episodes ``[seeds]``, and every update's metrics."""
-    program = program_of(ppo.make_agent(SPEC, cfg), NOVEL)
+def test_reinforce_with_a_core_learns_through_whole_episodes_and_its_greedy_policy_carries_memory():
+    """A jitted update of REINFORCE with a core and a baseline (episodes played from zero memory,
+    learned through whole) changes the torso, the core, the actor head and the critic head (the
+    baseline, read from the core's output); the greedy policy carries memory."""
+    cfg = reinforce.ReinforceConfig(
+        episodes_per_update=4, max_steps=32, core="gru", core_size=8, hidden=(8,), baseline=True
+    )
+    agent = reinforce.make_agent(SPEC, cfg)
+    program = program_of(agent, NOVEL)
+    carry = jax.jit(program.init)(jax.random.key(0))
+    updated, metrics = jax.jit(program.update)(carry)
+    assert all(np.isfinite(v) for v in metrics.values()) and "value_loss" in metrics
+    params, new = carry.agent.params["policy"]["params"], updated.agent.params["policy"]["params"]
+    for name in ("Dense_0", "GRUCell_0", "Dense_1", "Dense_2", "Dense_3", "Dense_4"):
+        pairs = zip(jax.tree.leaves(params[name]), jax.tree.leaves(new[name]), strict=True)
+        assert any(bool((a != b).any()) for a, b in pairs), name
+    policy = agent.greedy_policy(carry.agent)
+    assert isinstance(policy, RecurrentPolicy)
+    once, action = jax.jit(policy.step)(policy.initial(), jnp.array([0.01, 0.02]), jax.random.key(2))
+    assert action.shape == () and float(jnp.abs(once).max()) > 0
+
+
+def trained_returns(cfg: ppo.PPOConfig | pqn.PQNConfig, seeds: int = 2) -> tuple[np.ndarray, dict]:
+    """``cfg``'s agent (PPO or PQN) trained on CartPoleNoVel by the compiled runner's program, ``seeds``
+    seeds vmapped: each seed's mean return over 16 greedy episodes ``[seeds]``, and every update's
+    metrics."""
+    algo = ppo if isinstance(cfg, ppo.PPOConfig) else pqn
+    program = program_of(algo.make_agent(SPEC, cfg), NOVEL)
 
     def train(key):
         carry, metrics = jax.lax.scan(
@@ -303,8 +328,11 @@ def test_feed_forward_ppo_is_as_it_was():
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["train", "dqn", "--core", "lstm"], "--core: dqn has no recurrent core; ppo and pqn take one"),
-        (["train", "reinforce", "--core-size=32"], "--core-size: reinforce has no recurrent core"),
+        (
+            ["train", "dqn", "--core", "lstm"],
+            "--core: dqn has no recurrent core; reinforce, ppo and pqn take one",
+        ),
+        (["train", "sac", "--core-size=32"], "--core-size: sac has no recurrent core"),
         (["train", "ppo", "--env", "CartPoleNoVel-v1", "--core", "rnn"], "unknown core 'rnn'"),
         (["train", "ppo", "--core", "gru", "--core-size", "0"], "core_size must be positive"),
         (["train", "ppo", "--core", "lstm", "--bptt", "7"], "--bptt 7 does not split num_steps"),
@@ -314,6 +342,11 @@ def test_feed_forward_ppo_is_as_it_was():
         (["train", "pqn", "--core", "lstm", "--num-minibatches", "32"], "do not split into 32 minibatches"),
         (
             ["train", "pqn", "--env", "CartPoleNoVel-v1", "--core", "gru", "--runner", "host"],
+            "runner carries its memory (--runner compiled",
+        ),
+        (["train", "reinforce", "--core", "lstm", "--core-size", "-1"], "core_size must be positive"),
+        (
+            ["train", "reinforce", "--env", "CartPoleNoVel-v1", "--core", "lstm", "--runner", "host"],
             "runner carries its memory (--runner compiled",
         ),
         (

@@ -1,6 +1,6 @@
-"""What the on-policy agents with a recurrent core share (PPO, PQN, REINFORCE's ``core``): the
-core's settings checked once, and a rollout ``[T, E, ...]`` cut into whole env sequences, each
-with the memory stored where it starts, for backpropagation through time.
+"""What the agents with a recurrent core share (PPO and PQN; REINFORCE, learning on whole episodes,
+the core's kind and size): the core's settings checked once, and a rollout ``[T, E, ...]`` cut into
+whole env sequences, each with the memory stored where it starts, for backpropagation through time.
 
 A rollout of ``num_steps`` steps per env is learned on as sequences of ``bptt`` steps (or the whole
 rollout): minibatches are made of whole sequences, never of shuffled steps, so the core runs
@@ -30,13 +30,19 @@ def num_sequences(cfg: Any) -> int:
     return cfg.num_envs * (cfg.num_steps // sequence_length(cfg))
 
 
+def validate_core_kind(cfg: Any) -> None:
+    """A known ``cfg.core`` and a positive ``cfg.core_size`` (a ``UsageError`` otherwise)."""
+    if cfg.core not in CORES:
+        raise UsageError(f"unknown core {cfg.core!r}; choose from {', '.join(CORES)}")
+    check_fields(cfg, positive=("core_size",))
+
+
 def validate_core(cfg: Any) -> None:
     """The core's settings of a config with ``core``, ``core_size``, ``bptt``, ``num_envs``,
     ``num_steps`` and ``num_minibatches``: a known core, a positive size, sequences that split the
     rollout and minibatches of whole sequences (a ``UsageError`` naming the first bad one)."""
-    if cfg.core not in CORES:
-        raise UsageError(f"unknown core {cfg.core!r}; choose from {', '.join(CORES)}")
-    check_fields(cfg, positive=("core_size",), non_negative=("bptt",))
+    validate_core_kind(cfg)
+    check_fields(cfg, non_negative=("bptt",))
     if cfg.bptt and cfg.num_steps % cfg.bptt:
         raise UsageError(f"--bptt {cfg.bptt} does not split num_steps {cfg.num_steps} into sequences")
     if num_sequences(cfg) % cfg.num_minibatches:
@@ -81,5 +87,6 @@ __all__ = [
     "sequence_starts",
     "time_major",
     "validate_core",
+    "validate_core_kind",
     "whole_sequences",
 ]
