@@ -26,6 +26,15 @@ a step of its own), and the compiled Atari runner learns with the parameters tha
 targets reuse ``act``'s ``max_a Q(s_{t+1}, a)`` (``info["max_q"]``) and only the last step's next
 observations go through the network again — one forward pass of the rollout fewer, of the ~8 an
 update makes (act, the targets' pass, 2 epochs of forward and backward).
+
+**Memory** (``core``: ``"lstm"`` or ``"gru"``; the last section): a recurrent core between the torso
+and the Q head (:class:`~agentax.nets.RecurrentQNetwork`), acting ε-greedily through
+``Agent.recurrent`` as PPO does: each env's carry travels with the rollout, reset to zeros where an
+episode starts, and every step's ``info`` keeps the carry it received and its ``first`` flag. ``learn``
+runs the core through the whole rollout with the learner's parameters for the targets' ``max_a Q``
+(each observation reached read from the memory after its step), then takes its minibatches as whole
+env sequences (``bptt`` steps, or the rollout), each run through the core from its stored carry:
+backpropagation through time from a stored state, as R2D2. Only the compiled runner carries the memory.
 """
 
 from __future__ import annotations
