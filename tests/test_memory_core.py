@@ -259,6 +259,21 @@ def test_memory_learns_what_a_feed_forward_policy_cannot():
     assert feed_forward.mean() < 70 and recurrent.mean() > 3 * feed_forward.mean(), (recurrent, feed_forward)
 
 
+@pytest.mark.long  # two compiled trainings of 200k steps per seed: ~2.5 min on 2 loaded cores
+def test_pqn_with_a_core_learns_what_feed_forward_pqn_cannot():
+    """PQN's ``memory`` preset (a GRU of 64, 32 envs, sequences of 8 steps) against the same PQN without
+    the core (its LayerNorm MLP of 64), 200k env steps per seed, 2 seeds vmapped on the compiled runner:
+    the greedy policies (16 episodes each) average past 150 with the core, every seed past 100, and no
+    seed passes 60 without. (Measured: GRU 373.9 and 113.1, feed-forward 37.4 and 39.6; over 8 seeds
+    the GRU's mean is 264.1, its worst seed 167.7, feed-forward's 39.5 and best 42.9.)"""
+    cfg = presets.preset("pqn", "memory").config
+    recurrent, metrics = trained_returns(cfg)
+    feed_forward, _ = trained_returns(dataclasses.replace(cfg, core="none"))
+    assert np.isfinite(metrics["loss"]).all()
+    assert recurrent.mean() > 150 and recurrent.min() > 100, recurrent
+    assert feed_forward.max() < 60, feed_forward
+
+
 def test_cartpole_novel_is_cartpole_positions_step_for_step():
     full, novel = make_jax("CartPole-v1"), NOVEL
     assert novel.observation_space().shape == (2,) and novel.action_space().n == 2
@@ -345,6 +360,7 @@ def test_feed_forward_ppo_is_as_it_was():
             "runner carries its memory (--runner compiled",
         ),
         (["train", "reinforce", "--core", "lstm", "--core-size", "-1"], "core_size must be positive"),
+        (["train", "reinforce", "--core", "gru", "--bptt", "8"], "whole episodes; ppo and pqn take --bptt"),
         (
             ["train", "reinforce", "--env", "CartPoleNoVel-v1", "--core", "lstm", "--runner", "host"],
             "runner carries its memory (--runner compiled",
