@@ -487,7 +487,7 @@ PQN_PRESETS: dict[str, Preset] = {
         ),
         "a GRU core (64 units) for partially observed tasks: 32 envs × 32 steps learned as sequences "
         "of 8 (8 minibatches of 16), Q(λ 0.95), 200k steps: on CartPoleNoVel-v1 8 seeds evaluate 264 on "
-        "average (worst 168, best 457), feed-forward PQN 40 (tests/test_memory_core.py)",
+        "average over 20 greedy episodes each (worst 168, best 457), feed-forward PQN 40",
     ),
     "minatar": Preset(
         dataclasses.replace(PQN_ATARI, learning_rate=5e-4, anneal_lr=True, epsilon_end=0.05),
