@@ -1,5 +1,6 @@
-"""Issue 42, memory: PPO's recurrent core (LSTM, GRU), its resets at episode starts, learning on whole
-sequences, the compiled runner and evaluation carrying memory, CartPoleNoVel and the refusals."""
+"""Issue 42, memory: PPO's, PQN's and REINFORCE's recurrent core (LSTM, GRU), its resets at episode
+starts, learning on whole sequences, the compiled runner and evaluation carrying memory, CartPoleNoVel
+and the refusals."""
 
 import dataclasses
 import functools
@@ -10,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from agentax.agents import config_from_dict, ppo, presets
+from agentax.agents import config_from_dict, ppo, pqn, presets, reinforce, sequences
 from agentax.agents.protocol import EnvSpec
 from agentax.cli import main
 from agentax.envs import GymnasiumEnv, make, make_jax
@@ -105,7 +106,7 @@ def replay(state, trajectory, first, length):
 
 def in_sequences(x, length):
     """``[T, E, ...]`` as the learner's sequences, time first: ``[length, N, ...]``."""
-    return jnp.swapaxes(ppo.as_sequences(x, length), 0, 1)
+    return jnp.swapaxes(sequences.as_sequences(x, length), 0, 1)
 
 
 def test_the_learner_replays_the_actor_exactly_and_needs_the_resets():
@@ -131,10 +132,107 @@ def test_the_learner_replays_the_actor_exactly_and_needs_the_resets():
     )
 
 
-def trained_returns(cfg: ppo.PPOConfig, seeds: int = 2) -> tuple[np.ndarray, dict]:
-    """``cfg``'s PPO trained on CartPoleNoVel by the compiled runner's program, ``seeds`` seeds vmapped:
-    each seed's mean return over 16 greedy episodes ``[seeds]``, and every update's metrics."""
-    program = program_of(ppo.make_agent(SPEC, cfg), NOVEL)
+def small_pqn(core: str, **changes) -> pqn.PQNConfig:
+    base = pqn.PQNConfig(
+        num_envs=4, num_steps=16, num_minibatches=2, core=core, core_size=8, hidden=(8,), total_steps=64
+    )
+    return dataclasses.replace(base, **changes)
+
+
+def test_pqn_acts_epsilon_greedy_with_memory_and_its_greedy_policy_carries_it():
+    leaves = 2  # an LSTM's (c, h); the GRU learns in the next test
+    agent = pqn.make_agent(SPEC, small_pqn("lstm"))
+    state = jax.jit(agent.init)(jax.random.key(0))
+    memory = agent.recurrent.initial(4)
+    assert [m.shape for m in jax.tree.leaves(memory)] == [(4, 8)] * leaves
+    new_memory, action, info = jax.jit(agent.recurrent.act)(
+        state, memory, jnp.ones((4, 2)), jnp.ones(4, bool), jax.random.key(1), jnp.int32(0)
+    )
+    assert [m.shape for m in jax.tree.leaves(new_memory)] == [(4, 8)] * leaves
+    assert action.shape == (4,) and set(np.asarray(action).tolist()) <= {0, 1}
+    assert info["epsilon"].shape == info["max_q"].shape == info["first"].shape == (4,)
+    assert float(info["epsilon"][0]) == 1.0  # ε starts at epsilon_start
+    assert all(float(jnp.abs(m).max()) == 0 for m in jax.tree.leaves(info["memory"]))  # what it received
+    assert all(float(jnp.abs(m).max()) > 0 for m in jax.tree.leaves(new_memory))
+    policy = agent.greedy_policy(state)
+    assert isinstance(policy, RecurrentPolicy)
+    step = jax.jit(policy.step)
+    once, action = step(policy.initial(), jnp.array([0.01, 0.02]), jax.random.key(2))
+    twice, _ = step(once, jnp.array([0.01, 0.02]), jax.random.key(2))
+    assert action.shape == () and action.dtype == jnp.int32
+    assert [m.shape for m in jax.tree.leaves(once)] == [(8,)] * leaves
+    assert not np.allclose(jax.tree.leaves(once)[-1], jax.tree.leaves(twice)[-1])  # the memory moves on
+
+
+@functools.partial(jax.jit, static_argnums=(3, 4))
+def pqn_replay(state, trajectory, first, length, core):
+    """PQN's learner's view of a rollout: ``max_a Q`` of each step ``[L, N]`` from its sequences of
+    ``length`` steps replayed through the core (``small_pqn(core)``'s network), each from the memory
+    stored where it starts, resetting where ``first`` says."""
+    net = pqn.recurrent_q_network(small_pqn(core), SPEC)
+    start = sequences.sequence_starts(trajectory.info["memory"], length)
+    _, q = unroll(
+        lambda obs, memory, first_t: net.apply(state.params, obs, memory, first_t),
+        start,
+        in_sequences(trajectory.obs, length),
+        in_sequences(first, length),
+    )
+    return q.max(axis=-1)
+
+
+def test_pqn_replays_the_actor_on_whole_sequences_and_a_learning_step_changes_the_params():
+    """PQN's sequences (the whole rollout, or bptt 8), each from its stored memory, reproduce the Q-values
+    the collect policy saw step for step (``info["max_q"]``), and only with the resets at episode starts;
+    a jitted learning step on the rollout runs and moves every parameter."""
+    cfg = small_pqn("gru", num_steps=64)
+    agent = pqn.make_agent(SPEC, cfg)
+    carry = program_of(agent, NOVEL).init(jax.random.key(3))
+    _, trajectory = jax.jit(on_policy_rollout(agent, VectorEnv(NOVEL, NOVEL.default_params(), 4)))(carry)
+    assert isinstance(carry, RecurrentCarry)
+    done = np.asarray(trajectory.terminated | trajectory.truncated)
+    first = np.asarray(trajectory.info["first"])
+    assert first[0].all() and (first[1:] == done[:-1]).all() and done.any()
+    for length in (64, 8):
+        max_q = pqn_replay(carry.agent, trajectory, trajectory.info["first"], length, "gru")
+        np.testing.assert_allclose(max_q, in_sequences(trajectory.info["max_q"], length), atol=1e-5)
+    no_resets = pqn_replay(carry.agent, trajectory, jnp.zeros_like(trajectory.info["first"]), 64, "gru")
+    assert np.abs(no_resets - in_sequences(trajectory.info["max_q"], 64)).max() > 1e-3
+    learned, metrics = jax.jit(agent.learn)(carry.agent, trajectory, jax.random.key(4))
+    assert int(learned.updates) == 1 and all(np.isfinite(v) for v in metrics.values())
+    moved = jax.tree.leaves(
+        jax.tree.map(lambda a, b: bool((a != b).any()), carry.agent.params, learned.params)
+    )
+    assert all(moved), moved
+
+
+def test_reinforce_with_a_core_learns_through_whole_episodes_and_its_greedy_policy_carries_memory():
+    """A jitted update of REINFORCE with a core and a baseline (episodes played from zero memory,
+    learned through whole) changes the torso, the core, the actor head and the critic head (the
+    baseline, read from the core's output); the greedy policy carries memory."""
+    cfg = reinforce.ReinforceConfig(
+        episodes_per_update=4, max_steps=32, core="gru", core_size=8, hidden=(8,), baseline=True
+    )
+    agent = reinforce.make_agent(SPEC, cfg)
+    program = program_of(agent, NOVEL)
+    carry = jax.jit(program.init)(jax.random.key(0))
+    updated, metrics = jax.jit(program.update)(carry)
+    assert all(np.isfinite(v) for v in metrics.values()) and "value_loss" in metrics
+    params, new = carry.agent.params["policy"]["params"], updated.agent.params["policy"]["params"]
+    for name in ("Dense_0", "GRUCell_0", "Dense_1", "Dense_2", "Dense_3", "Dense_4"):
+        pairs = zip(jax.tree.leaves(params[name]), jax.tree.leaves(new[name]), strict=True)
+        assert any(bool((a != b).any()) for a, b in pairs), name
+    policy = agent.greedy_policy(carry.agent)
+    assert isinstance(policy, RecurrentPolicy)
+    once, action = jax.jit(policy.step)(policy.initial(), jnp.array([0.01, 0.02]), jax.random.key(2))
+    assert action.shape == () and float(jnp.abs(once).max()) > 0
+
+
+def trained_returns(cfg: ppo.PPOConfig | pqn.PQNConfig, seeds: int = 2) -> tuple[np.ndarray, dict]:
+    """``cfg``'s agent (PPO or PQN) trained on CartPoleNoVel by the compiled runner's program, ``seeds``
+    seeds vmapped: each seed's mean return over 16 greedy episodes ``[seeds]``, and every update's
+    metrics."""
+    algo = ppo if isinstance(cfg, ppo.PPOConfig) else pqn
+    program = program_of(algo.make_agent(SPEC, cfg), NOVEL)
 
     def train(key):
         carry, metrics = jax.lax.scan(
@@ -159,6 +257,21 @@ def test_memory_learns_what_a_feed_forward_policy_cannot():
     feed_forward, _ = trained_returns(dataclasses.replace(cfg, core="none"))
     assert all(np.isfinite(v).all() for v in metrics.values()) and (metrics["approx_kl"] >= 0).all()
     assert feed_forward.mean() < 70 and recurrent.mean() > 3 * feed_forward.mean(), (recurrent, feed_forward)
+
+
+@pytest.mark.long  # two compiled trainings of 200k steps per seed: ~2.5 min on 2 loaded cores
+def test_pqn_with_a_core_learns_what_feed_forward_pqn_cannot():
+    """PQN's ``memory`` preset (a GRU of 64, 32 envs, sequences of 8 steps) against the same PQN without
+    the core (its LayerNorm MLP of 64), 200k env steps per seed, 2 seeds vmapped on the compiled runner:
+    the greedy policies (16 episodes each) average past 150 with the core, every seed past 100, and no
+    seed passes 60 without. (Measured: GRU 373.9 and 113.1, feed-forward 37.4 and 39.6; over 8 seeds
+    of 20 episodes the GRU's mean is 264.1, its worst seed 167.7, feed-forward's 39.5, its best 42.9.)"""
+    cfg = presets.preset("pqn", "memory").config
+    recurrent, metrics = trained_returns(cfg)
+    feed_forward, _ = trained_returns(dataclasses.replace(cfg, core="none"))
+    assert np.isfinite(metrics["loss"]).all()
+    assert recurrent.mean() > 150 and recurrent.min() > 100, recurrent
+    assert feed_forward.max() < 60, feed_forward
 
 
 def test_cartpole_novel_is_cartpole_positions_step_for_step():
@@ -230,12 +343,20 @@ def test_feed_forward_ppo_is_as_it_was():
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["train", "dqn", "--core", "lstm"], "--core: dqn has no recurrent core; ppo takes one"),
-        (["train", "reinforce", "--core-size=32"], "--core-size: reinforce has no recurrent core"),
+        (
+            ["train", "dqn", "--core", "lstm"],
+            "--core: dqn has no recurrent core; reinforce, ppo and pqn take one",
+        ),
+        (["train", "sac", "--core-size=32"], "--core-size: sac has no recurrent core"),
         (["train", "ppo", "--env", "CartPoleNoVel-v1", "--core", "rnn"], "unknown core 'rnn'"),
         (["train", "ppo", "--core", "gru", "--core-size", "0"], "core_size must be positive"),
         (["train", "ppo", "--core", "lstm", "--bptt", "7"], "--bptt 7 does not split num_steps"),
         (["train", "ppo", "--core", "gru", "--precision", "bf16"], "a recurrent core learns in f32 only"),
+        (["train", "pqn", "--core", "gru", "--precision", "bf16"], "a recurrent core learns in f32 only"),
+        (["train", "pqn", "--core", "lstm", "--bptt", "5"], "--bptt 5 does not split num_steps 32"),
+        (["train", "pqn", "--core", "lstm", "--num-minibatches", "32"], "do not split into 32 minibatches"),
+        (["train", "reinforce", "--core", "lstm", "--core-size", "-1"], "core_size must be positive"),
+        (["train", "reinforce", "--core", "gru", "--bptt", "8"], "whole episodes; ppo and pqn take --bptt"),
     ],
 )
 def test_bad_core_input_is_one_line_and_exit_code_2(argv, message, capsys, tmp_path):

@@ -36,7 +36,7 @@ agent): oneDNN's FFI calls exist in neither format.
 ONNX gets no stochastic head: its random operators take their seed as a fixed attribute of the
 graph, not as an input, so a key could not drive them.
 
-A recurrent policy (PPO's ``--core lstm|gru``) exports as ``(action, next_state) = f(obs, state)``:
+A recurrent policy (``--core``: PPO, PQN, REINFORCE) exports as ``(action, next_state) = f(obs, state)``:
 ``state [N, S]`` float32 is its core's carry, flat (LSTM: ``c`` then ``h``, ``S = 2 * core_size``;
 GRU: ``h``, ``S = core_size``), zeros at an episode's start, and ``next_state`` is what the caller
 feeds back as the next step's ``state`` (zeros again where the next observation starts an episode,

@@ -632,6 +632,17 @@ def unroll(step: Any, memory: Memory, obs: jax.Array, first: jax.Array) -> tuple
     return memories, outs
 
 
+def core_step(
+    core: str, core_size: int, memory: Memory, first: jax.Array, x: jax.Array
+) -> tuple[Memory, jax.Array]:
+    """One step of the recurrent core inside a compact module (its parameters the caller's:
+    ``"lstm"``: flax's ``OptimizedLSTMCell``, ``"gru"``: ``GRUCell``, ``core_size`` units): the
+    features ``x [..., F]`` with ``memory`` reset to zeros first where ``first`` (bool ``[...]``)
+    marks an episode's start; ``(memory, output [..., core_size])``."""
+    cell = nn.OptimizedLSTMCell(core_size) if core == "lstm" else nn.GRUCell(core_size)
+    return cell(reset_where(first, memory), x)
+
+
 class RecurrentActorCritic(nn.Module):
     """PPO's actor-critic with memory, one step: ``(obs [..., *obs_shape], memory, first [...]) ->
     (memory, (actor_out, value [...]))``.
@@ -665,13 +676,40 @@ class RecurrentActorCritic(nn.Module):
             x = obs.astype(jnp.float32)
             for width in self.hidden:
                 x = act(nn.Dense(width, kernel_init=hidden_init)(x))
-        cell = nn.OptimizedLSTMCell(self.core_size) if self.core == "lstm" else nn.GRUCell(self.core_size)
-        memory, x = cell(reset_where(first, memory), x)
+        memory, x = core_step(self.core, self.core_size, memory, first, x)
         actor = act(nn.Dense(self.core_size, kernel_init=hidden_init)(x))
         critic = act(nn.Dense(self.core_size, kernel_init=hidden_init)(x))
         actor_out = nn.Dense(self.action_dim, kernel_init=nn.initializers.orthogonal(0.01))(actor)
         value = nn.Dense(1, kernel_init=nn.initializers.orthogonal(1.0))(critic)[..., 0]
         return memory, ((gaussian_head(self, actor_out) if self.continuous else actor_out), value)
+
+
+class RecurrentQNetwork(nn.Module):
+    """PQN's Q-network with memory, one step: ``(obs [..., *obs_shape], memory, first [...]) ->
+    (memory, Q [..., num_actions])``: the torso with LayerNorm (the MLP of ``hidden``, or the Nature
+    / MinAtar CNN), the core (:func:`core_step`, reset where ``first``), a hidden layer of
+    ``core_size`` units with LayerNorm, and the Q head."""
+
+    num_actions: int
+    hidden: Sequence[int] = (128,)
+    activation: str = "relu"
+    core: str = "lstm"
+    core_size: int = 128
+    cnn: bool = False
+    image_shape: tuple[int, ...] | None = None
+    conv: str = "xla"
+
+    @nn.compact
+    def __call__(self, obs: jax.Array, memory: Memory, first: jax.Array):
+        if self.cnn:
+            x = NatureCNN(layer_norm=True, conv=self.conv)(obs)
+        elif self.image_shape is not None:
+            x = MinAtarCNN(tuple(self.image_shape), layer_norm=True)(obs)
+        else:
+            x = MLP(self.hidden, self.activation, layer_norm=True)(obs.astype(jnp.float32))
+        memory, x = core_step(self.core, self.core_size, memory, first, x)
+        x = ACTIVATIONS[self.activation](nn.LayerNorm()(nn.Dense(self.core_size)(x)))
+        return memory, nn.Dense(self.num_actions)(x)
 
 
 def gaussian_log_prob(mean: jax.Array, log_std: jax.Array, action: jax.Array) -> jax.Array:

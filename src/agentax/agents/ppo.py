@@ -69,10 +69,16 @@ from agentax.agents.protocol import (
     discrete_actions,
     image_shape_for,
 )
+from agentax.agents.sequences import (
+    num_sequences,
+    sequence_length,
+    time_major,
+    validate_core,
+    whole_sequences,
+)
 from agentax.envs.core import Box, RecurrentPolicy
 from agentax.errors import UsageError
 from agentax.nets import (
-    CORES,
     ActorCritic,
     Memory,
     RecurrentActorCritic,
@@ -180,27 +186,17 @@ class PPOConfig:
         return self
 
     def validate_core(self) -> None:
-        """The recurrent core's settings: a known core, a positive size, sequences that split the
-        rollout and minibatches of whole sequences."""
-        if self.core not in CORES:
-            raise UsageError(f"unknown core {self.core!r}; choose from {', '.join(CORES)}")
-        check_fields(self, positive=("core_size",), non_negative=("bptt",))
-        if self.bptt and self.num_steps % self.bptt:
-            raise UsageError(f"--bptt {self.bptt} does not split num_steps {self.num_steps} into sequences")
-        if self.num_sequences % self.num_minibatches:
-            raise UsageError(
-                f"the {self.num_sequences} sequences of a rollout (num_envs × num_steps / bptt) do not split "
-                f"into {self.num_minibatches} minibatches of whole sequences; lower --num-minibatches"
-            )
+        """The recurrent core's settings (:func:`agentax.agents.sequences.validate_core`)."""
+        validate_core(self)
 
     @property
     def sequence_length(self) -> int:
         """Steps of each sequence the core learns on (``bptt``, or the whole rollout)."""
-        return self.bptt or self.num_steps
+        return sequence_length(self)
 
     @property
     def num_sequences(self) -> int:
-        return self.num_envs * (self.num_steps // self.sequence_length)
+        return num_sequences(self)
 
     @property
     def steps_per_update(self) -> int:
@@ -598,21 +594,13 @@ def recurrent_greedy_policy(
     return RecurrentPolicy(lambda: initial_memory(cfg), step)
 
 
-def as_sequences(x: jax.Array, length: int) -> jax.Array:
-    """A rollout's ``[T, E, ...]`` cut into ``N = E·T/length`` sequences ``[N, length, ...]``,
-    sequence ``k·E + e`` being env ``e``'s steps ``k·length ... (k + 1)·length − 1``."""
-    steps, envs = x.shape[:2]
-    chunks = x.reshape(steps // length, length, envs, *x.shape[2:])  # (T/length, length, E, ...)
-    return jnp.moveaxis(chunks, 2, 1).reshape(-1, length, *x.shape[2:])
-
-
 def sequence_loss(
     params: Any, batch: dict[str, Any], clip_eps: jax.Array, net: Any, spec: EnvSpec, cfg: PPOConfig
 ):
     """The PPO loss of a minibatch of sequences (``[B, L, ...]``, ``batch["memory"]`` ``[B, ...]``
     the memory each starts from): the core run through each sequence with ``params``, reset where
     ``batch["first"]`` marks an episode's start, then :func:`ppo_loss` on every step."""
-    steps = {k: jnp.swapaxes(v, 0, 1) for k, v in batch.items() if k != "memory"}  # (L, B, ...)
+    steps = time_major(batch)  # (L, B, ...)
 
     def step(obs, memory, first):
         return recurrent_output(net, params, obs, memory, first, spec)
@@ -647,8 +635,7 @@ def learn_sequences(
     _, (_, next_values) = net.apply(agent.params, rollout.next_obs, memories, jnp.zeros_like(first))
     length = cfg.sequence_length
     steps = {**learning_batch(rollout, values, next_values, cfg), "first": first}
-    data = jax.tree.map(lambda x: as_sequences(x, length), steps)  # (N, L, ...)
-    data["memory"] = jax.tree.map(lambda m: m[::length].reshape(-1, *m.shape[2:]), stored)  # (N, ...)
+    data = whole_sequences(steps, stored, length)  # (N, L, ...), memory (N, ...)
     loss = functools.partial(sequence_loss, net=net, spec=spec, cfg=cfg)
     (params, opt_state), metrics = sgd_epochs(loss, data, agent, key, cfg, tx, loop)
     agent = agent.replace(params=params, opt_state=opt_state, updates=agent.updates + 1)

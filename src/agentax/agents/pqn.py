@@ -26,6 +26,15 @@ a step of its own), and the compiled Atari runner learns with the parameters tha
 targets reuse ``act``'s ``max_a Q(s_{t+1}, a)`` (``info["max_q"]``) and only the last step's next
 observations go through the network again — one forward pass of the rollout fewer, of the ~8 an
 update makes (act, the targets' pass, 2 epochs of forward and backward).
+
+**Memory** (``core``: ``"lstm"`` or ``"gru"``; the last section): a recurrent core between the torso
+and the Q head (:class:`~agentax.nets.RecurrentQNetwork`), acting ε-greedily through
+``Agent.recurrent`` as PPO does: each env's carry travels with the rollout, reset to zeros where an
+episode starts, and every step's ``info`` keeps the carry it received and its ``first`` flag. ``learn``
+runs the core through the whole rollout with the learner's parameters for the targets' ``max_a Q``
+(each observation reached read from the memory after its step), then takes its minibatches as whole
+env sequences (``bptt`` steps, or the rollout), each run through the core from its stored carry:
+backpropagation through time from a stored state, as R2D2. Only the compiled runner carries the memory.
 """
 
 from __future__ import annotations
@@ -45,12 +54,28 @@ from agentax.agents.protocol import (
     EnvSpec,
     Loop,
     OnPolicy,
+    Recurrent,
     check_fields,
     discrete_actions,
     image_shape_for,
 )
+from agentax.agents.sequences import sequence_length, time_major, validate_core, whole_sequences
+from agentax.envs.core import RecurrentPolicy
 from agentax.errors import UsageError
-from agentax.nets import MLP, MinAtarCNN, NatureCNN, dense_layer, is_image, legal_max, masked, with_encoder
+from agentax.nets import (
+    MLP,
+    Memory,
+    MinAtarCNN,
+    NatureCNN,
+    RecurrentQNetwork,
+    dense_layer,
+    is_image,
+    legal_max,
+    masked,
+    unroll,
+    with_encoder,
+    zero_memory,
+)
 from agentax.policies import Policy, epsilon_greedy, linear_schedule
 from agentax.replay import Transition
 from agentax.returns import masked_mean, q_lambda_returns
@@ -84,6 +109,19 @@ class PQNConfig:
     conv_torso: bool = False
     """MinAtar's conv torso (conv 16 3×3, dense 128, LayerNorm) instead of the MLP (``hidden``
     unused), on an env whose flat observations are an image (``EnvSpec.image_shape``)"""
+    core: str = "none"
+    """a recurrent core after the torso: lstm, gru, or none (feed-forward); its memory of each env is
+    reset where an episode starts and learned by backpropagation through time (compiled runner)"""
+    core_size: int = 128
+    """units of the recurrent core (and of the hidden layer before the Q head)"""
+    bptt: int = 0
+    """steps of the sequences the core is learned on, each from the memory stored where it starts
+    (0: the whole rollout of num_steps); num_steps must split into them"""
+
+    @property
+    def sequence_length(self) -> int:
+        """Steps of each sequence the core learns on (``bptt``, or the whole rollout)."""
+        return sequence_length(self)
 
     @property
     def steps_per_update(self) -> int:
@@ -119,6 +157,8 @@ class PQNConfig:
                 f"num_envs × num_steps ({self.steps_per_update}) must split into num_minibatches "
                 f"({self.num_minibatches}) equal minibatches"
             )
+        if self.core != "none":
+            validate_core(self)
         return self
 
 
@@ -176,11 +216,56 @@ def epsilon_at(cfg: PQNConfig, env_steps: jax.Array) -> jax.Array:
 def loss_fn(params: Any, q_values: QValues, minibatch: dict[str, jax.Array]) -> tuple[jax.Array, dict]:
     """½ mean squared TD error of ``minibatch`` (``obs``, ``action``, ``target`` ``[B]``; ``valid``
     ``[B]``, if there, the entries the means run over)."""
-    q = q_values(params, minibatch["obs"])  # (batch, num_actions)
-    q_taken = jnp.take_along_axis(q, minibatch["action"][:, None], axis=-1)[:, 0]
-    td = q_taken - minibatch["target"]
-    valid = minibatch.get("valid")
+    return td_loss(q_values(params, minibatch["obs"]), minibatch)
+
+
+def td_loss(q: jax.Array, batch: dict[str, jax.Array]) -> tuple[jax.Array, dict]:
+    """½ mean squared TD error of the Q-values ``q [..., num_actions]`` of ``batch``'s steps
+    (``action``, ``target`` ``[...]``; ``valid``, if there, the entries the means run over)."""
+    q_taken = jnp.take_along_axis(q, batch["action"][..., None], axis=-1)[..., 0]
+    td = q_taken - batch["target"]
+    valid = batch.get("valid")
     return 0.5 * masked_mean(td**2, valid), {"q_mean": masked_mean(q_taken, valid)}
+
+
+def q_lambda_targets(rollout: Transition, next_q: jax.Array, cfg: PQNConfig) -> jax.Array:
+    """Peng's Q(λ) targets ``[T, E]`` of a rollout from ``max_a Q(s'_t, a)`` ``[T, E]``."""
+    done = rollout.terminated | rollout.truncated
+    return q_lambda_returns(
+        rollout.reward, next_q, rollout.terminated, done, cfg.discount_factor, cfg.q_lambda
+    )
+
+
+def sgd_epochs(
+    loss: Callable[[Any, dict[str, Any]], tuple[jax.Array, dict]],
+    data: dict[str, Any],
+    state: PQNState,
+    key: jax.Array,
+    cfg: PQNConfig,
+    loop: Loop,
+) -> tuple[PQNState, dict[str, jax.Array]]:
+    """``update_epochs`` passes of minibatch SGD from ``state``'s parameters: ``data``'s leaves
+    ``[N, ...]`` (N steps, or N whole sequences) shuffled each epoch and split into
+    ``num_minibatches``; ``loss(params, minibatch) -> (loss, metrics)``. Returns the next state and
+    the metrics' means."""
+    tx, size = optimizer(cfg), jax.tree.leaves(data)[0].shape[0]
+    grad_fn = jax.value_and_grad(loss, has_aux=True)
+
+    def sgd_step(carry, minibatch):
+        params, opt_state = carry
+        (loss_value, metrics), grads = grad_fn(params, minibatch)
+        updates, opt_state = tx.update(grads, opt_state, params)
+        return (optax.apply_updates(params, updates), opt_state), {"loss": loss_value, **metrics}
+
+    def epoch(carry, epoch_key):
+        order = jax.random.permutation(epoch_key, size)
+        minibatches = jax.tree.map(lambda x: x[order].reshape(cfg.num_minibatches, -1, *x.shape[1:]), data)
+        return loop(sgd_step, carry, minibatches)
+
+    (params, opt_state), metrics = loop(
+        epoch, (state.params, state.opt_state), jax.random.split(key, cfg.update_epochs)
+    )
+    return PQNState(params, opt_state, state.updates + 1), jax.tree.map(jnp.mean, metrics)
 
 
 def learn(
@@ -195,7 +280,6 @@ def learn(
     """One PQN iteration on a rollout ``[T, E]``: Q(λ) targets, then epochs of minibatch SGD, run by
     ``loop`` (``lax.scan``'s signature; the runner chooses it). ``legal``: the legal actions of
     observations (:meth:`EnvSpec.legal`), the targets' maxima running over those of ``next_obs``."""
-    tx = optimizer(cfg)
 
     def max_q(obs: jax.Array) -> jax.Array:  # (...,): max_a Q(obs, a) over the legal actions
         return legal_max(q_values(state.params, obs), legal(obs))
@@ -204,33 +288,22 @@ def learn(
         next_q = jnp.concatenate([rollout.info["max_q"][1:], max_q(rollout.next_obs[-1])[None]])  # (T, E)
     else:
         next_q = max_q(rollout.next_obs)  # (T, E)
-    done = rollout.terminated | rollout.truncated
-    targets = q_lambda_returns(
-        rollout.reward, next_q, rollout.terminated, done, cfg.discount_factor, cfg.q_lambda
-    )
-    batch_size = cfg.steps_per_update
-    flat = {"obs": rollout.obs, "action": rollout.action, "target": targets}
+    flat = {"obs": rollout.obs, "action": rollout.action, "target": q_lambda_targets(rollout, next_q, cfg)}
     if "valid" in rollout.info:
         flat["valid"] = rollout.info["valid"]
-    flat = jax.tree.map(lambda x: x.reshape(batch_size, *x.shape[2:]), flat)
-    grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
-
-    def sgd_step(carry, minibatch):
-        params, opt_state = carry
-        (loss, metrics), grads = grad_fn(params, q_values, minibatch)
-        updates, opt_state = tx.update(grads, opt_state, params)
-        return (optax.apply_updates(params, updates), opt_state), {"loss": loss, **metrics}
-
-    def epoch(carry, epoch_key):
-        order = jax.random.permutation(epoch_key, batch_size)
-        minibatches = jax.tree.map(lambda x: x[order].reshape(cfg.num_minibatches, -1, *x.shape[1:]), flat)
-        return loop(sgd_step, carry, minibatches)
-
-    (params, opt_state), metrics = loop(
-        epoch, (state.params, state.opt_state), jax.random.split(key, cfg.update_epochs)
+    flat = jax.tree.map(lambda x: x.reshape(cfg.steps_per_update, *x.shape[2:]), flat)
+    state, metrics = sgd_epochs(
+        lambda params, minibatch: loss_fn(params, q_values, minibatch), flat, state, key, cfg, loop
     )
-    metrics = {**jax.tree.map(jnp.mean, metrics), "epsilon": rollout.info["epsilon"].mean()}
-    return PQNState(params, opt_state, state.updates + 1), metrics
+    return state, {**metrics, "epsilon": rollout.info["epsilon"].mean()}
+
+
+def explore(q: jax.Array, legal: jax.Array | None, key: jax.Array, epsilon: jax.Array):
+    """ε-greedy actions ``[E]`` of the Q-values ``q [E, num_actions]`` among the ``legal`` actions
+    (None: all), and the ``info`` a rollout keeps (ε, and ``max_a Q`` for the targets)."""
+    keys = jax.random.split(key, q.shape[0])
+    action = jax.vmap(epsilon_greedy, in_axes=(0, 0, None, 0))(keys, q, epsilon, legal)
+    return action, {"epsilon": jnp.full(q.shape[0], epsilon, jnp.float32), "max_q": legal_max(q, legal)}
 
 
 def make_agent(
@@ -242,6 +315,10 @@ def make_agent(
     cfg.validate()
     if len(spec.obs_shape) != 1 and not is_image(spec.obs_shape):
         raise UsageError(f"PQN takes flat observations or stacked frames [C, H, W], not {spec.obs_shape}")
+    if cfg.core != "none":
+        if precision != "f32":
+            raise UsageError(f"a recurrent core learns in f32 only, not --precision {precision}")
+        return recurrent_agent(spec, cfg, loop, conv)
     net = q_network(cfg, spec, conv, precision)
     q_values = q_values_of(net, spec)
 
@@ -250,12 +327,8 @@ def make_agent(
         return PQNState(params, optimizer(cfg).init(params), jnp.int32(0))
 
     def act(state: PQNState, obs: jax.Array, key: jax.Array, progress: jax.Array):
-        q, legal = q_values(state.params, obs), spec.legal(obs)  # (E, num_actions), legal ones or None
-        epsilon = epsilon_at(cfg, progress)
-        keys = jax.random.split(key, q.shape[0])
-        action = jax.vmap(epsilon_greedy, in_axes=(0, 0, None, 0))(keys, q, epsilon, legal)
-        info = {"epsilon": jnp.full(q.shape[0], epsilon, jnp.float32), "max_q": legal_max(q, legal)}
-        return action, info
+        q = q_values(state.params, obs)  # (E, num_actions)
+        return explore(q, spec.legal(obs), key, epsilon_at(cfg, progress))
 
     def greedy_policy(state: PQNState) -> Policy:
         def policy(obs: jax.Array, key: jax.Array) -> jax.Array:
@@ -275,4 +348,123 @@ def make_agent(
     )
 
 
-__all__ = ["PQNConfig", "PQNState", "learn", "make_agent", "q_network"]
+# ---------------------------------------------------------------- with a recurrent core (cfg.core)
+
+
+def recurrent_q_network(cfg: PQNConfig, spec: EnvSpec, conv: str = "xla") -> nn.Module:
+    """PQN's Q-network with the core ``cfg.core`` after its torso (:class:`RecurrentQNetwork`), one
+    step ``(obs, memory, first) -> (memory, Q)``."""
+    net = RecurrentQNetwork(
+        discrete_actions(spec, "pqn"),
+        tuple(cfg.hidden),
+        cfg.activation,
+        cfg.core,
+        cfg.core_size,
+        is_image(spec.obs_shape),
+        image_shape_for(cfg.conv_torso, spec),
+        conv,
+    )
+    return with_encoder(net, spec.layout)
+
+
+def initial_memory(cfg: PQNConfig, batch_shape: tuple[int, ...] = ()) -> Memory:
+    """The core's memory at an episode's start, zeros ``[*batch_shape, core_size]`` (LSTM: a pair)."""
+    return zero_memory(cfg.core, cfg.core_size, batch_shape)
+
+
+def learn_sequences(
+    state: PQNState,
+    rollout: Transition,
+    key: jax.Array,
+    net: nn.Module,
+    cfg: PQNConfig,
+    loop: Loop = jax.lax.scan,
+    legal: Callable[[jax.Array], jax.Array | None] = lambda obs: None,
+) -> tuple[PQNState, dict[str, jax.Array]]:
+    """One PQN iteration of a recurrent agent on a rollout ``[T, E, ...]`` whose ``info`` keeps the
+    memory each step received and its ``first`` flag: the Q(λ) targets from the core run through the
+    whole rollout with the learner's parameters (``max_a Q`` of each observation reached, from the
+    memory after its step), then SGD on minibatches of whole sequences of ``cfg.sequence_length``
+    steps, each from the memory stored where it starts (backpropagation through time)."""
+    first, stored = rollout.info["first"], rollout.info["memory"]  # (T, E), (T, E, ...)
+
+    def step(obs, memory, first_t):
+        return net.apply(state.params, obs, memory, first_t)
+
+    memories, _ = unroll(step, jax.tree.map(lambda m: m[0], stored), rollout.obs, first)  # (T, E, ...)
+    _, next_q = net.apply(state.params, rollout.next_obs, memories, jnp.zeros_like(first))  # (T, E, A)
+    next_q = legal_max(next_q, legal(rollout.next_obs))  # (T, E)
+    steps = {
+        "obs": rollout.obs,
+        "action": rollout.action,
+        "target": q_lambda_targets(rollout, next_q, cfg),
+        "first": first,
+    }
+    if "valid" in rollout.info:
+        steps["valid"] = rollout.info["valid"]
+    data = whole_sequences(steps, stored, cfg.sequence_length)  # (N, L, ...), memory (N, ...)
+
+    def loss(params, batch):  # the core run through each sequence from its stored memory
+        seq = time_major(batch)  # (L, B, ...)
+        _, q = unroll(lambda o, m, f: net.apply(params, o, m, f), batch["memory"], seq["obs"], seq["first"])
+        return td_loss(q, seq)
+
+    state, metrics = sgd_epochs(loss, data, state, key, cfg, loop)
+    return state, {**metrics, "epsilon": rollout.info["epsilon"].mean()}
+
+
+def recurrent_greedy_policy(params: Any, net: nn.Module, spec: EnvSpec, cfg: PQNConfig) -> RecurrentPolicy:
+    """The greedy policy with memory for evaluation: ``argmax_a Q`` given the episode so far, the
+    core's memory carried by whoever plays it."""
+
+    def step(memory: Memory, obs: jax.Array, key: jax.Array) -> tuple[Memory, jax.Array]:
+        memory, q = net.apply(params, obs, memory, jnp.bool_(False))
+        return memory, jnp.argmax(masked(q, spec.legal(obs))).astype(jnp.int32)
+
+    return RecurrentPolicy(lambda: initial_memory(cfg), step)
+
+
+def recurrent_agent(spec: EnvSpec, cfg: PQNConfig, loop: Loop = jax.lax.scan, conv: str = "xla") -> Agent:
+    """PQN with the core ``cfg.core``: ε-greedy with memory (:class:`~agentax.agents.protocol.Recurrent`),
+    learning on whole sequences (:func:`learn_sequences`); ``act`` alone acts from fresh memory."""
+    net = recurrent_q_network(cfg, spec, conv)
+
+    def init(key: jax.Array) -> PQNState:
+        obs = jnp.zeros(spec.obs_shape, spec.obs_dtype)
+        params = net.init(key, obs, initial_memory(cfg), jnp.bool_(True))
+        return PQNState(params, optimizer(cfg).init(params), jnp.int32(0))
+
+    def act_with_memory(state: PQNState, memory: Memory, obs: jax.Array, first: jax.Array, key, progress):
+        new_memory, q = net.apply(state.params, obs, memory, first)  # (E, num_actions)
+        action, info = explore(q, spec.legal(obs), key, epsilon_at(cfg, progress))
+        return new_memory, action, {**info, "memory": memory, "first": first}
+
+    def act_fresh(state: PQNState, obs: jax.Array, key: jax.Array, progress: jax.Array):
+        batch = obs.shape[: obs.ndim - len(spec.obs_shape)]
+        _, action, info = act_with_memory(
+            state, initial_memory(cfg, batch), obs, jnp.ones(batch, bool), key, progress
+        )
+        return action, info
+
+    return Agent(
+        name="pqn",
+        init=init,
+        act=act_fresh,
+        greedy_policy=lambda state: recurrent_greedy_policy(state.params, net, spec, cfg),
+        learn=lambda state, rollout, key: learn_sequences(state, rollout, key, net, cfg, loop, spec.legal),
+        experience=OnPolicy(cfg.num_envs, cfg.num_steps),
+        total_steps=cfg.total_steps,
+        learning_steps=lambda state: state.updates,
+        recurrent=Recurrent(lambda num_envs: initial_memory(cfg, (num_envs,)), act_with_memory),
+    )
+
+
+__all__ = [
+    "PQNConfig",
+    "PQNState",
+    "learn",
+    "learn_sequences",
+    "make_agent",
+    "q_network",
+    "recurrent_q_network",
+]

@@ -474,6 +474,21 @@ PQN_PRESETS: dict[str, Preset] = {
         "breakout-15min for 4.8M agent steps",
         eval_episodes=10,
     ),
+    "memory": Preset(
+        PQNConfig(
+            total_steps=200_000,
+            num_envs=32,
+            hidden=(64,),
+            core="gru",
+            core_size=64,
+            bptt=8,
+            q_lambda=0.95,
+            num_minibatches=8,
+        ),
+        "a GRU core (64 units) for partially observed tasks: 32 envs × 32 steps learned as sequences "
+        "of 8 (8 minibatches of 16), Q(λ 0.95), 200k steps: on CartPoleNoVel-v1 8 seeds evaluate 264 on "
+        "average over 20 greedy episodes each (worst 168, best 457), feed-forward PQN 40",
+    ),
     "minatar": Preset(
         dataclasses.replace(PQN_ATARI, learning_rate=5e-4, anneal_lr=True, epsilon_end=0.05),
         "MinAtar (gymnax/*-MinAtar): purejaxql's pqn_minatar settings (128 envs × 32 steps, Q(λ 0.65), "
@@ -555,7 +570,7 @@ DEFAULT_PRESETS: dict[str, dict[str, str]] = {
     },
     "reinforce": {"Pendulum-v1": "pendulum", "gymnax/Pendulum-v1": "pendulum"},
     "dqn": {"atari": "lecture-atari", "LunarLander-v3": "lunar"},
-    "pqn": {"atari": "atari", **MINATAR},
+    "pqn": {"atari": "atari", "CartPoleNoVel-v1": "memory", **MINATAR},
     "sac": {"Pendulum-v1": "pendulum", "gymnax/Pendulum-v1": "pendulum"},
     "td3": {"Pendulum-v1": "pendulum", "gymnax/Pendulum-v1": "pendulum"},
 }

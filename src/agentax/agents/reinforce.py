@@ -23,6 +23,12 @@ where they carry a legal-action mask, illegal actions get no probability.
 
 On the compiled runner the episodes of an iteration run side by side for ``max_steps`` steps;
 steps after an episode's end are masked out.
+
+**Memory** (``core``: ``"lstm"`` or ``"gru"``): the policy becomes :class:`~agentax.nets.RecurrentActorCritic`
+(torso, core, a head of one hidden layer), acting through ``Agent.recurrent``, its memory zeros at
+each episode's start; ``learn`` runs the core through each whole episode from there
+(backpropagation through time over the episode). With ``baseline`` its critic head, which reads the
+core's output, is the baseline ``V(h_t)``. Only the compiled runner carries the memory.
 """
 
 from __future__ import annotations
@@ -40,26 +46,32 @@ from agentax.agents.protocol import (
     EnvSpec,
     Episodes,
     Loop,
+    Recurrent,
     action_nvec,
     check_fields,
     discrete_actions,
     flat_observations,
     num_logits,
 )
-from agentax.envs.core import Box
+from agentax.agents.sequences import validate_core_kind
+from agentax.envs.core import Box, RecurrentPolicy
 from agentax.envs.spaces import Layout
 from agentax.errors import UsageError
 from agentax.nets import (
     MLP,
     GaussianPolicyNet,
+    Memory,
     PolicyNet,
+    RecurrentActorCritic,
     gaussian_log_prob,
     greedy_action,
     legal_actions,
     log_prob,
     masked,
     sample_action,
+    unroll,
     with_encoder,
+    zero_memory,
 )
 from agentax.policies import Policy
 from agentax.replay import Transition
@@ -91,11 +103,19 @@ class ReinforceConfig:
     """learn a value network V(s) and use G_t − V(s_t) as the advantage"""
     baseline_hidden: tuple[int, ...] = (32,)
     """widths of the baseline's hidden layers"""
+    core: str = "none"
+    """a recurrent core after the policy's torso: lstm, gru, or none (feed-forward); its memory is
+    zeros at each episode's start and learned by backpropagation through the whole episode (compiled
+    runner)"""
+    core_size: int = 128
+    """units of the recurrent core (and of the hidden layer of its head)"""
 
     def validate(self) -> ReinforceConfig:
         """Raise a UsageError naming the first bad value."""
         positive = ("total_steps", "episodes_per_update", "max_steps", "learning_rate")
         check_fields(self, positive, unit_interval=("discount_factor",))
+        if self.core != "none":
+            validate_core_kind(self)
         return self
 
     @property
@@ -188,14 +208,22 @@ def loss_fn(
     precision: str = "f32",
 ):
     """REINFORCE's loss over the valid steps of ``[T, N]`` arrays; returns ``(loss, metrics)``."""
-    valid = batch["valid"].astype(jnp.float32)
-    count = jnp.maximum(valid.sum(), 1.0)
     out = policy_output(policy_network(cfg, actions, layout, precision), params["policy"], batch["obs"])
-    log_probs = action_log_prob(out, batch["action"], actions)
-    returns = batch["returns"]
-    metrics = {}
+    values = None
     if cfg.baseline:
         values = value_network(cfg, layout, precision).apply(params["value"], batch["obs"])[..., 0]
+    return reinforce_loss(action_log_prob(out, batch["action"], actions), values, batch)
+
+
+def reinforce_loss(log_probs: jax.Array, values: jax.Array | None, batch: dict[str, jax.Array]):
+    """``−mean(log π(a_t|s_t) · advantage_t)`` over ``batch["valid"]`` steps ``[T, N]``, the advantage
+    the normalised return less the baseline's ``values`` (None: no baseline), plus the baseline's
+    squared error; ``(loss, metrics)``."""
+    valid = batch["valid"].astype(jnp.float32)
+    count = jnp.maximum(valid.sum(), 1.0)
+    returns = batch["returns"]
+    metrics = {}
+    if values is not None:
         advantage = normalize(returns - jax.lax.stop_gradient(values), valid)
         value_loss = (((values - returns) ** 2) * valid).sum() / count
         metrics["value_loss"] = value_loss
@@ -216,8 +244,13 @@ def learn(
     precision: str = "f32",
 ):
     grads, metrics = jax.grad(loss_fn, has_aux=True)(agent.params, batch, actions, cfg, layout, precision)
+    return apply_gradients(agent, grads, cfg), metrics
+
+
+def apply_gradients(agent: ReinforceAgent, grads: Any, cfg: ReinforceConfig) -> ReinforceAgent:
+    """One Adam step of ``grads``."""
     updates, opt_state = optax.adam(cfg.learning_rate).update(grads, agent.opt_state, agent.params)
-    return ReinforceAgent(optax.apply_updates(agent.params, updates), opt_state), metrics
+    return ReinforceAgent(optax.apply_updates(agent.params, updates), opt_state)
 
 
 def greedy_policy(
@@ -271,22 +304,17 @@ def make_agent(
     cfg.validate()
     actions = actions_of(spec)
     flat_observations(spec, "reinforce")
+    if cfg.core != "none":
+        if precision != "f32":
+            raise UsageError(f"a recurrent core learns in f32 only, not --precision {precision}")
+        return recurrent_agent(spec, cfg, actions)
     net = policy_network(cfg, actions, spec.layout, precision)
 
     def act(state: ReinforceAgent, obs: jax.Array, key: jax.Array, progress: jax.Array):
         return sample(policy_output(net, state.params["policy"], obs), key, actions), {}
 
     def learn_episodes(state: ReinforceAgent, trajectory: Transition, key: jax.Array):
-        valid = trajectory.info["valid"]
-        ended = (trajectory.terminated | trajectory.truncated).at[-1].set(True)
-        reward = trajectory.reward * valid
-        batch = {
-            "obs": trajectory.obs.astype(jnp.float32),
-            "action": trajectory.action,
-            "valid": valid,
-            "returns": returns_to_go(reward, ended, cfg.discount_factor),
-        }
-        return learn(state, batch, actions, cfg, spec.layout, precision)
+        return learn(state, episode_batch(trajectory, cfg), actions, cfg, spec.layout, precision)
 
     return Agent(
         name="reinforce",
@@ -297,4 +325,99 @@ def make_agent(
         experience=Episodes(cfg.episodes_per_update, cfg.max_steps),
         total_steps=cfg.total_steps,
         env_action=lambda action: env_action(action, actions),
+    )
+
+
+def episode_batch(trajectory: Transition, cfg: ReinforceConfig) -> dict[str, jax.Array]:
+    """What the loss reads of episodes ``[T, N]``: observations, actions, the valid steps and the
+    discounted returns to go (each episode ended at its last valid step, or at ``max_steps``)."""
+    valid = trajectory.info["valid"]
+    ended = (trajectory.terminated | trajectory.truncated).at[-1].set(True)
+    return {
+        "obs": trajectory.obs.astype(jnp.float32),
+        "action": trajectory.action,
+        "valid": valid,
+        "returns": returns_to_go(trajectory.reward * valid, ended, cfg.discount_factor),
+    }
+
+
+# ---------------------------------------------------------------- with a recurrent core (cfg.core)
+
+
+def recurrent_policy_network(cfg: ReinforceConfig, actions: Actions, layout: Layout | None = None) -> Any:
+    """The policy with the core ``cfg.core`` (:class:`RecurrentActorCritic`: its actor the policy, its
+    critic the baseline), one step ``(obs, memory, first) -> (memory, (out, value))``."""
+    if isinstance(actions, Box):
+        net = RecurrentActorCritic(
+            actions.shape[0], True, tuple(cfg.hidden), cfg.activation, cfg.core, cfg.core_size
+        )
+    else:
+        n = actions if isinstance(actions, int) else num_logits(actions)
+        net = RecurrentActorCritic(n, False, tuple(cfg.hidden), cfg.activation, cfg.core, cfg.core_size)
+    return with_encoder(net, layout)
+
+
+def initial_memory(cfg: ReinforceConfig, batch_shape: tuple[int, ...] = ()) -> Memory:
+    """The core's memory at an episode's start, zeros ``[*batch_shape, core_size]`` (LSTM: a pair)."""
+    return zero_memory(cfg.core, cfg.core_size, batch_shape)
+
+
+def recurrent_agent(spec: EnvSpec, cfg: ReinforceConfig, actions: Actions) -> Agent:
+    """REINFORCE with the core ``cfg.core``: sampling with memory (:class:`Recurrent`), learning by
+    backpropagation through each whole episode from the memory at its start."""
+    net = recurrent_policy_network(cfg, actions, spec.layout)
+
+    def output(params, obs, memory, first):  # (memory, (masked out, value))
+        memory, (out, value) = net.apply(params, obs, memory, first)
+        return memory, (masked(out, legal_actions(net, obs)), value)
+
+    def init_agent(key: jax.Array) -> ReinforceAgent:
+        obs = jnp.zeros(spec.obs_shape, jnp.float32)
+        params = {"policy": net.init(key, obs, initial_memory(cfg), jnp.bool_(True))}
+        return ReinforceAgent(params, optax.adam(cfg.learning_rate).init(params))
+
+    def act_with_memory(state: ReinforceAgent, memory, obs, first, key, progress):
+        new_memory, (out, _) = output(state.params["policy"], obs, memory, first)
+        return new_memory, sample(out, key, actions), {"memory": memory, "first": first}
+
+    def act_fresh(state: ReinforceAgent, obs: jax.Array, key: jax.Array, progress: jax.Array):
+        batch = obs.shape[: obs.ndim - len(spec.obs_shape)]
+        _, action, info = act_with_memory(
+            state, initial_memory(cfg, batch), obs, jnp.ones(batch, bool), key, progress
+        )
+        return action, info
+
+    def loss(params, batch, first, start):  # the core run through the episodes [T, N] from start
+        def step(obs, memory, first_t):
+            return output(params["policy"], obs, memory, first_t)
+
+        _, (out, values) = unroll(step, start, batch["obs"], first)
+        log_probs = action_log_prob(out, batch["action"], actions)
+        return reinforce_loss(log_probs, values if cfg.baseline else None, batch)
+
+    def learn_episodes(state: ReinforceAgent, trajectory: Transition, key: jax.Array):
+        start = jax.tree.map(lambda m: m[0], trajectory.info["memory"])
+        batch, first = episode_batch(trajectory, cfg), trajectory.info["first"]
+        grads, metrics = jax.grad(loss, has_aux=True)(state.params, batch, first, start)
+        return apply_gradients(state, grads, cfg), metrics
+
+    def greedy(state: ReinforceAgent) -> RecurrentPolicy:
+        def step(memory: Memory, obs: jax.Array, key: jax.Array) -> tuple[Memory, jax.Array]:
+            memory, (out, _) = output(state.params["policy"], obs, memory, jnp.bool_(False))
+            if isinstance(actions, Box):
+                return memory, env_action(out[0], actions)
+            return memory, greedy_action(out, action_nvec(actions)).astype(jnp.int32)
+
+        return RecurrentPolicy(lambda: initial_memory(cfg), step)
+
+    return Agent(
+        name="reinforce",
+        init=init_agent,
+        act=act_fresh,
+        greedy_policy=greedy,
+        learn=learn_episodes,
+        experience=Episodes(cfg.episodes_per_update, cfg.max_steps),
+        total_steps=cfg.total_steps,
+        env_action=lambda action: env_action(action, actions),
+        recurrent=Recurrent(lambda num_envs: initial_memory(cfg, (num_envs,)), act_with_memory),
     )

@@ -156,12 +156,26 @@ def check_core_flags(algo: str, config_type: type, argv: list[str]) -> None:
     """A one-line ``UsageError`` for a recurrent core's flag given to a feed-forward algorithm."""
     given = [flag for flag in CORE_FLAGS if any(a == flag or a.startswith(flag + "=") for a in argv)]
     if given and not has_core(config_type):
-        takers = ", ".join(name for name in ALGORITHMS if has_core(algorithm_config(name)))
-        raise UsageError(f"{given[0]}: {algo} has no recurrent core; {takers} takes one (--core lstm|gru)")
+        raise UsageError(
+            f"{given[0]}: {algo} has no recurrent core; {takers(has_core)} one (--core lstm|gru)"
+        )
+    if "--bptt" in given and not has_core(config_type, "bptt"):
+        raise UsageError(
+            f"--bptt: {algo} learns its core through whole episodes; {takers(lambda c: has_core(c, 'bptt'))} "
+            "--bptt"
+        )
 
 
-def has_core(config_type: type) -> bool:
-    return "core" in {field.name for field in dataclasses.fields(config_type)}
+def takers(takes: Any) -> str:
+    """The algorithms whose config ``takes(config_type)``, as a sentence's subject: "ppo takes",
+    "reinforce, ppo and pqn take"."""
+    names = [name for name in ALGORITHMS if takes(algorithm_config(name))]
+    return names[0] + " takes" if len(names) == 1 else ", ".join(names[:-1]) + f" and {names[-1]} take"
+
+
+def has_core(config_type: type, field_name: str = "core") -> bool:
+    """Whether ``config_type`` has the core's field ``field_name``."""
+    return field_name in {field.name for field in dataclasses.fields(config_type)}
 
 
 def parse_file(argv: list[str]) -> tuple[str, RunArgs, Any, Any]:

@@ -11,7 +11,8 @@ iteration does follows from ``agent.experience`` (:func:`agentax.runners.compile
                    agent with memory acts with ``agent.recurrent.act``, the carry holding each
                    env's memory (:class:`RecurrentCarry`)
 ``Episodes``       ``num_envs`` whole episodes from fresh resets, steps after an episode's end marked
-                   in ``info["valid"]``, then ``agent.learn`` (REINFORCE)
+                   in ``info["valid"]``, then ``agent.learn`` (REINFORCE); an agent with memory
+                   acts with ``agent.recurrent.act`` from zeros at the episodes' start
 ``OffPolicy``      collection into a jittable replay and gated learning phases (DQN, SAC, TD3):
                    :mod:`agentax.runners.replay_program`
 =================  ==============================================================================
@@ -249,18 +250,24 @@ def episodes_program(agent: Agent, envs: VectorEnv) -> Program:
         obs, env_state = envs.reset(reset_key)
 
         def env_step(step_carry, t):
-            obs, env_state, alive, episodes, key = step_carry
+            obs, env_state, alive, episodes, key, memory = step_carry
             key, act_key, step_key = jax.random.split(key, 3)
-            action, info = agent.act(carry.agent, obs, act_key, episodes.env_steps)
+            if agent.recurrent is None:
+                action, info = agent.act(carry.agent, obs, act_key, episodes.env_steps)
+            else:  # memory: zeros at the episodes' start (t = 0), nothing later starts one that counts
+                memory, action, info = agent.recurrent.act(
+                    carry.agent, memory, obs, jnp.full(envs.num_envs, t == 0), act_key, episodes.env_steps
+                )
             time_step, env_state, _ = envs.step(step_key, env_state, agent.env_action(action))
             ended = time_step.done | (t == experience.max_steps - 1)
             episodes = episodes.record(time_step.reward, ended, alive)
             transition = transition_of(obs, action, time_step, {**info, "valid": alive})
-            return (time_step.obs, env_state, alive & ~ended, episodes, key), transition
+            return (time_step.obs, env_state, alive & ~ended, episodes, key, memory), transition
 
         alive = jnp.ones(envs.num_envs, bool)
-        step_carry = (obs, env_state, alive, carry.episodes, play_key)
-        (_, _, _, episodes, _), trajectory = jax.lax.scan(
+        memory = None if agent.recurrent is None else agent.recurrent.initial(envs.num_envs)
+        step_carry = (obs, env_state, alive, carry.episodes, play_key, memory)
+        (_, _, _, episodes, _, _), trajectory = jax.lax.scan(
             env_step, step_carry, jnp.arange(experience.max_steps)
         )
         agent_state, metrics = agent.learn(carry.agent, trajectory, learn_key)
