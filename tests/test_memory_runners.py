@@ -110,6 +110,22 @@ def test_ppo_with_a_core_trains_on_the_host_runner_from_the_command_line(tmp_pat
     }
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "algo_args",
+    [
+        ["pqn", "--num-envs", "2", "--num-steps", "16", "--num-minibatches", "2"],
+        ["reinforce", "--episodes-per-update", "2", "--max-steps", "32"],
+    ],
+    ids=["pqn", "reinforce"],
+)
+def test_pqn_and_reinforce_with_a_core_train_on_the_host_runner(algo_args, tmp_path):
+    out = tmp_path / "run"
+    argv = ["train", *algo_args, "--env", NOVEL, "--core", "gru", "--core-size", "8", "--runner", "host"]
+    assert main([*argv, "--total-steps", "64", "--out", str(out), "--no-progress"]) == 0
+    assert (out / "eval.json").is_file() and (out / "metrics.csv").is_file()
+
+
 class Cut(Exception):
     """Stops a run right after a checkpoint, as a killed process would."""
 

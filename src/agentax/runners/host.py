@@ -225,7 +225,8 @@ class Actor:
         for _ in range(max_steps):
             if alive.any():
                 self._run([trajectory], max_steps=self.env.num_envs)
-                step = trajectory.transitions[-1].replace(info={"valid": alive.copy()})
+                last = trajectory.transitions[-1]
+                step = last.replace(info={**last.info, "valid": alive.copy()})  # memory, first: a core's
                 trajectory.transitions[-1] = step
                 alive &= ~(step.terminated | step.truncated)
             else:  # everyone finished: pad (a fixed shape, one compiled learning step)
