@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from agentax import nets
 from agentax.agents import config_from_dict, ppo, presets
 from agentax.agents.protocol import EnvSpec
 from agentax.cli import main
@@ -273,3 +274,37 @@ def test_an_interrupted_recurrent_run_resumes_to_the_same_end(tmp_path):
     for a, b in zip(numbers(whole.state), numbers(resumed.state), strict=True):
         np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(whole.final_returns[0], resumed.final_returns[0])
+
+
+@pytest.mark.parametrize("core", ["lstm", "gru"])
+def test_the_cores_written_out_gradient_is_autodiffs(core):
+    """The sequence's hand-written backward pass (the gates recomputed at once, ∂W_h one product after
+    the loop) against jax's autodiff of the same loop, for every input: the hidden weights and bias,
+    the start memory and each step's input product, through resets at episode starts."""
+    steps, envs, size = 6, 3, 4
+    gates = len(nets.CORE_GATES[core])
+    keys = iter(jax.random.split(jax.random.key(5), 8))
+    w_h = jax.random.normal(next(keys), (size, gates * size)) * 0.5
+    b_h = jax.random.normal(next(keys), ((gates if core == "lstm" else 1) * size,))
+    memory = jax.tree.map(
+        lambda m: m + jax.random.normal(next(keys), m.shape), nets.zero_memory(core, size, (envs,))
+    )
+    projected = jax.random.normal(next(keys), (steps, envs, gates * size))
+    first = jnp.array([[False, True, False]] + [[False] * 3] * 2 + [[True, False, False]] + [[False] * 3] * 2)
+    weights = jax.random.normal(next(keys), (2, steps, envs, size))
+    sequence, step = (
+        (nets.lstm_sequence, nets.lstm_step) if core == "lstm" else (nets.gru_sequence, nets.gru_step)
+    )
+
+    def loss(run, *args):  # every memory after every step, weighted
+        return sum((w * m).sum() for w, m in zip(weights, jax.tree.leaves(run(*args, first)), strict=False))
+
+    def autodiff(w_h, b_h, memory, projected, first):
+        return nets._run(functools.partial(step, w_h, b_h), memory, projected, first)
+
+    args = (w_h, b_h, memory, projected)
+    written = jax.grad(functools.partial(loss, sequence), argnums=(0, 1, 2, 3))(*args)
+    reference = jax.grad(functools.partial(loss, autodiff), argnums=(0, 1, 2, 3))(*args)
+    np.testing.assert_allclose(loss(sequence, *args), loss(autodiff, *args), rtol=1e-6)
+    for a, b in zip(jax.tree.leaves(written), jax.tree.leaves(reference), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
