@@ -161,6 +161,11 @@ def of(value) -> str:
     return str(value).replace("/", " of ")
 
 
+def seconds_short(value) -> str:
+    """Seconds, whole from 10 on, else one decimal: 195, 4.6."""
+    return f"{value:.0f}" if value >= 10 else f"{value:.1f}"
+
+
 def minutes(value) -> str:
     """Seconds as ``2 min 16 s``."""
     whole = round(value)
@@ -581,6 +586,24 @@ def _figures() -> dict[str, Figure]:
         mean = "file's mean return (100 episodes)"
         figures[f"export.{key}.mean"] = bench("export", key, col=mean, fmt="{:.1f}")
         figures[f"export.{key}.equal"] = bench("export", key, col="equal statistics")
+
+    # memory: recurrent PPO on CartPoleNoVel (memory.json), beside SB3-Contrib and at PureJaxRL's settings
+    figures["memory.cpu"] = cpu("memory")
+    for key, agent in (("lstm", "PPO + LSTM 64"), ("gru", "PPO + GRU 64"), ("ff", "PPO feed-forward")):
+        figures[f"memory.{key}.mean"] = bench("memory", agent, col="eval mean", fmt="{:.1f}")
+        figures[f"memory.{key}.solved"] = bench("memory", agent, col="seeds ≥ 475")
+        figures[f"memory.{key}.train"] = bench("memory", agent, col="train s", fmt=seconds_short)
+    for key, index in (("agentax", 0), ("sb3", 1)):
+        table = lambda r, i=index: r["beside_sb3"]["rows"][i]  # noqa: E731
+        figures[f"memory.zoo.{key}.steps"] = derived("memory", lambda r, t=table: t(r)[1], thousands)
+        figures[f"memory.zoo.{key}.seconds"] = derived("memory", lambda r, t=table: t(r)[2], "{:.0f}")
+        figures[f"memory.zoo.{key}.per_k"] = derived("memory", lambda r, t=table: t(r)[3], "{:.2f}")
+        figures[f"memory.zoo.{key}.mean"] = derived("memory", lambda r, t=table: t(r)[4], "{:.1f}")
+    figures["memory.zoo.ratio"] = derived("memory", lambda r: r["beside_sb3"]["rows"][0][5], "{:.3f}")
+    for index, seeds in enumerate((8, 64)):
+        figures[f"memory.purejaxrl.{seeds}"] = derived(
+            "memory", lambda r, i=index: r["purejaxrl_settings"]["rows"][i][1], thousands
+        )
 
     # sweeps (sweep.json), workers (workers.json)
     for key, workload in (

@@ -89,7 +89,8 @@ def file_stream(exported: export.Exported, stream: dict[str, np.ndarray]) -> tup
 @pytest.mark.parametrize("core", ["gru", "lstm"])
 def test_the_exported_state_steps_as_the_agents_memory(runs, core, tmp_path):
     """Over 1,000 steps of the agent's own episodes (resets crossed), both formats give its greedy
-    actions exactly and its memory within 1e-5; the card says the state's shape, parts and start."""
+    actions exactly and its memory within 1e-5 (or 2e-6 of its size); the card says the state's
+    shape, parts and start."""
     run = agentax.load(runs[core])
     stream = agent_stream(run.policy)
     episodes = int(stream["first"].sum())
@@ -100,7 +101,9 @@ def test_the_exported_state_steps_as_the_agents_memory(runs, core, tmp_path):
         exported = export.load(path)
         actions, states = file_stream(exported, stream)
         np.testing.assert_array_equal(actions, stream["action"])
-        np.testing.assert_allclose(states, stream["memory"], rtol=0, atol=1e-5)
+        # an LSTM's cell state is unbounded (|c| near 20 in some runs, where float32's spacing is 2e-6):
+        # within 1e-5, or a few of float32's steps of its size
+        np.testing.assert_allclose(states, stream["memory"], rtol=2e-6, atol=1e-5)
         card = exported.card
         assert [i["name"] for i in card["inputs"]] == ["obs", "state"]
         assert card["outputs"][1] == {"name": "next_state", "shape": ["N", size], "dtype": "float32"}

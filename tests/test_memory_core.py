@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from agentax import nets
 from agentax.agents import config_from_dict, ppo, pqn, presets, reinforce, sequences
 from agentax.agents.protocol import EnvSpec
 from agentax.cli import main
@@ -18,13 +19,25 @@ from agentax.envs import GymnasiumEnv, make, make_jax
 from agentax.envs.cartpole import CartPoleNoVel
 from agentax.envs.core import RecurrentPolicy, episode_returns
 from agentax.evaluate import host_episode_returns
-from agentax.nets import reset_where, unroll
+from agentax.nets import Memory, reset_where
 from agentax.runners.compiled import RunnerConfig, program_of, train_program
 from agentax.runners.rollout import OnPolicyCarry, RecurrentCarry, VectorEnv, on_policy_rollout
 from agentax.runs import Run
 
 NOVEL = make_jax("CartPoleNoVel-v1")
 SPEC = EnvSpec.of(NOVEL)
+
+
+def unroll(step, memory: Memory, obs: jax.Array, first: jax.Array):
+    """The reference the learners' sequences are checked against: a one-step network ``step(obs_t,
+    memory, first_t) -> (memory, out_t)`` run step by step through ``obs [T, B, ...]``, ``first
+    [T, B]``: ``(the memory after each step [T, B, ...], outs [T, B, ...])``."""
+
+    def body(memory, inputs):
+        memory, out = step(inputs[0], memory, inputs[1])
+        return memory, (memory, out)
+
+    return jax.lax.scan(body, memory, (obs, first))[1]
 
 
 def small(core: str, **changes) -> ppo.PPOConfig:
@@ -259,18 +272,17 @@ def test_memory_learns_what_a_feed_forward_policy_cannot():
     assert feed_forward.mean() < 70 and recurrent.mean() > 3 * feed_forward.mean(), (recurrent, feed_forward)
 
 
-@pytest.mark.long  # two compiled trainings of 200k steps per seed: ~2.5 min on 2 loaded cores
+@pytest.mark.long  # two compiled trainings of 200k steps on 8 seeds: minutes on 2 cores
 def test_pqn_with_a_core_learns_what_feed_forward_pqn_cannot():
     """PQN's ``memory`` preset (a GRU of 64, 32 envs, sequences of 8 steps) against the same PQN without
-    the core (its LayerNorm MLP of 64), 200k env steps per seed, 2 seeds vmapped on the compiled runner:
-    the greedy policies (16 episodes each) average past 150 with the core, every seed past 100, and no
-    seed passes 60 without. (Measured: GRU 373.9 and 113.1, feed-forward 37.4 and 39.6; over 8 seeds
-    of 20 episodes the GRU's mean is 264.1, its worst seed 167.7, feed-forward's 39.5, its best 42.9.)"""
+    the core (its LayerNorm MLP of 64), 200k env steps per seed, 8 seeds vmapped on the compiled runner:
+    the greedy policies (16 episodes each) average past 150 over the seeds with the core, and no seed
+    passes 60 without. Seeds vary widely with the core (one seed of 2 reached 374, the other 113)."""
     cfg = presets.preset("pqn", "memory").config
-    recurrent, metrics = trained_returns(cfg)
-    feed_forward, _ = trained_returns(dataclasses.replace(cfg, core="none"))
+    recurrent, metrics = trained_returns(cfg, seeds=8)
+    feed_forward, _ = trained_returns(dataclasses.replace(cfg, core="none"), seeds=8)
     assert np.isfinite(metrics["loss"]).all()
-    assert recurrent.mean() > 150 and recurrent.min() > 100, recurrent
+    assert recurrent.mean() > 150, recurrent
     assert feed_forward.max() < 60, feed_forward
 
 
@@ -390,3 +402,37 @@ def test_an_interrupted_recurrent_run_resumes_to_the_same_end(tmp_path):
     for a, b in zip(numbers(whole.state), numbers(resumed.state), strict=True):
         np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(whole.final_returns[0], resumed.final_returns[0])
+
+
+@pytest.mark.parametrize("core", ["lstm", "gru"])
+def test_the_cores_written_out_gradient_is_autodiffs(core):
+    """The sequence's hand-written backward pass (the gates recomputed at once, ∂W_h one product after
+    the loop) against jax's autodiff of the same loop, for every input: the hidden weights and bias,
+    the start memory and each step's input product, through resets at episode starts."""
+    steps, envs, size = 6, 3, 4
+    gates = len(nets.CORE_GATES[core])
+    keys = iter(jax.random.split(jax.random.key(5), 8))
+    w_h = jax.random.normal(next(keys), (size, gates * size)) * 0.5
+    b_h = jax.random.normal(next(keys), ((gates if core == "lstm" else 1) * size,))
+    memory = jax.tree.map(
+        lambda m: m + jax.random.normal(next(keys), m.shape), nets.zero_memory(core, size, (envs,))
+    )
+    projected = jax.random.normal(next(keys), (steps, envs, gates * size))
+    first = jnp.array([[False, True, False]] + [[False] * 3] * 2 + [[True, False, False]] + [[False] * 3] * 2)
+    weights = jax.random.normal(next(keys), (2, steps, envs, size))
+    sequence, step = (
+        (nets.lstm_sequence, nets.lstm_step) if core == "lstm" else (nets.gru_sequence, nets.gru_step)
+    )
+
+    def loss(run, *args):  # every memory after every step, weighted
+        return sum((w * m).sum() for w, m in zip(weights, jax.tree.leaves(run(*args, first)), strict=False))
+
+    def autodiff(w_h, b_h, memory, projected, first):
+        return nets._run(functools.partial(step, w_h, b_h), memory, projected, first)
+
+    args = (w_h, b_h, memory, projected)
+    written = jax.grad(functools.partial(loss, sequence), argnums=(0, 1, 2, 3))(*args)
+    reference = jax.grad(functools.partial(loss, autodiff), argnums=(0, 1, 2, 3))(*args)
+    np.testing.assert_allclose(loss(sequence, *args), loss(autodiff, *args), rtol=1e-6)
+    for a, b in zip(jax.tree.leaves(written), jax.tree.leaves(reference), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)

@@ -619,39 +619,234 @@ def reset_where(first: jax.Array, memory: Memory) -> Memory:
     return jax.tree.map(lambda m: jnp.where(first[..., None], jnp.zeros_like(m), m), memory)
 
 
-def unroll(step: Any, memory: Memory, obs: jax.Array, first: jax.Array) -> tuple[Memory, Any]:
-    """A one-step recurrent network ``step(obs_t, memory, first_t) -> (memory, out_t)`` run through a
-    sequence ``obs [T, B, ...]``, ``first [T, B]`` from ``memory`` ``[B, ...]``: ``(the memory after
-    each step [T, B, ...], outs [T, B, ...])``, each step resetting where its ``first`` says."""
+class GateWeights(nn.Module):
+    """One gate's weights as flax's recurrent cells name them: ``kernel [in, features]`` (and ``bias
+    [features]``), created, not applied."""
 
-    def body(memory: Memory, inputs: tuple[jax.Array, jax.Array]) -> tuple[Memory, Any]:
-        memory, out = step(inputs[0], memory, inputs[1])
-        return memory, (memory, out)
+    features: int
+    use_bias: bool
+    kernel_init: Any
 
-    _, (memories, outs) = jax.lax.scan(body, memory, (obs, first))
-    return memories, outs
+    @nn.compact
+    def __call__(self, in_features: int) -> tuple[jax.Array, jax.Array | None]:
+        kernel = self.param("kernel", self.kernel_init, (in_features, self.features), jnp.float32)
+        bias = (
+            self.param("bias", nn.initializers.zeros, (self.features,), jnp.float32)
+            if self.use_bias
+            else None
+        )
+        return kernel, bias
+
+
+CORE_GATES = {"lstm": "ifgo", "gru": "rzn"}
+"""Each core's gates, in the order of its fused products (flax's: LSTM i, f, g, o; GRU r, z, n)."""
+
+
+class RecurrentCore(nn.Module):
+    """An LSTM or GRU core, the same function and parameters as flax's ``OptimizedLSTMCell`` /
+    ``GRUCell`` (its gates' weights under their names: ``ii``, ``hi``, ... / ``ir``, ``hr``, ...), so
+    runs and checkpoints saved with the flax cells load as they were.
+
+    ``(memory [B, ...], x [B, in], first [B])`` → ``(memory, out [B, features])``: one step, the memory
+    reset to zeros first where ``first`` is set. With ``over_time`` the inputs run through a sequence,
+    ``x [T, B, in]``, ``first [T, B]`` → ``(the memory after each step [T, B, ...], out [T, B, features])``.
+
+    Why not the flax cell under ``lax.scan``: XLA's CPU backend runs a loop's body op by op, each
+    op's few µs each step, and autodiff of the cell in a scan adds the largest ops of all to the
+    gradient's loop: each step's weight gradient ``h_{t-1}ᵀ · dz_t`` as an outer product, summed
+    into a ``[n, G·n]`` array, and the transposed weights' product. So over a sequence the input's
+    product for every gate of every step is one matrix product before the loop, the loop keeps only
+    ``h · W_h`` and the gates (:func:`lstm_sequence`, :func:`gru_sequence`), and their hand-written
+    gradient's loop only ``dz_t · W_hᵀ``: the weight gradient is one product over all steps after it.
+    """
+
+    kind: str = "lstm"
+    features: int = 128
+
+    @nn.compact
+    def __call__(self, memory: Memory, x: jax.Array, first: jax.Array, over_time: bool = False):
+        orthogonal, lecun = nn.initializers.orthogonal(), nn.initializers.lecun_normal()
+        inputs, hiddens = [], []
+        for gate in CORE_GATES[self.kind]:  # flax's order of creation: the input's weights, then h's
+            input_bias, hidden_bias = self.kind == "gru", self.kind == "lstm" or gate == "n"
+            inputs.append(GateWeights(self.features, input_bias, lecun, name=f"i{gate}")(x.shape[-1]))
+            hiddens.append(
+                GateWeights(self.features, hidden_bias, orthogonal, name=f"h{gate}")(self.features)
+            )
+        w_x = jnp.concatenate([kernel for kernel, _ in inputs], axis=-1)  # (in, G·n)
+        w_h = jnp.concatenate([kernel for kernel, _ in hiddens], axis=-1)  # (n, G·n)
+        projected = x @ w_x  # (..., G·n): every step's at once
+        if self.kind == "gru":
+            projected = projected + jnp.concatenate([bias for _, bias in inputs])
+            b_h = hiddens[2][1]  # (n,): h's only bias, inside the reset gate's product
+        else:
+            b_h = jnp.concatenate([bias for _, bias in hiddens])  # (4n,)
+        if over_time:
+            sequence = lstm_sequence if self.kind == "lstm" else gru_sequence
+            memories = sequence(w_h, b_h, memory, projected, first)
+            return memories, memories[1] if self.kind == "lstm" else memories
+        step = lstm_step if self.kind == "lstm" else gru_step
+        memory = step(w_h, b_h, reset_where(first, memory), projected)[0]
+        return memory, memory[1] if self.kind == "lstm" else memory
+
+
+def lstm_step(w_h: jax.Array, b_h: jax.Array, memory: Memory, projected: jax.Array):
+    """One LSTM step from the input's product ``projected = x · W_x`` ``[..., 4n]``:
+    ``i, f, g, o = σ, σ, tanh, σ(h · W_h + b_h + projected)``, ``c' = f c + i g``, ``h' = o tanh(c')``
+    (flax's ``OptimizedLSTMCell``, its sums in its order). Returns ``((c', h'), gates [..., 4n])``,
+    the gates ``i, f, g, o`` after their nonlinearities (what the gradient needs)."""
+    c, h = memory
+    i, f, g, o = jnp.split(h @ w_h + b_h + projected, 4, axis=-1)
+    i, f, g, o = jax.nn.sigmoid(i), jax.nn.sigmoid(f), jnp.tanh(g), jax.nn.sigmoid(o)
+    c = f * c + i * g
+    return (c, o * jnp.tanh(c)), jnp.concatenate([i, f, g, o], axis=-1)
+
+
+def gru_step(w_h: jax.Array, b_hn: jax.Array, h: jax.Array, projected: jax.Array):
+    """One GRU step from the input's product with its biases ``projected = x · W_x + b_x`` ``[..., 3n]``:
+    ``r, z = σ(x_r + h · W_hr), σ(x_z + h · W_hz)``, ``n = tanh(x_n + r (h · W_hn + b_hn))``,
+    ``h' = (1 − z) n + z h`` (flax's ``GRUCell``). Returns ``(h', (r, z, n, h · W_hn + b_hn))``."""
+    x_r, x_z, x_n = jnp.split(projected, 3, axis=-1)
+    h_r, h_z, h_n = jnp.split(h @ w_h, 3, axis=-1)
+    r, z = jax.nn.sigmoid(x_r + h_r), jax.nn.sigmoid(x_z + h_z)
+    h_n = h_n + b_hn
+    n = jnp.tanh(x_n + r * h_n)
+    return (1.0 - z) * n + z * h, (r, z, n, h_n)
+
+
+def _flat_product(a: jax.Array, b: jax.Array) -> jax.Array:
+    """``Σ_{t, b} a[t, b]ᵀ b[t, b]``: ``[T, B..., m] × [T, B..., k] → [m, k]``, one matrix product."""
+    return a.reshape(-1, a.shape[-1]).T @ b.reshape(-1, b.shape[-1])
+
+
+def _run(step: Any, memory: Memory, projected: jax.Array, first: jax.Array) -> Memory:
+    """``step(memory, projected_t) -> (memory, _)`` through ``projected`` ``[T, ...]``, resetting where
+    ``first`` ``[T, B...]`` says: the memory after each step ``[T, B..., n]`` (all the loop keeps)."""
+
+    def body(memory: Memory, inputs: tuple[jax.Array, jax.Array]) -> tuple[Memory, Memory]:
+        memory = step(reset_where(inputs[1], memory), inputs[0])[0]
+        return memory, memory
+
+    return jax.lax.scan(body, memory, (projected, first))[1]
+
+
+def _starts(memory: Memory, memories: Memory, first: jax.Array) -> Memory:
+    """The memory each step of a sequence started from ``[T, B..., n]``: the one before it (``memory``
+    for the first), reset where ``first``."""
+    shifted = jax.tree.map(lambda m, ms: jnp.concatenate([m[None], ms[:-1]]), memory, memories)
+    return reset_where(first, shifted)
+
+
+@jax.custom_vjp
+def lstm_sequence(w_h: jax.Array, b_h: jax.Array, memory: Memory, projected: jax.Array, first: jax.Array):
+    """The LSTM run through a sequence from ``memory`` ``(c, h)`` ``[B..., n]``: ``projected``
+    ``[T, B..., 4n]`` (each step's ``x · W_x``), ``first`` bool ``[T, B...]`` (reset before the step)
+    → the memory after each step, ``(c, h)`` ``[T, B..., n]``. Its gradient is written out: the
+    gates are recomputed for all steps at once, the loop back through time carries ``dc, dh``, and
+    ``∂W_h = Σ_t h_{t-1}ᵀ dz_t`` is one product after it."""
+    return _run(functools.partial(lstm_step, w_h, b_h), memory, projected, first)
+
+
+def _lstm_sequence_fwd(w_h, b_h, memory, projected, first):
+    memories = lstm_sequence(w_h, b_h, memory, projected, first)
+    c_prevs, h_prevs = _starts(memory, memories, first)
+    _, gates = lstm_step(w_h, b_h, (c_prevs, h_prevs), projected)  # (T, B..., 4n), every step at once
+    return memories, (w_h, memories[0], (c_prevs, h_prevs, gates), first)
+
+
+def _lstm_sequence_bwd(residuals, cotangents):
+    w_h, cs, (c_prevs, h_prevs, gates), first = residuals
+    w_t = w_h.T  # (4n, n), laid out once for the loop's product
+
+    def body(carry, inputs):
+        dc_next, dh_next = carry  # from step t + 1, through its c_prev and h_prev
+        dc_out, dh_out, c, c_prev, gate, first_t = inputs
+        i, f, g, o = jnp.split(gate, 4, axis=-1)
+        dh = dh_out + dh_next
+        tanh_c = jnp.tanh(c)
+        dc = dc_out + dc_next + dh * o * (1.0 - tanh_c * tanh_c)
+        dz = jnp.concatenate(
+            [
+                dc * g * i * (1.0 - i),
+                dc * c_prev * f * (1.0 - f),
+                dc * i * (1.0 - g * g),
+                dh * tanh_c * o * (1.0 - o),
+            ],
+            axis=-1,
+        )
+        return reset_where(first_t, (dc * f, dz @ w_t)), dz
+
+    zeros = jnp.zeros_like(cs[0])
+    inputs = (*cotangents, cs, c_prevs, gates, first)
+    (dc0, dh0), dz = jax.lax.scan(body, (zeros, zeros), inputs, reverse=True)  # dz: (T, B..., 4n)
+    return _flat_product(h_prevs, dz), dz.reshape(-1, dz.shape[-1]).sum(0), (dc0, dh0), dz, None
+
+
+lstm_sequence.defvjp(_lstm_sequence_fwd, _lstm_sequence_bwd)
+
+
+@jax.custom_vjp
+def gru_sequence(w_h: jax.Array, b_hn: jax.Array, h: jax.Array, projected: jax.Array, first: jax.Array):
+    """The GRU run through a sequence from ``h`` ``[B..., n]``: ``projected`` ``[T, B..., 3n]`` (each
+    step's ``x · W_x + b_x``), ``first`` bool ``[T, B...]`` → ``h`` after each step ``[T, B..., n]``,
+    its gradient written out as :func:`lstm_sequence`'s."""
+    return _run(functools.partial(gru_step, w_h, b_hn), h, projected, first)
+
+
+def _gru_sequence_fwd(w_h, b_hn, h, projected, first):
+    hs = gru_sequence(w_h, b_hn, h, projected, first)
+    h_prevs = _starts(h, hs, first)
+    _, saved = gru_step(w_h, b_hn, h_prevs, projected)  # every step at once
+    return hs, (w_h, (h_prevs, *saved), first)
+
+
+def _gru_sequence_bwd(residuals, dhs):
+    w_h, (h_prevs, rs, zs, ns, h_ns), first = residuals
+    w_t = w_h.T  # (3n, n)
+
+    def body(dh_next, inputs):
+        dh_out, h_prev, r, z, n, h_n, first_t = inputs
+        dh = dh_out + dh_next
+        dn = dh * (1.0 - z) * (1.0 - n * n)  # through n's tanh
+        dr = dn * h_n * r * (1.0 - r)
+        dz = dh * (h_prev - n) * z * (1.0 - z)
+        dx = jnp.concatenate([dr, dz, dn], axis=-1)  # the input's product's gradient
+        da = jnp.concatenate([dr, dz, dn * r], axis=-1)  # h · W_h's
+        return reset_where(first_t, dh * z + da @ w_t), (dx, da)
+
+    inputs = (dhs, h_prevs, rs, zs, ns, h_ns, first)
+    dh0, (dx, da) = jax.lax.scan(body, jnp.zeros_like(h_prevs[0]), inputs, reverse=True)
+    n = h_prevs.shape[-1]
+    return _flat_product(h_prevs, da), da[..., 2 * n :].reshape(-1, n).sum(0), dh0, dx, None
+
+
+gru_sequence.defvjp(_gru_sequence_fwd, _gru_sequence_bwd)
 
 
 def core_step(
-    core: str, core_size: int, memory: Memory, first: jax.Array, x: jax.Array
+    core: str, core_size: int, memory: Memory, first: jax.Array, x: jax.Array, over_time: bool = False
 ) -> tuple[Memory, jax.Array]:
-    """One step of the recurrent core inside a compact module (its parameters the caller's:
-    ``"lstm"``: flax's ``OptimizedLSTMCell``, ``"gru"``: ``GRUCell``, ``core_size`` units): the
+    """The recurrent core inside a compact module (its parameters the caller's, named as flax's
+    ``OptimizedLSTMCell`` / ``GRUCell`` were: :class:`RecurrentCore`, ``core_size`` units): the
     features ``x [..., F]`` with ``memory`` reset to zeros first where ``first`` (bool ``[...]``)
-    marks an episode's start; ``(memory, output [..., core_size])``."""
-    cell = nn.OptimizedLSTMCell(core_size) if core == "lstm" else nn.GRUCell(core_size)
-    return cell(reset_where(first, memory), x)
+    marks an episode's start; ``(memory, output [..., core_size])``, or over a sequence with
+    ``over_time`` (``x [T, B, F]``, ``first [T, B]``)."""
+    name = "OptimizedLSTMCell_0" if core == "lstm" else "GRUCell_0"  # the flax cells' names
+    return RecurrentCore(core, core_size, name=name)(memory, x, first, over_time)
 
 
 class RecurrentActorCritic(nn.Module):
     """PPO's actor-critic with memory, one step: ``(obs [..., *obs_shape], memory, first [...]) ->
-    (memory, (actor_out, value [...]))``.
+    (memory, (actor_out, value [...]))``; with ``over_time=True`` a sequence, ``obs [T, B, ...]``,
+    ``first [T, B]`` from ``memory [B, ...]`` → ``(the memory after each step [T, B, ...], (actor_out,
+    value) [T, B, ...])``, the same numbers as the step run ``T`` times.
 
     The torso (the MLP of ``hidden``, or the Nature / MinAtar CNN) encodes the observation, the core
-    (``"lstm"``: flax's ``OptimizedLSTMCell``, ``"gru"``: ``GRUCell``, ``core_size`` units) takes it
-    with its carry, reset to zeros first where ``first`` marks an episode's start (PureJaxRL's
-    ``ppo_rnn``, CleanRL's ``ppo_atari_lstm``), and an actor and a critic head of one hidden layer
-    (``core_size`` units) each read the core's output. ``actor_out`` as :class:`ActorCritic`'s.
+    (:class:`RecurrentCore`: ``"lstm"`` or ``"gru"``, ``core_size`` units) takes it with its carry,
+    reset to zeros first where ``first`` marks an episode's start (PureJaxRL's ``ppo_rnn``, CleanRL's
+    ``ppo_atari_lstm``), and an actor and a critic head of one hidden layer (``core_size`` units) each
+    read the core's output. ``actor_out`` as :class:`ActorCritic`'s. Over a sequence only the core
+    loops; the torso and the heads take all steps at once.
     """
 
     action_dim: int
@@ -665,7 +860,7 @@ class RecurrentActorCritic(nn.Module):
     conv: str = "xla"
 
     @nn.compact
-    def __call__(self, obs: jax.Array, memory: Memory, first: jax.Array):
+    def __call__(self, obs: jax.Array, memory: Memory, first: jax.Array, over_time: bool = False):
         act = ACTIVATIONS[self.activation]
         hidden_init = nn.initializers.orthogonal(jnp.sqrt(2.0))
         if self.cnn:
@@ -676,7 +871,7 @@ class RecurrentActorCritic(nn.Module):
             x = obs.astype(jnp.float32)
             for width in self.hidden:
                 x = act(nn.Dense(width, kernel_init=hidden_init)(x))
-        memory, x = core_step(self.core, self.core_size, memory, first, x)
+        memory, x = core_step(self.core, self.core_size, memory, first, x, over_time)
         actor = act(nn.Dense(self.core_size, kernel_init=hidden_init)(x))
         critic = act(nn.Dense(self.core_size, kernel_init=hidden_init)(x))
         actor_out = nn.Dense(self.action_dim, kernel_init=nn.initializers.orthogonal(0.01))(actor)
@@ -686,7 +881,8 @@ class RecurrentActorCritic(nn.Module):
 
 class RecurrentQNetwork(nn.Module):
     """PQN's Q-network with memory, one step: ``(obs [..., *obs_shape], memory, first [...]) ->
-    (memory, Q [..., num_actions])``: the torso with LayerNorm (the MLP of ``hidden``, or the Nature
+    (memory, Q [..., num_actions])``, or over a sequence with ``over_time`` as
+    :class:`RecurrentActorCritic`: the torso with LayerNorm (the MLP of ``hidden``, or the Nature
     / MinAtar CNN), the core (:func:`core_step`, reset where ``first``), a hidden layer of
     ``core_size`` units with LayerNorm, and the Q head."""
 
@@ -700,14 +896,14 @@ class RecurrentQNetwork(nn.Module):
     conv: str = "xla"
 
     @nn.compact
-    def __call__(self, obs: jax.Array, memory: Memory, first: jax.Array):
+    def __call__(self, obs: jax.Array, memory: Memory, first: jax.Array, over_time: bool = False):
         if self.cnn:
             x = NatureCNN(layer_norm=True, conv=self.conv)(obs)
         elif self.image_shape is not None:
             x = MinAtarCNN(tuple(self.image_shape), layer_norm=True)(obs)
         else:
             x = MLP(self.hidden, self.activation, layer_norm=True)(obs.astype(jnp.float32))
-        memory, x = core_step(self.core, self.core_size, memory, first, x)
+        memory, x = core_step(self.core, self.core_size, memory, first, x, over_time)
         x = ACTIVATIONS[self.activation](nn.LayerNorm()(nn.Dense(self.core_size)(x)))
         return memory, nn.Dense(self.num_actions)(x)
 

@@ -90,7 +90,6 @@ from agentax.nets import (
     log_prob,
     masked,
     sample_action,
-    unroll,
     with_encoder,
     zero_memory,
 )
@@ -547,10 +546,19 @@ def initial_memory(cfg: PPOConfig, batch_shape: tuple[int, ...] = ()) -> Memory:
     return zero_memory(cfg.core, cfg.core_size, batch_shape)
 
 
-def recurrent_output(net: Any, params: Any, obs: jax.Array, memory: Memory, first: jax.Array, spec: EnvSpec):
+def recurrent_output(
+    net: Any,
+    params: Any,
+    obs: jax.Array,
+    memory: Memory,
+    first: jax.Array,
+    spec: EnvSpec,
+    over_time: bool = False,
+):
     """One step of the recurrent network, ``(memory, (actor_out, value))``, its illegal actions'
-    logits masked as :func:`policy_output`'s."""
-    memory, (actor_out, value) = net.apply(params, obs, memory, first)
+    logits masked as :func:`policy_output`'s; ``over_time``: a sequence ``[T, B, ...]`` from ``memory``
+    ``[B, ...]``, the memory after each step returned (:class:`~agentax.nets.RecurrentActorCritic`)."""
+    memory, (actor_out, value) = net.apply(params, obs, memory, first, over_time)
     return memory, (masked(actor_out, spec.legal(obs)), value)
 
 
@@ -601,11 +609,9 @@ def sequence_loss(
     the memory each starts from): the core run through each sequence with ``params``, reset where
     ``batch["first"]`` marks an episode's start, then :func:`ppo_loss` on every step."""
     steps = time_major(batch)  # (L, B, ...)
-
-    def step(obs, memory, first):
-        return recurrent_output(net, params, obs, memory, first, spec)
-
-    _, (actor_out, value) = unroll(step, batch["memory"], steps["obs"], steps["first"])
+    _, (actor_out, value) = recurrent_output(
+        net, params, steps["obs"], batch["memory"], steps["first"], spec, over_time=True
+    )
     return ppo_loss(actor_out, value, steps, clip_eps, spec, cfg)
 
 
@@ -626,12 +632,8 @@ def learn_sequences(
     net, tx = recurrent_network(cfg, spec, conv), optimizer(cfg)
     agent, rollout = take_in(agent, rollout, cfg)
     first, stored = rollout.info["first"], rollout.info["memory"]  # (T, E), (T, E, ...)
-
-    def step(obs, memory, first_t):
-        return net.apply(agent.params, obs, memory, first_t)
-
     start = jax.tree.map(lambda m: m[0], stored)
-    memories, (_, values) = unroll(step, start, rollout.obs, first)  # (T, E, ...), (T, E)
+    memories, (_, values) = net.apply(agent.params, rollout.obs, start, first, True)  # (T, E, ...), (T, E)
     _, (_, next_values) = net.apply(agent.params, rollout.next_obs, memories, jnp.zeros_like(first))
     length = cfg.sequence_length
     steps = {**learning_batch(rollout, values, next_values, cfg), "first": first}

@@ -72,7 +72,6 @@ from agentax.nets import (
     is_image,
     legal_max,
     masked,
-    unroll,
     with_encoder,
     zero_memory,
 )
@@ -388,10 +387,8 @@ def learn_sequences(
     steps, each from the memory stored where it starts (backpropagation through time)."""
     first, stored = rollout.info["first"], rollout.info["memory"]  # (T, E), (T, E, ...)
 
-    def step(obs, memory, first_t):
-        return net.apply(state.params, obs, memory, first_t)
-
-    memories, _ = unroll(step, jax.tree.map(lambda m: m[0], stored), rollout.obs, first)  # (T, E, ...)
+    start = jax.tree.map(lambda m: m[0], stored)
+    memories, _ = net.apply(state.params, rollout.obs, start, first, True)  # (T, E, ...)
     _, next_q = net.apply(state.params, rollout.next_obs, memories, jnp.zeros_like(first))  # (T, E, A)
     next_q = legal_max(next_q, legal(rollout.next_obs))  # (T, E)
     steps = {
@@ -406,7 +403,7 @@ def learn_sequences(
 
     def loss(params, batch):  # the core run through each sequence from its stored memory
         seq = time_major(batch)  # (L, B, ...)
-        _, q = unroll(lambda o, m, f: net.apply(params, o, m, f), batch["memory"], seq["obs"], seq["first"])
+        _, q = net.apply(params, seq["obs"], batch["memory"], seq["first"], True)
         return td_loss(q, seq)
 
     state, metrics = sgd_epochs(loss, data, state, key, cfg, loop)

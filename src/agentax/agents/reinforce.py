@@ -69,7 +69,6 @@ from agentax.nets import (
     log_prob,
     masked,
     sample_action,
-    unroll,
     with_encoder,
     zero_memory,
 )
@@ -367,8 +366,8 @@ def recurrent_agent(spec: EnvSpec, cfg: ReinforceConfig, actions: Actions) -> Ag
     backpropagation through each whole episode from the memory at its start."""
     net = recurrent_policy_network(cfg, actions, spec.layout)
 
-    def output(params, obs, memory, first):  # (memory, (masked out, value))
-        memory, (out, value) = net.apply(params, obs, memory, first)
+    def output(params, obs, memory, first, over_time=False):  # (memory, (masked out, value))
+        memory, (out, value) = net.apply(params, obs, memory, first, over_time)
         return memory, (masked(out, legal_actions(net, obs)), value)
 
     def init_agent(key: jax.Array) -> ReinforceAgent:
@@ -388,10 +387,7 @@ def recurrent_agent(spec: EnvSpec, cfg: ReinforceConfig, actions: Actions) -> Ag
         return action, info
 
     def loss(params, batch, first, start):  # the core run through the episodes [T, N] from start
-        def step(obs, memory, first_t):
-            return output(params["policy"], obs, memory, first_t)
-
-        _, (out, values) = unroll(step, start, batch["obs"], first)
+        _, (out, values) = output(params["policy"], batch["obs"], start, first, over_time=True)
         log_probs = action_log_prob(out, batch["action"], actions)
         return reinforce_loss(log_probs, values if cfg.baseline else None, batch)
 

@@ -226,7 +226,7 @@ class Actor:
             if alive.any():
                 self._run([trajectory], max_steps=self.env.num_envs)
                 last = trajectory.transitions[-1]
-                step = last.replace(info={**last.info, "valid": alive.copy()})  # memory, first: a core's
+                step = last.replace(info={**(last.info or {}), "valid": alive.copy()})  # memory, first
                 trajectory.transitions[-1] = step
                 alive &= ~(step.terminated | step.truncated)
             else:  # everyone finished: pad (a fixed shape, one compiled learning step)
