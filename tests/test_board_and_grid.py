@@ -189,6 +189,7 @@ def test_ppo_solves_the_gridworld_on_every_seed():
         np.testing.assert_array_equal(steps[seed], optimal)
 
 
+@pytest.mark.long  # make test-long: 4 seeds; tutorial 10 shows one seed's 1,000 games in make test
 @pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_masked_ppo_beats_the_random_player_and_the_unmasked_one_plays_illegal_moves():

@@ -136,6 +136,7 @@ def test_resets_spaces_and_registration():
         assert env.reward_threshold == gym_env.spec.reward_threshold
 
 
+@pytest.mark.long  # make test-long; `make bench`'s sac rows show it on 8 seeds, tutorial 09 in make test
 @pytest.mark.slow
 def test_sac_trains_the_jax_pendulum_on_the_compiled_runner_over_seeds(tmp_path):
     """``agentax.train("sac", env="Pendulum-v1")`` picks the compiled runner and vmaps 2 seeds."""

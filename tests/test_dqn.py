@@ -197,7 +197,7 @@ def test_presets_and_validation():
 
 @pytest.mark.slow
 @pytest.mark.timeout(240)
-@pytest.mark.parametrize("n_step", [1, 3])
+@pytest.mark.parametrize("n_step", [1, pytest.param(3, marks=pytest.mark.long)])  # 3: make test-long
 def test_one_agent_keeps_the_same_schedule_on_the_compiled_and_the_host_runner(tmp_path, n_step):
     """One DQN agent and schedule (2 envs, 8 steps each between phases of 3 learning steps from env
     step 96), driven by the compiled runner's program and by the host runner's Driver: the same

@@ -258,7 +258,8 @@ def trained_returns(cfg: ppo.PPOConfig | pqn.PQNConfig, seeds: int = 2) -> tuple
     return np.asarray(returns), jax.tree.map(np.asarray, metrics)
 
 
-@pytest.mark.slow  # two training programs to compile: ~30 s of the file's ~56 s on 2 idle cores
+@pytest.mark.long  # make test-long; `make bench`'s memory rows show it on 8 seeds
+@pytest.mark.slow
 def test_memory_learns_what_a_feed_forward_policy_cannot():
     """The same PPO and env steps (20,480 per seed, the ``memory`` preset's settings with a small GRU):
     with the core the greedy policy balances far longer than without, which sees no velocities.

@@ -63,6 +63,7 @@ def test_one_update_moves_the_policy_and_reports_finite_losses():
     assert np.isfinite(float(first["value_loss"]))
 
 
+@pytest.mark.long  # make test-long; make test pins PPO's training by its golden rows and the tutorial
 @pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_ppo_learns_cartpole():
