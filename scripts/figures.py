@@ -589,6 +589,12 @@ def _figures() -> dict[str, Figure]:
 
     # memory: recurrent PPO on CartPoleNoVel (memory.json), beside SB3-Contrib and at PureJaxRL's settings
     figures["memory.cpu"] = cpu("memory")
+    figures["memory_chain.cpu"] = cpu("memory_chain")
+    chain_lstm = ("memory_chain", "PPO + LSTM 64")
+    figures["memory_chain.steps"] = bench(*chain_lstm, col="env steps per seed", fmt=thousands)
+    for key, agent in (("lstm", "PPO + LSTM 64"), ("ff", "PPO feed-forward")):
+        figures[f"memory_chain.{key}.mean"] = bench("memory_chain", agent, col="eval mean", fmt="{:g}")
+    figures["memory_chain.lstm.worst"] = bench(*chain_lstm, col="worst seed", fmt="{:g}")
     for key, agent in (("lstm", "PPO + LSTM 64"), ("gru", "PPO + GRU 64"), ("ff", "PPO feed-forward")):
         figures[f"memory.{key}.mean"] = bench("memory", agent, col="eval mean", fmt="{:.1f}")
         figures[f"memory.{key}.solved"] = bench("memory", agent, col="seeds ≥ 475")

@@ -16,7 +16,6 @@ from agentax.agents import config_from_dict, ppo, pqn, presets, reinforce, seque
 from agentax.agents.protocol import EnvSpec
 from agentax.cli import main
 from agentax.envs import GymnasiumEnv, make, make_jax
-from agentax.envs.cartpole import CartPoleNoVel
 from agentax.envs.core import RecurrentPolicy, episode_returns
 from agentax.evaluate import host_episode_returns
 from agentax.nets import Memory, reset_where
@@ -287,11 +286,19 @@ def test_pqn_with_a_core_learns_what_feed_forward_pqn_cannot():
     assert feed_forward.max() < 60, feed_forward
 
 
-def test_cartpole_novel_is_cartpole_positions_step_for_step():
-    full, novel = make_jax("CartPole-v1"), NOVEL
-    assert novel.observation_space().shape == (2,) and novel.action_space().n == 2
-    key, positions = jax.random.key(7), jnp.array([0, 2])
-    actions = jax.random.bernoulli(jax.random.key(8), 0.5, (300,)).astype(jnp.int32)
+@pytest.mark.parametrize(
+    ("full_id", "novel_id", "seen", "resets"),
+    [("CartPole-v1", "CartPoleNoVel-v1", [0, 2], 5), ("Pendulum-v1", "PendulumNoVel-v1", [0, 1], 1)],
+)
+def test_a_no_velocity_env_is_its_full_envs_positions_step_for_step(full_id, novel_id, seen, resets):
+    full, novel = make_jax(full_id), make_jax(novel_id)
+    assert novel.observation_space().shape == (2,) and novel.action_space() == full.action_space()
+    key, positions = jax.random.key(7), jnp.array(seen)
+    space = full.action_space()
+    if hasattr(space, "n"):
+        actions = jax.random.bernoulli(jax.random.key(8), 0.5, (300,)).astype(jnp.int32)
+    else:
+        actions = jax.random.uniform(jax.random.key(8), (300, *space.shape), minval=-2.0, maxval=2.0)
 
     def play(env):  # 300 steps with auto-reset: (obs before each step, time steps)
         def step(carry, inputs):
@@ -307,9 +314,9 @@ def test_cartpole_novel_is_cartpole_positions_step_for_step():
     np.testing.assert_array_equal(ts_novel.final_obs, ts_full.final_obs[:, positions])
     for name in ("reward", "terminated", "truncated"):
         np.testing.assert_array_equal(getattr(ts_novel, name), getattr(ts_full, name))
-    assert int(ts_full.done.sum()) >= 5  # the auto-resets were crossed too
-    assert isinstance(make("agentax/CartPoleNoVel-v1"), CartPoleNoVel)  # the JAX env, by either id
-    assert gymnasium.make("agentax/CartPoleNoVel-v1").observation_space.shape == (2,)  # and Gymnasium's
+    assert int(ts_full.done.sum()) >= resets  # the auto-resets were crossed too
+    assert type(make(f"agentax/{novel_id}")) is type(novel)  # the JAX env, by either id
+    assert gymnasium.make(f"agentax/{novel_id}").observation_space.shape == (2,)  # and Gymnasium's
 
 
 def pulse_policy() -> RecurrentPolicy:

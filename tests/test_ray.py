@@ -736,3 +736,28 @@ def test_a_recurrent_ppo_on_ray_actors_gives_the_thread_actors_numbers(cluster, 
         for name in ("env_steps", "mean_return", "policy_loss", "value_loss"):
             assert row_ray[name] == row_threads[name], (name, row_ray[name], row_threads[name])
     assert on_ray.eval["mean_return"] == in_threads.eval["mean_return"]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(180)
+def test_packed_masked_dict_observations_train_through_ray_actors(cluster, tmp_path):
+    """Tic-tac-toe's Dict observation (the board and its legal-move mask), packed, through two Ray
+    actors for a few updates: the run ends with its rows, evaluation and checkpoint."""
+    import agentax
+
+    run = agentax.train(
+        "ppo",
+        env="TicTacToe-v0",
+        runner="ray",
+        actors=2,
+        ray_address=cluster.address,
+        num_envs=4,
+        num_steps=16,
+        total_steps=256,
+        stop_at_return="none",
+        progress=False,
+        out=tmp_path / "run",
+    )
+    assert run.metrics[-1]["updates"] == 4 and run.metrics[-1]["env_steps"] == 256
+    assert -1.0 <= run.final_eval["mean_return"] <= 1.0
+    assert list((tmp_path / "run" / "checkpoints").glob("ckpt-*.msgpack"))

@@ -210,3 +210,25 @@ def test_seeds_over_two_workers_survive_sigterm_and_resume_to_the_numbers_of_an_
         s["mean_return"] for s in alone.final_eval["per_seed"]
     ]
     assert agentax.load(out).evaluate(episodes=2).episodes == 2
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_packed_masked_dict_observations_train_over_two_worker_processes(tmp_path):
+    """Tic-tac-toe's Dict observation with its mask on the compiled runner, 2 seeds over 2 worker
+    processes for a few updates: every seed's evaluation, a tic-tac-toe return in [-1, 1]."""
+    run = agentax.train(
+        "ppo",
+        env="TicTacToe-v0",
+        seeds=2,
+        workers=2,
+        num_envs=4,
+        num_steps=16,
+        total_steps=256,
+        stop_at_return="none",
+        progress=False,
+        out=tmp_path / "run",
+    )
+    returns = [seed["mean_return"] for seed in run.final_eval["per_seed"]]
+    assert len(returns) == 2 and all(-1.0 <= r <= 1.0 for r in returns), returns
+    assert sorted(p.name for p in (tmp_path / "run").glob("worker-*")) == ["worker-0", "worker-1"]

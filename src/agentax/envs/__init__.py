@@ -21,7 +21,7 @@ from agentax.envs.gym import (
 )
 from agentax.envs.gymnax import factories as gymnax_envs
 from agentax.envs.mdp import lecture_mdp_env
-from agentax.envs.pendulum import MountainCarContinuous, Pendulum
+from agentax.envs.pendulum import MountainCarContinuous, Pendulum, PendulumNoVel
 from agentax.envs.spaces import packed
 from agentax.envs.tictactoe import TicTacToe
 from agentax.envs.vacuum import Vacuum
@@ -34,6 +34,7 @@ JAX_ENVS: dict[str, Callable[[], Environment]] = {
     "Vacuum-v0": Vacuum,
     "LectureMDP-v0": lecture_mdp_env,
     "Pendulum-v1": Pendulum,
+    "PendulumNoVel-v1": PendulumNoVel,
     "MountainCarContinuous-v0": MountainCarContinuous,
     "GridWorld-v0": GridWorld,
     "TicTacToe-v0": TicTacToe,

@@ -90,6 +90,21 @@ class Pendulum(Environment):
         return Box(-high, high, (1,), jnp.float32)
 
 
+class PendulumNoVel(Pendulum):
+    """Pendulum with its angular velocity hidden (RL Zoo's ``PendulumNoVel``, a partially observed
+    task): observation ``[2]`` float32, cos θ and sin θ, equal to :class:`Pendulum`'s first two step
+    for step. A policy must infer θ̇ from the angles it saw before: a task for memory."""
+
+    id = "PendulumNoVel-v1"
+
+    @staticmethod
+    def get_obs(state: PendulumState) -> jax.Array:
+        return jnp.stack([jnp.cos(state.theta), jnp.sin(state.theta)]).astype(jnp.float32)
+
+    def observation_space(self, params: PendulumParams | None = None) -> Box:
+        return Box(-np.ones(2, np.float32), np.ones(2, np.float32), (2,), jnp.float32)
+
+
 @struct.dataclass
 class MountainCarParams:
     min_action: float = -1.0
