@@ -70,6 +70,7 @@ from agentax.agents.protocol import (
     image_shape_for,
 )
 from agentax.agents.sequences import (
+    initial_memory,
     num_sequences,
     sequence_length,
     time_major,
@@ -91,7 +92,6 @@ from agentax.nets import (
     masked,
     sample_action,
     with_encoder,
-    zero_memory,
 )
 from agentax.policies import Policy
 from agentax.replay import Transition
@@ -539,11 +539,6 @@ def recurrent_network(cfg: PPOConfig, spec: EnvSpec, conv: str = "xla") -> Any:
         conv,
     )
     return with_encoder(net, spec.layout)
-
-
-def initial_memory(cfg: PPOConfig, batch_shape: tuple[int, ...] = ()) -> Memory:
-    """The core's memory at an episode's start, zeros ``[*batch_shape, core_size]`` (LSTM: a pair)."""
-    return zero_memory(cfg.core, cfg.core_size, batch_shape)
 
 
 def recurrent_output(

@@ -59,7 +59,13 @@ from agentax.agents.protocol import (
     discrete_actions,
     image_shape_for,
 )
-from agentax.agents.sequences import sequence_length, time_major, validate_core, whole_sequences
+from agentax.agents.sequences import (
+    initial_memory,
+    sequence_length,
+    time_major,
+    validate_core,
+    whole_sequences,
+)
 from agentax.envs.core import RecurrentPolicy
 from agentax.errors import UsageError
 from agentax.nets import (
@@ -73,7 +79,6 @@ from agentax.nets import (
     legal_max,
     masked,
     with_encoder,
-    zero_memory,
 )
 from agentax.policies import Policy, epsilon_greedy, linear_schedule
 from agentax.replay import Transition
@@ -364,11 +369,6 @@ def recurrent_q_network(cfg: PQNConfig, spec: EnvSpec, conv: str = "xla") -> nn.
         conv,
     )
     return with_encoder(net, spec.layout)
-
-
-def initial_memory(cfg: PQNConfig, batch_shape: tuple[int, ...] = ()) -> Memory:
-    """The core's memory at an episode's start, zeros ``[*batch_shape, core_size]`` (LSTM: a pair)."""
-    return zero_memory(cfg.core, cfg.core_size, batch_shape)
 
 
 def learn_sequences(

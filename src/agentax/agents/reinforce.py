@@ -53,7 +53,7 @@ from agentax.agents.protocol import (
     flat_observations,
     num_logits,
 )
-from agentax.agents.sequences import validate_core_kind
+from agentax.agents.sequences import initial_memory, validate_core_kind
 from agentax.envs.core import Box, RecurrentPolicy
 from agentax.envs.spaces import Layout
 from agentax.errors import UsageError
@@ -70,7 +70,6 @@ from agentax.nets import (
     masked,
     sample_action,
     with_encoder,
-    zero_memory,
 )
 from agentax.policies import Policy
 from agentax.replay import Transition
@@ -354,11 +353,6 @@ def recurrent_policy_network(cfg: ReinforceConfig, actions: Actions, layout: Lay
         n = actions if isinstance(actions, int) else num_logits(actions)
         net = RecurrentActorCritic(n, False, tuple(cfg.hidden), cfg.activation, cfg.core, cfg.core_size)
     return with_encoder(net, layout)
-
-
-def initial_memory(cfg: ReinforceConfig, batch_shape: tuple[int, ...] = ()) -> Memory:
-    """The core's memory at an episode's start, zeros ``[*batch_shape, core_size]`` (LSTM: a pair)."""
-    return zero_memory(cfg.core, cfg.core_size, batch_shape)
 
 
 def recurrent_agent(spec: EnvSpec, cfg: ReinforceConfig, actions: Actions) -> Agent:

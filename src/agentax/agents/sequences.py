@@ -17,7 +17,7 @@ import jax.numpy as jnp
 
 from agentax.agents.protocol import check_fields
 from agentax.errors import UsageError
-from agentax.nets import CORES, Memory
+from agentax.nets import CORES, Memory, zero_memory
 
 
 def sequence_length(cfg: Any) -> int:
@@ -28,6 +28,12 @@ def sequence_length(cfg: Any) -> int:
 def num_sequences(cfg: Any) -> int:
     """The sequences of one rollout: ``num_envs × num_steps / sequence_length``."""
     return cfg.num_envs * (cfg.num_steps // sequence_length(cfg))
+
+
+def initial_memory(cfg: Any, batch_shape: tuple[int, ...] = ()) -> Memory:
+    """The core ``cfg.core``'s memory at an episode's start, zeros ``[*batch_shape, cfg.core_size]``
+    (LSTM: a pair)."""
+    return zero_memory(cfg.core, cfg.core_size, batch_shape)
 
 
 def validate_core_kind(cfg: Any) -> None:
