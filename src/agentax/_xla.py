@@ -96,7 +96,7 @@ _client_made_on_one_cpu = False
 """Whether jax's CPU client exists and was made on one CPU (by the wrapped factory)."""
 
 
-def let_xla_use_every_cpu() -> bool:
+def let_xla_use_every_cpu(warn: bool = True) -> bool:
     """Have jax create its CPU client for every CPU, if it has not created it yet; returns whether it
     takes effect. With one CPU at creation XLA runs one program at a time, so a parallel runner's
     actors would wait behind the learner's update (measured: parallel no faster than sequential). The
@@ -104,12 +104,13 @@ def let_xla_use_every_cpu() -> bool:
     vmapped-over-seeds program, which keeps the one-CPU client.
 
     Too late once the client exists: then, if it was made on one CPU, a ``RuntimeWarning`` says so
-    (something in this process called jax first: a notebook that evaluated a policy, a compiled run)."""
+    (something in this process called jax first: a notebook that evaluated a policy, a compiled run),
+    unless ``warn`` is False."""
     global _one_cpu_client
     from jax._src import xla_bridge
 
     if "cpu" in getattr(xla_bridge, "_backends", {}):
-        if _client_made_on_one_cpu:
+        if warn and _client_made_on_one_cpu:
             warnings.warn(
                 "jax's CPU client already exists, made on one CPU (agentax's cure for the XLA CPU hang), "
                 "so XLA runs one program at a time: actors wait behind the learner and the parallel "

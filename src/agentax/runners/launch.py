@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from agentax import _xla
 from agentax.agents.memory import check_learning_fits
 from agentax.agents.protocol import EnvSpec
 from agentax.envs import make_host_env, make_jax
@@ -109,6 +110,7 @@ def env_specs(
     if RUNNERS[kind].envs == "jax":
         env = make_jax(env_id)
         return EnvSpec.of(env).with_encoders(encoders, env_id), env
+    _xla.let_xla_use_every_cpu(warn=False)  # the host runners' client, before the probe calls jax
     probe = make_host_env(env_id, 1, backend=backend, sticky_actions=sticky_actions)
     try:
         spec = EnvSpec.of(probe).with_encoders(encoders, env_id)
