@@ -30,6 +30,7 @@ from __future__ import annotations
 import argparse
 import csv
 import datetime
+import functools
 import importlib.util
 import json
 import re
@@ -653,6 +654,14 @@ def _figures() -> dict[str, Figure]:
         figures[f"lunar.{key}.steps"] = bench("lunar", *labels, col="env steps", fmt=thousands)
         figures[f"lunar.{key}.mean"] = bench("lunar", *labels, col="eval mean", fmt=minus("{:.1f}"))
         figures[f"lunar.{key}.std"] = bench("lunar", *labels, col="eval std", fmt="{:.1f}")
+    figures["lunar.sb3_full.cpu"] = evidence("lunar-sb3-rlzoo", "run.json", "cpu")
+    for key in ("ppo", "dqn"):
+        figures[f"lunar.{key}.train"] = bench("lunar", *LUNAR[key], col="train s", fmt="{:.0f}")
+        full = functools.partial(evidence, "lunar-sb3-rlzoo", "sb3.json")
+        figures[f"lunar.sb3_full.{key}.steps"] = full(f"{key}.steps", thousands)
+        figures[f"lunar.sb3_full.{key}.seconds"] = full(f"{key}.seconds", "{:.0f}")
+        figures[f"lunar.sb3_full.{key}.mean"] = full(f"{key}.mean", "{:.1f}")
+        figures[f"lunar.sb3_full.{key}.std"] = full(f"{key}.std", "{:.1f}")
     for key in ("ppo", "dqn"):
         figures[f"lunar.{key}.ratio"] = bench("lunar", *LUNAR[key], col="agentax / SB3 steps/s", fmt="{:.2f}")
         figures[f"lunar.{key}.sb3_steps"] = bench("lunar", *LUNAR[key], col="SB3 env steps", fmt=thousands)
