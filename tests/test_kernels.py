@@ -9,6 +9,7 @@ bfloat16 to 2 % of the largest entry (8 bits of mantissa in the products, accumu
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -36,10 +37,16 @@ needs_kernel = pytest.mark.skipif(
 )
 
 
+def normal(key, shape):
+    """``jax.random.normal(key, shape)`` bit for bit, drawn flat: XLA compiles the draw of a rank-4
+    shape several times slower than the flat one (seconds a test here)."""
+    return jax.random.normal(key, (math.prod(shape),)).reshape(shape)
+
+
 def arrays(shape, size, out, seed=0):
     x_key, w_key, dy_key = jax.random.split(jax.random.key(seed), 3)
-    x = jax.random.normal(x_key, shape)
-    w = jax.random.normal(w_key, (size, size, shape[-1], out)) / np.sqrt(size * size * shape[-1])
+    x = normal(x_key, shape)
+    w = normal(w_key, (size, size, shape[-1], out)) / np.sqrt(size * size * shape[-1])
     return x, w, dy_key
 
 
@@ -48,7 +55,7 @@ def value_and_grads(x, w, dy_key, stride, backend):
 
     def loss(x, w):
         y = kernels.conv2d(x, w, (stride, stride), backend)
-        return jnp.sum(y * jax.random.normal(dy_key, y.shape)), y
+        return jnp.sum(y * normal(dy_key, y.shape)), y
 
     (_, y), (dx, dw) = jax.jit(jax.value_and_grad(loss, argnums=(0, 1), has_aux=True))(x, w)
     return y, dx, dw
@@ -98,7 +105,7 @@ def test_vmapped_over_seeds(shared_weights):
     shape, size, out, stride = NATURE_LAYERS[1]
     x, w, dy_key = arrays((3, *shape), size, out)
     if not shared_weights:
-        w = jax.random.normal(dy_key, (3, size, size, shape[-1], out)) / np.sqrt(size * size * shape[-1])
+        w = normal(dy_key, (3, size, size, shape[-1], out)) / np.sqrt(size * size * shape[-1])
 
     def run(backend):
         w_axis = None if shared_weights else 0
@@ -136,7 +143,7 @@ def dense_value_and_grads(x, w, backend, seed=2):
 
     def loss(x, w):
         y = kernels.dense(x, w, backend)
-        return jnp.sum(y * jax.random.normal(jax.random.key(seed), y.shape)), y
+        return jnp.sum(y * normal(jax.random.key(seed), y.shape)), y
 
     (_, y), (dx, dw) = jax.jit(jax.value_and_grad(loss, argnums=(0, 1), has_aux=True))(x, w)
     return y, dx, dw
@@ -148,7 +155,7 @@ def dense_value_and_grads(x, w, backend, seed=2):
 def test_the_dense_product_and_both_gradients_match_xla(batch_shape, bf16):
     """The Nature CNN's dense layer (3136 -> 512), on one batch axis or two (a rollout's)."""
     x_key, w_key = jax.random.split(jax.random.key(3))
-    x = jax.random.normal(x_key, (*batch_shape, 3136))
+    x = normal(x_key, (*batch_shape, 3136))
     w = jax.random.normal(w_key, (3136, 512)) / np.sqrt(3136)
     backend = "onednn-bf16" if bf16 else "onednn"
     expected = dense_value_and_grads(x, w, "xla")
@@ -165,8 +172,8 @@ def test_the_dense_product_and_both_gradients_match_xla(batch_shape, bf16):
 @pytest.mark.parametrize("shared_weights", [True, False], ids=["shared-weights", "weights-per-seed"])
 def test_the_dense_product_vmapped_over_seeds(shared_weights):
     x_key, w_key = jax.random.split(jax.random.key(4))
-    x = jax.random.normal(x_key, (3, 16, 256))
-    w = jax.random.normal(w_key, (256, 64) if shared_weights else (3, 256, 64)) / 16.0
+    x = normal(x_key, (3, 16, 256))
+    w = normal(w_key, (256, 64) if shared_weights else (3, 256, 64)) / 16.0
 
     def run(backend):
         one = lambda x, w: dense_value_and_grads(x, w, backend)  # noqa: E731
@@ -201,7 +208,7 @@ def test_a_missing_library_falls_back_to_xla_exactly(monkeypatch, tmp_path):
     monkeypatch.setattr(kernel_choice, "_resolved", {})
     monkeypatch.setenv("AGENTAX_CONV", "auto")
     assert kernel_choice.backend_for((4, 84, 84)) == "xla"
-    frames = jax.random.randint(jax.random.key(1), (2, 4, 84, 84), 0, 256).astype(jnp.uint8)
+    frames = jax.random.randint(jax.random.key(1), (2 * 4 * 84 * 84,), 0, 256).reshape(2, 4, 84, 84).astype(jnp.uint8)
     params = NatureCNN().init(jax.random.key(0), frames)
     fallback = NatureCNN(conv=kernel_choice.backend_for((4, 84, 84))).apply(params, frames)
     np.testing.assert_array_equal(fallback, NatureCNN(conv="xla").apply(params, frames))
@@ -549,13 +556,13 @@ def test_an_unknown_mode_ends_a_cli_run_in_one_line_naming_the_choices(tmp_path)
 def test_the_nature_cnn_keeps_its_parameters_and_output():
     """Parameter names and shapes do not depend on the kernel (checkpoints load either way), and the
     network's output agrees with XLA's."""
-    frames = jax.random.randint(jax.random.key(1), (4, 4, 84, 84), 0, 256).astype(jnp.uint8)
+    frames = jax.random.randint(jax.random.key(1), (4 * 4 * 84 * 84,), 0, 256).reshape(4, 4, 84, 84).astype(jnp.uint8)
     net, onednn = NatureCNN(layer_norm=True, conv="xla"), NatureCNN(layer_norm=True, conv="onednn")
-    params = net.init(jax.random.key(0), frames)
-    expected = net.apply(params, frames)
-    onednn_params = onednn.init(jax.random.key(0), frames)
+    params = jax.jit(net.init)(jax.random.key(0), frames)
+    expected = jax.jit(net.apply)(params, frames)
+    onednn_params = jax.eval_shape(onednn.init, jax.random.key(0), frames)
     assert jax.tree.map(jnp.shape, onednn_params) == jax.tree.map(jnp.shape, params)
-    np.testing.assert_allclose(onednn.apply(params, frames), expected, rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(jax.jit(onednn.apply)(params, frames), expected, rtol=1e-4, atol=1e-4)
 
 
 @pytest.mark.parametrize(
