@@ -3,7 +3,7 @@ SB3-Contrib's RecurrentPPO, and the throughput of PureJaxRL's ``ppo_rnn.py`` set
 
 CartPoleNoVel-v1 is CartPole-v1 with the velocities hidden (observation: cart position and pole
 angle only, RL Zoo's CartPoleNoVel), so a policy must infer them from what it saw before. The first
-three rows train with the ``memory`` preset's settings (8 envs × 32 steps, lr 3e-3, 10 epochs × 2
+three rows train with the ``memory`` preset's settings (8 envs × 32 steps, lr 2e-3, 10 epochs × 2
 minibatches, γ 0.98, λ 0.8, clip annealed, no entropy bonus), the same env steps, 8 seeds vmapped
 into one program on the compiled runner: with an LSTM core of 64 units, with a GRU of 64, and
 feed-forward (``core="none"``, its MLP of 64 units). The figure is the final evaluation: 20 greedy
@@ -19,7 +19,9 @@ seed, an LSTM of 256 units after a 64-unit layer, the heads 256 wide), SB3-Contr
 greedy evaluation (agentax: its run's, SB3: 20 episodes). SB3 trains at the same time as the agentax
 rows, as bench_lunar's does. SB3's full run takes over half an hour here: by default it runs
 SB3_STEPS and the table compares seconds per 1,000 steps; ``AGENTAX_MEMORY_SB3_FULL=1`` runs the
-Zoo's steps (``AGENTAX_MEMORY_SB3=0`` skips SB3).
+Zoo's steps (``AGENTAX_MEMORY_SB3=0`` skips SB3). ``AGENTAX_MEMORY_ROWS_ONLY=1`` trains the first three
+rows only and keeps this part and the next as results/memory.json has them, each with its ``measured``
+date.
 
 PureJaxRL's ``ppo_rnn.py`` settings (4 envs × 128 steps, 4 epochs × 4 minibatches, GRU of 128 after a
 128-unit layer, lr 2.5e-4 annealed, γ 0.99, λ 0.95, entropy 0.01; CartPole-v1 there, CartPoleNoVel-v1
@@ -48,6 +50,10 @@ FULL = os.environ.get("AGENTAX_MEMORY_SB3_FULL") == "1"
 SB3_STEPS = ZOO_STEPS if FULL else 10_240
 """SB3's steps: the Zoo's with AGENTAX_MEMORY_SB3_FULL=1, else fewer (seconds per step compared)"""
 RUN_SB3 = os.environ.get("AGENTAX_MEMORY_SB3", "1") != "0"
+ROWS_ONLY = os.environ.get("AGENTAX_MEMORY_ROWS_ONLY") == "1"
+"""train the first three rows only, keeping the SB3 and PureJaxRL parts of results/memory.json as
+they are (each with the date it was measured)"""
+STORED = Path(__file__).resolve().parent / "results" / "memory.json"
 PUREJAXRL_UPDATES = 10
 ZOO_ARGS = [
     "--num-envs", "8", "--num-steps", "32", "--num-minibatches", "1", "--update-epochs", "20",
@@ -187,12 +193,23 @@ def purejaxrl(seeds: int) -> float:
     return float(result.env_steps) / result.train_seconds
 
 
+def rows_only(rows: list) -> dict:
+    """The first three rows beside the stored SB3 and PureJaxRL parts (AGENTAX_MEMORY_ROWS_ONLY=1)."""
+    stored = json.loads(STORED.read_text())
+    kept = {}
+    for part in ("beside_sb3", "purejaxrl_settings"):
+        kept[part] = {**stored[part], "measured": stored[part].get("measured", stored["machine"]["date"])}
+    result = {key: value for key, value in stored.items() if key not in ("machine", "wall_seconds")}
+    result.update(kept, rows=rows, notes=__doc__.split("\n\n", 1)[1].strip())
+    return result
+
+
 def run() -> dict:
     from agentax.agents import presets
 
     sb3_result: dict = {}
     thread = threading.Thread(target=sb3, args=(sb3_result,))
-    if RUN_SB3:
+    if RUN_SB3 and not ROWS_ONLY:
         thread.start()
     recurrent = presets.preset("ppo", "memory").config
     rows = [
@@ -200,6 +217,8 @@ def run() -> dict:
         train(dataclasses.replace(recurrent, core="gru"), "PPO + GRU 64"),
         train(dataclasses.replace(recurrent, core="none"), "PPO feed-forward"),
     ]
+    if ROWS_ONLY:
+        return rows_only(rows)
     zoo = agentax_zoo()
     throughput = {seeds: purejaxrl(seeds) for seeds in (8, 64)}
     thread.join()

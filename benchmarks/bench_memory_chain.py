@@ -4,8 +4,8 @@
 of 5): the first observation shows a context bit, the following ones only the time, and the last
 step's action earns +1 if it names the bit and -1 if not, so a policy without memory is right half
 the time (a mean return of 0, chance) and one that remembers the bit earns 1. Both agents train with
-PPO's ``memory`` preset's settings (8 envs × 32 steps, 10 epochs × 2 minibatches, γ 0.98, λ 0.8; the
-feed-forward one without the core), the same env steps, 8 seeds vmapped into one program on the
+PPO's ``memory`` preset's settings at a learning rate of 3e-3 (8 envs × 32 steps, 10 epochs × 2
+minibatches, γ 0.98, λ 0.8; the feed-forward one without the core), the same env steps, 8 seeds vmapped into one program on the
 compiled runner. The figure is the final evaluation: 100 greedy episodes per seed (the context bit
 drawn at random in each), the recurrent policy carrying its memory through each episode. Rows: mean
 return over the seeds, the worst and best seed's mean, compile and training seconds.
@@ -20,6 +20,7 @@ import numpy as np
 SEEDS = 8
 ENV = "gymnax/MemoryChain-bsuite"
 STEPS = 40_960  # per seed: 160 updates of 8 envs × 32 steps
+LEARNING_RATE = 3e-3  # the short chain's: at the preset's 2e-3 (tuned on CartPoleNoVel's 204,800 steps) 0.74
 
 
 def train(cfg, name: str) -> list:
@@ -42,7 +43,8 @@ def train(cfg, name: str) -> list:
 def run() -> dict:
     from agentax.agents import presets
 
-    recurrent = dataclasses.replace(presets.preset("ppo", "memory").config, total_steps=STEPS)
+    memory = presets.preset("ppo", "memory").config
+    recurrent = dataclasses.replace(memory, total_steps=STEPS, learning_rate=LEARNING_RATE)
     rows = [
         train(recurrent, "PPO + LSTM 64"),
         train(dataclasses.replace(recurrent, core="none"), "PPO feed-forward"),
