@@ -14,6 +14,117 @@ if REPO_ROOT not in sys.path:
     sys.path.append(REPO_ROOT)  # for benchmarks/_pin.py (``from benchmarks import _pin``)
 
 
+LONG_CASES: dict[str, tuple[str, ...]] = {
+    # the golden cases make test runs: ppo_compiled, dqn_host, ppo_parallel, pqn_host, sac_compiled, atari
+    "test_golden.py": tuple(
+        f"test_metrics_rows_match_the_golden_file[{case}]"
+        for case in (
+            "dqn_compiled",
+            "reinforce_compiled",
+            "ppo_host",
+            "pqn_compiled",
+            "sac_host",
+            "td3_compiled",
+        )
+        + ("td3_host",)
+    ),
+    "test_formats.py": ("test_a_fixture_resumes_in_todays_format[2-",),  # format 1's: every migration
+    "test_export.py": (  # sac-pendulum's Gaussian head, the CLI's export
+        "test_both_formats_act_as_the_agentax_policy[ppo-pendulum]",
+        "test_evaluate_policy_file_gives_the_runs_evaluation",
+    ),
+    "test_export_memory.py": (  # the LSTM's
+        "test_the_exported_state_steps_as_the_agents_memory[gru]",
+        "test_evaluate_a_recurrent_file_gives_the_runs_evaluation",
+    ),
+    "test_memory_core.py": (  # the GRU's gradient; the REINFORCE core on the host runner
+        "test_the_cores_written_out_gradient_is_autodiffs[lstm]",
+        "test_reinforce_with_a_core_learns_through_whole_episodes_and_its_greedy_policy_carries_memory",
+    ),
+    "test_memory_runners.py": (  # CartPoleNoVel's resume, PQN's core
+        "test_a_resumed_host_run_continues_its_episodes_with_their_memory[CartPole-v1-False]",
+        "test_pqn_and_reinforce_with_a_core_train_on_the_host_runner[reinforce]",
+    ),
+    "test_logger.py": (  # [ppo-host-...]
+        "test_a_diverging_run_stops_with_one_line_and_exit_code_3[ppo-compiled-",
+        "test_a_diverging_run_stops_with_one_line_and_exit_code_3[dqn-parallel-",
+    ),
+    "test_dqn_cli.py": (  # [checkpoint_half_written]
+        "test_a_kill_at_each_stage_of_a_checkpoint_resumes_with_the_replay_of_its_checkpoint[first_committed]",
+        "test_a_kill_at_each_stage_of_a_checkpoint_resumes_with_the_replay_of_its_checkpoint[replay_written]",
+    ),
+    "test_mujoco.py": ("test_host_ppo_on_half_cheetah_two_updates",),  # the compiled Hopper
+    "test_observation_spaces.py": (  # [FrozenLake-v1]
+        "test_discrete_observations_train_ppo_from_the_command_line[CliffWalking-v1]",
+    ),
+    "test_search.py": (  # test_search_cli's CEM and vacuum runs, the sphere's CEM
+        "test_improves_cartpole_and_solves_v0[",
+        "test_finds_the_optimum_of_a_shifted_sphere[ga]",
+        "test_vacuum_grid_search_heatmap_marks_the_best",
+    ),
+    "test_runfile.py": ("test_a_sweeps_best_toml_trains_the_best_setting",),  # run files and sweeps apart
+    "test_normalize.py": (  # the compiled runner's normalised PPO
+        "test_compiled_mujoco_picks_the_preset_and_leaves_envpools_reset_steps_out_of_the_stats",
+    ),
+    "test_train_cli.py": (  # test_api and test_cli; test_actor_critic's host Pendulum
+        "test_train_then_plot_then_restore_policy",
+        "test_host_loop_trains_pendulum_and_loads",
+    ),
+    "test_pqn.py": ("test_the_same_pqn_agent_learns_on_the_host_runner",),  # the pqn_host golden case
+    "test_parallel.py": (  # the ppo_parallel golden case (policy lag 1), the other parallel tests
+        "test_parallel_ppo_with_policy_lag_1_solves_cartpole",
+        "test_policy_lag_1_runs_are_reproducible",
+        "test_a_slow_learner_shows_as_actors_waiting",
+    ),
+    "test_reinforce.py": ("test_reinforce_with_the_gaussian_head_learns_pendulum",),  # PPO's Gaussian head
+    "test_compiled.py": ("test_looking_ahead_a_chunk_changes_no_number",),  # its resume and seed tests
+    "test_ray.py": (  # the CLI's own Ray (Ctrl-C, errors), PPO feed-forward, recurrent and on tic-tac-toe
+        "test_beside_a_ray_start_cluster_a_run_has_its_own_ray_and_auto_joins_it",
+        "test_dqn_on_ray_actors_learns_and_resumes_with_its_replay",
+        "test_ray_address_host_port_joins_a_token_cluster_and_a_wrong_token_is_one_line",
+        "test_a_lost_node_whose_cpus_the_run_needs_ends_it_with_the_resume_hint",
+        "test_a_lost_local_ray_node_ends_the_cli_run_with_one_line_saying_what_to_do",
+        "test_a_killed_actor_process_is_replaced_and_the_run_finishes",
+    ),
+    "test_tutorial.py": tuple(  # the pages that train for most of a minute; make test runs the others
+        f"test_page_runs_and_prints_what_it_shows[{page}-" for page in ("02", "03", "07", "09", "10")
+    ),
+}
+"""Tests ``make test`` leaves to ``make test-long`` (beside those marked ``long`` where they stand),
+by file and test id (an id ending in ``[`` or ``-`` names every case it begins): each a further case
+of a path ``make test`` checks with another (the comment says which), so that ``make test`` fits 10
+minutes on a new 2-core machine."""
+
+
+def is_long_case(nodeid: str) -> bool:
+    file, _, name = nodeid.removeprefix("tests/").partition("::")
+    return any(
+        name == case or (case.endswith(("[", "-")) and name.startswith(case))
+        for case in LONG_CASES.get(file, ())
+    )
+
+
+def pytest_collection_modifyitems(items):
+    import pytest
+
+    for item in items:
+        if is_long_case(item.nodeid):
+            item.add_marker(pytest.mark.long)
+
+
+class OnDemand(dict):
+    """A dict whose value for a key is ``make(key)``, made the first time it is asked for: a module's
+    shared training runs, of which a test run trains only those its selected tests use."""
+
+    def __init__(self, make):
+        super().__init__()
+        self.make = make
+
+    def __missing__(self, key):
+        self[key] = value = self.make(key)
+        return value
+
+
 def kernel_not_built() -> str | None:
     """The summary line when the oneDNN kernel is not built (its tests skip), else None."""
     from agentax import kernels

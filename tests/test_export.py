@@ -5,11 +5,13 @@ the env; ``agentax evaluate --policy FILE`` against the run's own evaluation; th
 import json
 import sys
 import time
+from pathlib import Path
 
 import jax
 import numpy as np
 import onnx
 import pytest
+from conftest import OnDemand
 
 import agentax
 from agentax import export
@@ -45,12 +47,14 @@ TINY = {  # a few thousand steps each: the policies need not be good, only train
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    """Each run of :data:`TINY`, trained once through the API, by name."""
+    """Each run of :data:`TINY` by name, trained through the API when a test first asks for it."""
     root = tmp_path_factory.mktemp("export")
-    return {
-        name: agentax.train(algo, env=env_id, out=root / name, progress=False, **settings).path
-        for name, (algo, env_id, settings) in TINY.items()
-    }
+
+    def train(name: str) -> Path:
+        algo, env_id, settings = TINY[name]
+        return agentax.train(algo, env=env_id, out=root / name, progress=False, **settings).path
+
+    return OnDemand(train)
 
 
 def env_observations(env_id: str, count: int = 1_000, seed: int = 0) -> np.ndarray:

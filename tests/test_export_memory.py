@@ -3,11 +3,13 @@ file and the StableHLO module take ``(obs, state)`` and return ``(action, next_s
 with their own state, zeros at each episode start, they act as the agent's greedy policy."""
 
 import json
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import OnDemand
 from jax.flatten_util import ravel_pytree
 
 import agentax
@@ -31,14 +33,15 @@ TINY = {  # a high learning rate: in 1,024 steps the greedy policy turns both wa
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    """A tiny GRU run and a tiny LSTM run on CartPoleNoVel, trained once through the API, by core."""
+    """A tiny run on CartPoleNoVel by core (gru, lstm), trained through the API when first asked for."""
     root = tmp_path_factory.mktemp("export-memory")
-    return {
-        core: agentax.train(
+
+    def train(core: str) -> Path:
+        return agentax.train(
             "ppo", env=ENV, out=root / core, progress=False, stop_at_return=None, core=core, **TINY
         ).path
-        for core in ("gru", "lstm")
-    }
+
+    return OnDemand(train)
 
 
 def agent_stream(policy: RecurrentPolicy, key: int = 0) -> dict[str, np.ndarray]:

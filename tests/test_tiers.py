@@ -1,0 +1,74 @@
+"""The test tiers: ``conftest.LONG_CASES`` names tests that exist, and only those become ``long``."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from conftest import LONG_CASES, is_long_case
+
+TESTS = Path(__file__).parent
+
+
+def unmatched(cases: dict[str, tuple[str, ...]], nodeids: list[str]) -> list[str]:
+    """The entries of ``cases`` that name no test of ``nodeids``."""
+    return [
+        f"{file}::{case}"
+        for file, names in cases.items()
+        for case in names
+        if not any(
+            n.startswith(f"tests/{file}::")
+            and (
+                n.partition("::")[2] == case
+                or (case.endswith(("[", "-")) and n.partition("::")[2].startswith(case))
+            )
+            for n in nodeids
+        )
+    ]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_every_long_case_names_a_collected_test():
+    """A renamed test or case would fall back into make test unseen: every entry must match."""
+    files = [f"tests/{file}" for file in LONG_CASES]
+    listed = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "--collect-only",
+            "-q",
+            "-p",
+            "no:xdist",
+            "-p",
+            "no:cacheprovider",
+            *files,
+        ],
+        cwd=TESTS.parent,
+        capture_output=True,
+        text=True,
+        timeout=110,
+    )
+    nodeids = [line for line in listed.stdout.splitlines() if "::" in line]
+    assert nodeids, listed.stdout[-2000:] + listed.stderr[-2000:]
+    assert unmatched(LONG_CASES, nodeids) == []
+    long = [n for n in nodeids if is_long_case(n)]
+    assert len(long) >= sum(map(len, LONG_CASES.values()))
+
+
+def test_the_check_catches_a_case_that_names_no_test():
+    nodeids = ["tests/test_a.py::test_b[x-1]", "tests/test_a.py::test_c"]
+    cases = {"test_a.py": ("test_b[x-", "test_c", "test_d", "test_b[y-"), "test_e.py": ("test_c",)}
+    assert unmatched(cases, nodeids) == ["test_a.py::test_d", "test_a.py::test_b[y-", "test_e.py::test_c"]
+
+
+def test_an_entry_is_a_whole_id_or_a_prefix_ending_a_case():
+    assert is_long_case("tests/test_golden.py::test_metrics_rows_match_the_golden_file[td3_host]")
+    assert is_long_case("tests/test_tutorial.py::test_page_runs_and_prints_what_it_shows[07-deep-q-learning]")
+    assert not is_long_case("tests/test_golden.py::test_metrics_rows_match_the_golden_file[ppo_compiled]")
+    assert not is_long_case(
+        "tests/test_tutorial.py::test_page_runs_and_prints_what_it_shows[01-environments]"
+    )
+    assert not is_long_case("tests/test_golden.py::test_metrics_rows_match_the_golden_file")
+    assert not is_long_case("tests/test_other.py::test_metrics_rows_match_the_golden_file[td3_host]")
