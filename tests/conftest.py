@@ -28,7 +28,13 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
         )
         + ("td3_host",)
     ),
-    "test_formats.py": ("test_a_fixture_resumes_in_todays_format[2-",),  # format 1's: every migration
+    "test_formats.py": (  # format 1's folders act, evaluate and resume (through every migration)
+        "test_a_fixture_acts_and_evaluates_as_it_did_when_written[2-",
+        "test_a_fixture_resumes_in_todays_format[2-",
+        "test_a_fixture_resumes_in_todays_format[1-dqn-compiled]",  # [1-ppo-compiled-2seeds]
+        "test_a_fixture_resumes_in_todays_format[1-pqn-compiled]",
+        "test_a_fixture_resumes_in_todays_format[1-reinforce-compiled]",
+    ),
     "test_export.py": (  # sac-pendulum's Gaussian head, the CLI's export
         "test_both_formats_act_as_the_agentax_policy[ppo-pendulum]",
         "test_evaluate_policy_file_gives_the_runs_evaluation",
@@ -41,11 +47,12 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
         "test_the_cores_written_out_gradient_is_autodiffs[lstm]",
         "test_reinforce_with_a_core_learns_through_whole_episodes_and_its_greedy_policy_carries_memory",
     ),
-    "test_memory_runners.py": (  # CartPoleNoVel's resume, PQN's core
+    "test_memory_runners.py": (  # CartPoleNoVel's resume; PQN's core in test_memory_core
         "test_a_resumed_host_run_continues_its_episodes_with_their_memory[CartPole-v1-False]",
-        "test_pqn_and_reinforce_with_a_core_train_on_the_host_runner[reinforce]",
+        "test_pqn_and_reinforce_with_a_core_train_on_the_host_runner[",
     ),
-    "test_logger.py": (  # [ppo-host-...]
+    "test_logger.py": (  # [ppo-host-...]; test_train_cli's SIGTERM and resume
+        "test_ctrl_c_says_how_to_resume_and_resume_works",
         "test_a_diverging_run_stops_with_one_line_and_exit_code_3[ppo-compiled-",
         "test_a_diverging_run_stops_with_one_line_and_exit_code_3[dqn-parallel-",
     ),
@@ -59,11 +66,13 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
     ),
     "test_search.py": (  # test_search_cli's CEM and vacuum runs, the sphere's CEM
         "test_improves_cartpole_and_solves_v0[",
+        "test_vacuum_random_search_is_reproducible",
         "test_finds_the_optimum_of_a_shifted_sphere[ga]",
         "test_vacuum_grid_search_heatmap_marks_the_best",
     ),
     "test_runfile.py": ("test_a_sweeps_best_toml_trains_the_best_setting",),  # run files and sweeps apart
-    "test_normalize.py": (  # the compiled runner's normalised PPO
+    "test_normalize.py": (  # the compiled runner's normalised PPO, restored from its checkpoint
+        "test_host_checkpoint_saves_and_restores_the_stats",
         "test_compiled_mujoco_picks_the_preset_and_leaves_envpools_reset_steps_out_of_the_stats",
     ),
     "test_train_cli.py": (  # test_api and test_cli; test_actor_critic's host Pendulum
@@ -78,7 +87,8 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
     ),
     "test_reinforce.py": ("test_reinforce_with_the_gaussian_head_learns_pendulum",),  # PPO's Gaussian head
     "test_compiled.py": ("test_looking_ahead_a_chunk_changes_no_number",),  # its resume and seed tests
-    "test_ray.py": (  # the CLI's own Ray (Ctrl-C, errors), PPO feed-forward, recurrent and on tic-tac-toe
+    "test_ray.py": (  # the CLI's own Ray (Ctrl-C, errors), PPO recurrent (as threads) and on tic-tac-toe
+        "test_ppo_on_ray_actors_learns_and_gives_the_thread_actors_numbers",
         "test_beside_a_ray_start_cluster_a_run_has_its_own_ray_and_auto_joins_it",
         "test_dqn_on_ray_actors_learns_and_resumes_with_its_replay",
         "test_ray_address_host_port_joins_a_token_cluster_and_a_wrong_token_is_one_line",

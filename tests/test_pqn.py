@@ -51,9 +51,10 @@ def test_targets_from_acts_q_values_equal_a_second_forward_pass():
 
     cfg = pqn.PQNConfig(num_envs=4, num_steps=8, num_minibatches=2, update_epochs=2)
     agent = pqn.make_agent(EnvSpec.of(make_jax("CartPole-v1")), cfg)
-    state = agent.init(jax.random.key(0))
-    observations = jax.random.normal(jax.random.key(1), (9, 4, 4))  # [T + 1, E, obs]
-    actions, info = jax.vmap(lambda obs: agent.act(state, obs, jax.random.key(2), 0))(observations[:-1])
+    state = jax.jit(agent.init)(jax.random.key(0))
+    observations = jax.random.normal(jax.random.key(1), (9 * 4 * 4,)).reshape(9, 4, 4)  # [T + 1, E, obs]
+    act = jax.jit(jax.vmap(lambda obs: agent.act(state, obs, jax.random.key(2), 0)))
+    actions, info = act(observations[:-1])
     ends = jax.random.bernoulli(jax.random.key(3), 0.1, (8, 4))
     rollout = Transition(
         obs=observations[:-1],
@@ -65,10 +66,11 @@ def test_targets_from_acts_q_values_equal_a_second_forward_pass():
         num_steps=jnp.ones((8, 4), jnp.int32),
         info=info,
     )
-    reused, _ = agent.learn(
+    learn = jax.jit(agent.learn)
+    reused, _ = learn(
         state, rollout.replace(info={**info, "valid": jnp.ones((8, 4), bool)}), jax.random.key(4)
     )
-    passed, _ = agent.learn(state, rollout, jax.random.key(4))
+    passed, _ = learn(state, rollout, jax.random.key(4))
     for a, b in zip(jax.tree.leaves(reused.params), jax.tree.leaves(passed.params), strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
 
