@@ -61,7 +61,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 TUTORIAL = ROOT / "docs" / "tutorial"
 PAGES = sorted(TUTORIAL.glob("*.md"))
-SLOW_PAGES = {"07-deep-q-learning.md", "08-training-architecture-and-atari.md"}
+SLOW_PAGES = {"07-deep-q-learning.md", "08-training-architecture-and-atari.md", "11-memory.md"}
 PAGE_TIMEOUT = 240  # seconds per page; the pages themselves take 2-15 s of CPU
 # Modules a page needs beyond agentax's core install (the page is skipped without them).
 REQUIRES = {"08-training-architecture-and-atari.md": ("ale_py", "cv2")}
