@@ -5,10 +5,11 @@ of 5): the first observation shows a context bit, the following ones only the ti
 step's action earns +1 if it names the bit and -1 if not, so a policy without memory is right half
 the time (a mean return of 0, chance) and one that remembers the bit earns 1. Both agents train with
 PPO's ``memory`` preset's settings at a learning rate of 3e-3 (8 envs × 32 steps, 10 epochs × 2
-minibatches, γ 0.98, λ 0.8; the feed-forward one without the core), the same env steps, 8 seeds vmapped into one program on the
-compiled runner. The figure is the final evaluation: 100 greedy episodes per seed (the context bit
-drawn at random in each), the recurrent policy carrying its memory through each episode. Rows: mean
-return over the seeds, the worst and best seed's mean, compile and training seconds.
+minibatches, γ 0.98, λ 0.8; the feed-forward one without the core), the same env steps, 8 seeds
+vmapped into one program on the compiled runner. The figure is the final evaluation: 100 greedy
+episodes per seed (the context bit drawn at random in each), the recurrent policy carrying its
+memory through each episode. Rows: mean return over the seeds, the worst and best seed's mean,
+compile and training seconds.
 """
 
 from __future__ import annotations

@@ -97,7 +97,7 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
         "test_a_killed_actor_process_is_replaced_and_the_run_finishes",
     ),
     "test_tutorial.py": tuple(  # the pages that train for most of a minute; make test runs the others
-        f"test_page_runs_and_prints_what_it_shows[{page}-" for page in ("02", "03", "07", "09", "10")
+        f"test_page_runs_and_prints_what_it_shows[{page}-" for page in ("02", "03", "07", "09", "10", "11")
     ),
 }
 """Tests ``make test`` leaves to ``make test-long`` (beside those marked ``long`` where they stand),

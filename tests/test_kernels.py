@@ -208,7 +208,11 @@ def test_a_missing_library_falls_back_to_xla_exactly(monkeypatch, tmp_path):
     monkeypatch.setattr(kernel_choice, "_resolved", {})
     monkeypatch.setenv("AGENTAX_CONV", "auto")
     assert kernel_choice.backend_for((4, 84, 84)) == "xla"
-    frames = jax.random.randint(jax.random.key(1), (2 * 4 * 84 * 84,), 0, 256).reshape(2, 4, 84, 84).astype(jnp.uint8)
+    frames = (
+        jax.random.randint(jax.random.key(1), (2 * 4 * 84 * 84,), 0, 256)
+        .reshape(2, 4, 84, 84)
+        .astype(jnp.uint8)
+    )
     params = NatureCNN().init(jax.random.key(0), frames)
     fallback = NatureCNN(conv=kernel_choice.backend_for((4, 84, 84))).apply(params, frames)
     np.testing.assert_array_equal(fallback, NatureCNN(conv="xla").apply(params, frames))
@@ -556,7 +560,11 @@ def test_an_unknown_mode_ends_a_cli_run_in_one_line_naming_the_choices(tmp_path)
 def test_the_nature_cnn_keeps_its_parameters_and_output():
     """Parameter names and shapes do not depend on the kernel (checkpoints load either way), and the
     network's output agrees with XLA's."""
-    frames = jax.random.randint(jax.random.key(1), (4 * 4 * 84 * 84,), 0, 256).reshape(4, 4, 84, 84).astype(jnp.uint8)
+    frames = (
+        jax.random.randint(jax.random.key(1), (4 * 4 * 84 * 84,), 0, 256)
+        .reshape(4, 4, 84, 84)
+        .astype(jnp.uint8)
+    )
     net, onednn = NatureCNN(layer_norm=True, conv="xla"), NatureCNN(layer_norm=True, conv="onednn")
     params = jax.jit(net.init)(jax.random.key(0), frames)
     expected = jax.jit(net.apply)(params, frames)
