@@ -16,8 +16,8 @@ linearly to 0, the MlpLstmPolicy's defaults: LSTMs of 256 units for actor and cr
 1e5 steps (391 iterations of 256). agentax runs them as the whole ``agentax train ppo`` command (one
 seed, an LSTM of 256 units after a 64-unit layer, the heads 256 wide), SB3-Contrib its script in
 ``.bench-venv`` (torch on one thread), each timed as a whole process; each row's score is its final
-greedy evaluation (agentax: its run's, SB3: 20 episodes). SB3 trains at the same time as the agentax
-rows, as bench_lunar's does. SB3's full run takes over half an hour here: by default it runs
+greedy evaluation (agentax: its run's, SB3: 20 episodes). SB3 trains after the agentax processes,
+each alone on the machine. SB3's full run takes over ten minutes here: by default it runs
 SB3_STEPS and the table compares seconds per 1,000 steps; ``AGENTAX_MEMORY_SB3_FULL=1`` runs the
 Zoo's steps (``AGENTAX_MEMORY_SB3=0`` skips SB3). ``AGENTAX_MEMORY_ROWS_ONLY=1`` trains the first three
 rows only and keeps this part and the next as results/memory.json has them, each with its ``measured``
@@ -37,7 +37,6 @@ import os
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -207,10 +206,6 @@ def rows_only(rows: list) -> dict:
 def run() -> dict:
     from agentax.agents import presets
 
-    sb3_result: dict = {}
-    thread = threading.Thread(target=sb3, args=(sb3_result,))
-    if RUN_SB3 and not ROWS_ONLY:
-        thread.start()
     recurrent = presets.preset("ppo", "memory").config
     rows = [
         train(recurrent, "PPO + LSTM 64"),
@@ -221,7 +216,9 @@ def run() -> dict:
         return rows_only(rows)
     zoo = agentax_zoo()
     throughput = {seeds: purejaxrl(seeds) for seeds in (8, 64)}
-    thread.join()
+    sb3_result: dict = {}
+    if RUN_SB3:
+        sb3(sb3_result)  # after agentax's processes, alone on the machine as they were
     sb3_row = sb3_result.get("sb3", "not run (AGENTAX_MEMORY_SB3=0)")
     beside = [["agentax train ppo --core lstm (whole process)", zoo["steps"], round(zoo["seconds"], 1)]]
     beside[0] += [round(1000 * zoo["seconds"] / zoo["steps"], 2), round(zoo["mean"], 1)]
