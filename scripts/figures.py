@@ -604,7 +604,6 @@ def _figures() -> dict[str, Figure]:
         table = lambda r, i=index: r["beside_sb3"]["rows"][i]  # noqa: E731
         figures[f"memory.zoo.{key}.steps"] = derived("memory", lambda r, t=table: t(r)[1], thousands)
         figures[f"memory.zoo.{key}.seconds"] = derived("memory", lambda r, t=table: t(r)[2], "{:.0f}")
-        figures[f"memory.zoo.{key}.per_k"] = derived("memory", lambda r, t=table: t(r)[3], "{:.2f}")
         figures[f"memory.zoo.{key}.mean"] = derived("memory", lambda r, t=table: t(r)[4], "{:.1f}")
     figures["memory.zoo.ratio"] = derived("memory", lambda r: r["beside_sb3"]["rows"][0][5], "{:.3f}")
     for index, seeds in enumerate((8, 64)):
