@@ -672,6 +672,13 @@ def _figures() -> dict[str, Figure]:
         figures[f"{key}.one"] = bench("break_even", run, col="one process (s)", fmt="{:.1f}")
         figures[f"{key}.two"] = bench("break_even", run, col="2 workers (s)", fmt="{:.1f}")
         figures[f"{key}.speedup"] = bench("break_even", run, col="speed-up", fmt="{:.2f}")
+    xeon = "break_even@intel-xeon"  # the same rows on the Xeon, with SAC's beside them
+    figures["break_even.sac.cpu"] = cpu(xeon)
+    for steps in (500, 2_000):
+        run, key = f"sac Pendulum-v1 --seeds 8 --total-steps {steps:,}", f"break_even.sac.8x{steps}"
+        figures[f"{key}.one"] = bench(xeon, run, col="one process (s)", fmt="{:.1f}")
+        figures[f"{key}.two"] = bench(xeon, run, col="2 workers (s)", fmt="{:.1f}")
+        figures[f"{key}.speedup"] = bench(xeon, run, col="speed-up", fmt="{:.2f}")
 
     # trained scores, each from its evidence folder: NAME.mean, .std, .episodes, .steps, .wall, .cpu
     for name in TRAINED:
