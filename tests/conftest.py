@@ -15,18 +15,11 @@ if REPO_ROOT not in sys.path:
 
 
 LONG_CASES: dict[str, tuple[str, ...]] = {
-    # the golden cases make test runs: ppo_compiled, dqn_host, ppo_parallel, pqn_host, sac_compiled, atari
+    # the golden cases make test runs: ppo_compiled, dqn_host, ppo_parallel, pqn_host, sac_compiled
     "test_golden.py": tuple(
         f"test_metrics_rows_match_the_golden_file[{case}]"
-        for case in (
-            "dqn_compiled",
-            "reinforce_compiled",
-            "ppo_host",
-            "pqn_compiled",
-            "sac_host",
-            "td3_compiled",
-        )
-        + ("td3_host",)
+        for case in ("dqn_compiled", "reinforce_compiled", "ppo_host", "pqn_compiled")
+        + ("sac_host", "td3_compiled", "td3_host")
     ),
     "test_formats.py": (  # format 1's folders act, evaluate and resume (through every migration)
         "test_a_fixture_acts_and_evaluates_as_it_did_when_written[2-",
@@ -43,13 +36,13 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
         "test_the_exported_state_steps_as_the_agents_memory[gru]",
         "test_evaluate_a_recurrent_file_gives_the_runs_evaluation",
     ),
-    "test_memory_core.py": (  # the GRU's gradient; the REINFORCE core on the host runner
+    "test_memory_core.py": (  # the GRU's gradient; REINFORCE's core on the host runner (test_memory_runners)
         "test_the_cores_written_out_gradient_is_autodiffs[lstm]",
         "test_reinforce_with_a_core_learns_through_whole_episodes_and_its_greedy_policy_carries_memory",
     ),
     "test_memory_runners.py": (  # CartPoleNoVel's resume; PQN's core in test_memory_core
         "test_a_resumed_host_run_continues_its_episodes_with_their_memory[CartPole-v1-False]",
-        "test_pqn_and_reinforce_with_a_core_train_on_the_host_runner[",
+        "test_pqn_and_reinforce_with_a_core_train_on_the_host_runner[pqn]",
     ),
     "test_logger.py": (  # [ppo-host-...]; test_train_cli's SIGTERM and resume
         "test_ctrl_c_says_how_to_resume_and_resume_works",
@@ -102,8 +95,8 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
 }
 """Tests ``make test`` leaves to ``make test-long`` (beside those marked ``long`` where they stand),
 by file and test id (an id ending in ``[`` or ``-`` names every case it begins): each a further case
-of a path ``make test`` checks with another (the comment says which), so that ``make test`` fits 10
-minutes on a new 2-core machine."""
+of a path ``make test`` checks with another (the comment says which), to keep ``make test`` near its
+budget of 10 minutes on a new 2-core machine."""
 
 
 def is_long_case(nodeid: str) -> bool:
