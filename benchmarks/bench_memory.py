@@ -110,17 +110,28 @@ print(json.dumps({"steps": int(model.num_timesteps), "learn_seconds": seconds,
 """
 
 
-def train(cfg, name: str) -> list:
-    """One row: 8 seeds of PPO with ``cfg`` on the compiled runner, evaluated at the end."""
+def seeds_trained(env_id: str, cfg, seeds: int, updates_per_chunk: int, eval_episodes: int):
+    """PPO with ``cfg`` on ``env_id``, ``seeds`` vmapped on the compiled runner and evaluated at the
+    end: the runner's result and each seed's mean greedy return ``[seeds]``."""
     from agentax.agents import ppo
     from agentax.api import compiled_program
     from agentax.envs import make_jax
     from agentax.runners.compiled import RunnerConfig, train_program
 
-    env = make_jax(ENV)
-    runner = RunnerConfig(num_seeds=SEEDS, updates_per_chunk=10, eval_every_chunks=1000, eval_episodes=20)
+    env = make_jax(env_id)
+    runner = RunnerConfig(
+        num_seeds=seeds,
+        updates_per_chunk=updates_per_chunk,
+        eval_every_chunks=1000,
+        eval_episodes=eval_episodes,
+    )
     result = train_program(compiled_program(ppo, env, cfg), env, runner)
-    per_seed = np.asarray(result.final_returns[0]).mean(axis=-1)  # (seeds,)
+    return result, np.asarray(result.final_returns[0]).mean(axis=-1)
+
+
+def train(cfg, name: str) -> list:
+    """One row: 8 seeds of PPO with ``cfg`` on the compiled runner, evaluated at the end."""
+    result, per_seed = seeds_trained(ENV, cfg, SEEDS, updates_per_chunk=10, eval_episodes=20)
     row = [name, int(result.env_steps), round(float(per_seed.mean()), 1), round(float(per_seed.min()), 1)]
     row += [round(float(per_seed.max()), 1), int((per_seed >= 475).sum()), round(result.compile_seconds, 1)]
     print(row + [round(result.train_seconds, 1)], flush=True)

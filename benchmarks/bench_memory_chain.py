@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import numpy as np
-
 SEEDS = 8
 ENV = "gymnax/MemoryChain-bsuite"
 STEPS = 40_960  # per seed: 160 updates of 8 envs × 32 steps
@@ -26,15 +24,9 @@ LEARNING_RATE = 3e-3  # the short chain's: at the preset's 2e-3 (tuned on CartPo
 
 def train(cfg, name: str) -> list:
     """One row: 8 seeds of PPO with ``cfg`` on the compiled runner, evaluated at the end."""
-    from agentax.agents import ppo
-    from agentax.api import compiled_program
-    from agentax.envs import make_jax
-    from agentax.runners.compiled import RunnerConfig, train_program
+    from bench_memory import seeds_trained  # beside this file: run.py puts benchmarks/ on the path
 
-    env = make_jax(ENV)
-    runner = RunnerConfig(num_seeds=SEEDS, updates_per_chunk=20, eval_every_chunks=1000, eval_episodes=100)
-    result = train_program(compiled_program(ppo, env, cfg), env, runner)
-    per_seed = np.asarray(result.final_returns[0]).mean(axis=-1)  # (seeds,)
+    result, per_seed = seeds_trained(ENV, cfg, SEEDS, updates_per_chunk=20, eval_episodes=100)
     row = [name, int(result.env_steps), round(float(per_seed.mean()), 3), round(float(per_seed.min()), 3)]
     row += [round(float(per_seed.max()), 3), round(result.compile_seconds, 1), round(result.train_seconds, 1)]
     print(row, flush=True)
