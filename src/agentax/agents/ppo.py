@@ -72,6 +72,7 @@ from agentax.agents.protocol import (
 from agentax.agents.sequences import (
     initial_memory,
     num_sequences,
+    recurrent_net_fields,
     sequence_length,
     time_major,
     validate_core,
@@ -527,17 +528,7 @@ def sgd_epochs(
 def recurrent_network(cfg: PPOConfig, spec: EnvSpec, conv: str = "xla") -> Any:
     """PPO's actor-critic with the core ``cfg.core`` after its torso (:class:`RecurrentActorCritic`),
     one step ``(obs, memory, first) -> (memory, (actor_out, value))``."""
-    net = RecurrentActorCritic(
-        action_dim(spec),
-        is_continuous(spec),
-        tuple(cfg.hidden),
-        cfg.activation,
-        cfg.core,
-        cfg.core_size,
-        is_image(spec.obs_shape),
-        image_shape_for(cfg.conv_torso, spec),
-        conv,
-    )
+    net = RecurrentActorCritic(action_dim(spec), is_continuous(spec), **recurrent_net_fields(cfg, spec, conv))
     return with_encoder(net, spec.layout)
 
 

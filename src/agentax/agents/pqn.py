@@ -61,6 +61,7 @@ from agentax.agents.protocol import (
 )
 from agentax.agents.sequences import (
     initial_memory,
+    recurrent_net_fields,
     sequence_length,
     time_major,
     validate_core,
@@ -358,16 +359,7 @@ def make_agent(
 def recurrent_q_network(cfg: PQNConfig, spec: EnvSpec, conv: str = "xla") -> nn.Module:
     """PQN's Q-network with the core ``cfg.core`` after its torso (:class:`RecurrentQNetwork`), one
     step ``(obs, memory, first) -> (memory, Q)``."""
-    net = RecurrentQNetwork(
-        discrete_actions(spec, "pqn"),
-        tuple(cfg.hidden),
-        cfg.activation,
-        cfg.core,
-        cfg.core_size,
-        is_image(spec.obs_shape),
-        image_shape_for(cfg.conv_torso, spec),
-        conv,
-    )
+    net = RecurrentQNetwork(discrete_actions(spec, "pqn"), **recurrent_net_fields(cfg, spec, conv))
     return with_encoder(net, spec.layout)
 
 

@@ -15,9 +15,9 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from agentax.agents.protocol import check_fields
+from agentax.agents.protocol import EnvSpec, check_fields, image_shape_for
 from agentax.errors import UsageError
-from agentax.nets import CORES, Memory, zero_memory
+from agentax.nets import CORES, Memory, is_image, zero_memory
 
 
 def sequence_length(cfg: Any) -> int:
@@ -34,6 +34,21 @@ def initial_memory(cfg: Any, batch_shape: tuple[int, ...] = ()) -> Memory:
     """The core ``cfg.core``'s memory at an episode's start, zeros ``[*batch_shape, cfg.core_size]``
     (LSTM: a pair)."""
     return zero_memory(cfg.core, cfg.core_size, batch_shape)
+
+
+def recurrent_net_fields(cfg: Any, spec: EnvSpec, conv: str) -> dict[str, Any]:
+    """What a recurrent network (:class:`~agentax.nets.RecurrentActorCritic`,
+    :class:`~agentax.nets.RecurrentQNetwork`) takes from ``cfg`` and ``spec`` besides its heads:
+    the torso (the MLP of ``cfg.hidden`` or the CNN of the image), the core and the convolution backend."""
+    return {
+        "hidden": tuple(cfg.hidden),
+        "activation": cfg.activation,
+        "core": cfg.core,
+        "core_size": cfg.core_size,
+        "cnn": is_image(spec.obs_shape),
+        "image_shape": image_shape_for(cfg.conv_torso, spec),
+        "conv": conv,
+    }
 
 
 def validate_core_kind(cfg: Any) -> None:
