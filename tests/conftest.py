@@ -10,6 +10,10 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("AGENTAX_KERNELS_MEASURE", "0")  # AGENTAX_CONV=auto times nothing in tests
 
 REPO_ROOT = str(Path(__file__).resolve().parents[1])
+# One compilation cache for the test run, its xdist workers and the processes they start, so a program
+# that several tests compile (the same tiny PPO, the same CLI run) compiles once. It lives in the clone's
+# ignored .jax_cache/, never in the user's: a fresh clone starts cold, a second run in it warm.
+os.environ.setdefault("AGENTAX_JAX_CACHE", str(Path(REPO_ROOT) / ".jax_cache" / "tests"))
 if REPO_ROOT not in sys.path:
     sys.path.append(REPO_ROOT)  # for benchmarks/_pin.py (``from benchmarks import _pin``)
 
@@ -97,6 +101,12 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
 by file and test id (an id ending in ``[`` or ``-`` names every case it begins): each a further case
 of a path ``make test`` checks with another (the comment says which), to keep ``make test`` near its
 budget of 10 minutes on a new 2-core machine."""
+
+
+def pytest_configure(config):
+    from agentax import _xla
+
+    _xla.enable_compilation_cache()
 
 
 def is_long_case(nodeid: str) -> bool:

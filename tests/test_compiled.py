@@ -12,7 +12,6 @@ import jax
 import numpy as np
 import pytest
 
-from agentax import _xla
 from agentax.agents import ppo
 from agentax.envs import make_jax
 from agentax.errors import UsageError
@@ -155,15 +154,6 @@ def test_pinned_to_one_cpu_is_off_with_agentax_pin_cpu_0(monkeypatch):
 
 
 # The runner itself: seeds, determinism, interruption and resume, on a tiny PPO.
-
-
-@pytest.fixture(autouse=True, scope="module")
-def compilation_cache(tmp_path_factory):
-    """Runs of the same program compile once (the persistent cache the CLI uses)."""
-    os.environ["AGENTAX_JAX_CACHE"] = str(tmp_path_factory.mktemp("jax-cache"))
-    _xla.enable_compilation_cache()
-    yield
-    del os.environ["AGENTAX_JAX_CACHE"]
 
 
 TINY = dataclasses.replace(
