@@ -12,11 +12,13 @@ seed's mean; compile and training seconds.
 
 Beside SB3-Contrib: the RL Zoo's ``hyperparams/ppo_lstm.yml`` settings for CartPoleNoVel-v1 (8 envs,
 n_steps 32, batch 256, 20 epochs, γ 0.98, λ 0.8, no entropy bonus, lr 1e-3 and clip 0.2 both decayed
-linearly to 0, the MlpLstmPolicy's defaults: LSTMs of 256 units for actor and critic), seed 0, about
-1e5 steps (391 iterations of 256). agentax runs them as the whole ``agentax train ppo`` command (one
-seed, an LSTM of 256 units after a 64-unit layer, the heads 256 wide), SB3-Contrib its script in
-``.bench-venv`` (torch on one thread), each timed as a whole process; each row's score is its final
-greedy evaluation (agentax: its run's, SB3: 20 episodes). SB3 trains after the agentax processes,
+linearly to 0, observations normalised (VecNormalize, rewards not), the policy an LSTM of 64 units
+on the observation for the actor and another for the critic, each followed by a ReLU layer of 64),
+seed 0, about 1e5 steps (391 iterations of 256). agentax runs them as the whole ``agentax train
+ppo`` command (one seed, one LSTM of 64 units on the normalised observation that actor and critic
+share, each head a ReLU layer of 64, a fresh compilation cache, as on a new machine), SB3-Contrib its
+script in ``.bench-venv`` (torch on one thread), each timed as a whole process; each row's score is
+its final greedy evaluation (agentax: its run's, SB3: 20 episodes). SB3 trains after the agentax processes,
 each alone on the machine. SB3's full run takes over ten minutes here: by default it runs
 SB3_STEPS and the table compares seconds per 1,000 steps; ``AGENTAX_MEMORY_SB3_FULL=1`` runs the
 Zoo's steps (``AGENTAX_MEMORY_SB3=0`` skips SB3). ``AGENTAX_MEMORY_ROWS_ONLY=1`` trains the first three
@@ -57,10 +59,11 @@ PUREJAXRL_UPDATES = 10
 ZOO_ARGS = [
     "--num-envs", "8", "--num-steps", "32", "--num-minibatches", "1", "--update-epochs", "20",
     "--discount-factor", "0.98", "--gae-lambda", "0.8", "--ent-coef", "0", "--learning-rate", "1e-3",
-    "--anneal-lr", "--clip-eps", "0.2", "--anneal-clip", "--core", "lstm", "--core-size", "256",
-    "--hidden", "64",
+    "--anneal-lr", "--clip-eps", "0.2", "--anneal-clip", "--core", "lstm", "--core-size", "64",
+    "--hidden", "--activation", "relu", "--normalize-observations",
 ]  # fmt: skip
-"""``agentax train ppo`` with the Zoo's CartPoleNoVel-v1 settings (1 minibatch: batch 256 of 8 × 32)"""
+"""``agentax train ppo`` with the Zoo's CartPoleNoVel-v1 settings (1 minibatch: batch 256 of 8 × 32;
+no layer before the core, as SB3's MlpLstmPolicy; heads of 64 units, ReLU; observations normalised)"""
 
 SB3_SCRIPT = """
 import json, sys, time
@@ -71,6 +74,7 @@ import gymnasium as gym
 import sb3_contrib
 from sb3_contrib import RecurrentPPO
 from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import VecNormalize
 
 
 class NoVelocity(gym.ObservationWrapper):  # RL Zoo's CartPoleNoVel-v1: position and angle only
@@ -88,10 +92,13 @@ def novel():
 
 
 total, episodes = int(sys.argv[1]), int(sys.argv[2])
-env = make_vec_env(novel, n_envs=8, seed=0)
+env = VecNormalize(make_vec_env(novel, n_envs=8, seed=0), norm_obs=True, norm_reward=False)
+policy = dict(ortho_init=False, activation_fn=torch.nn.ReLU, lstm_hidden_size=64, enable_critic_lstm=True,
+              net_arch=dict(pi=[64], vf=[64]))
 model = RecurrentPPO("MlpLstmPolicy", env, n_steps=32, batch_size=256, gae_lambda=0.8, gamma=0.98,
                      n_epochs=20, ent_coef=0.0, learning_rate=lambda left: 1e-3 * left,
-                     clip_range=lambda left: 0.2 * left, seed=0, verbose=0, device="cpu")
+                     clip_range=lambda left: 0.2 * left, policy_kwargs=policy, seed=0, verbose=0,
+                     device="cpu")
 start = time.perf_counter()
 model.learn(total_timesteps=total)
 seconds = time.perf_counter() - start
@@ -100,7 +107,8 @@ for seed in range(1, episodes + 1):
     obs, _ = eval_env.reset(seed=seed)
     state, first, done, total_reward = None, np.ones(1, bool), False, 0.0
     while not done:
-        action, state = model.predict(obs, state=state, episode_start=first, deterministic=True)
+        seen = env.normalize_obs(obs)  # the training's statistics, as the Zoo's evaluation uses them
+        action, state = model.predict(seen, state=state, episode_start=first, deterministic=True)
         obs, reward, terminated, truncated, _ = eval_env.step(int(action))
         first, total_reward, done = np.zeros(1, bool), total_reward + reward, terminated or truncated
     returns.append(total_reward)
@@ -164,8 +172,9 @@ def agentax_zoo() -> dict:
         command = [sys.executable, "-m", "agentax.cli", "train", "ppo", "--env", ENV, *ZOO_ARGS]
         command += ["--total-steps", str(ZOO_STEPS), "--seed", "0", "--stop-at-return", "none"]
         command += ["--out", f"{tmp}/run", "--no-progress"]
+        fresh = {**os.environ, "AGENTAX_JAX_CACHE": f"{tmp}/jax-cache"}  # compiles, as a first run does
         start = time.perf_counter()
-        subprocess.run(command, check=True, capture_output=True, text=True, timeout=3_600)
+        subprocess.run(command, check=True, capture_output=True, text=True, timeout=3_600, env=fresh)
         seconds = time.perf_counter() - start
         evaluation = json.loads(Path(f"{tmp}/run/eval.json").read_text())
     result = {"steps": ZOO_STEPS, "seconds": seconds, "mean": evaluation["mean_return"]}
