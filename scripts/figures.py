@@ -227,6 +227,8 @@ TRAINED = (
     "sac-halfcheetah-1m",
     "pqn-breakout-hour-lag1",
     "pqn-breakout-15min",
+    "pqn-breakout-15min-auto",
+    "pqn-breakout-15min-f32",
     "pqn-breakout-100",
 )  # the folders of evidence/ whose scores the pages show
 
@@ -688,8 +690,8 @@ def _figures() -> dict[str, Figure]:
         figures[f"{name}.steps"] = evidence(name, "eval.json", "env_steps", thousands)
         figures[f"{name}.wall"] = evidence(name, "run.json", "wall_seconds", minutes)
         figures[f"{name}.cpu"] = evidence(name, "run.json", "cpu")
-    # issue 29's runs: when the training games' true score passed 30 (or 100), the CPU share
-    for breakout in ("pqn-breakout-hour-lag1", "pqn-breakout-15min", "pqn-breakout-100"):
+    # the Breakout runs: when the training games' true score passed 30 (or 100), the CPU share
+    for breakout in (name for name in TRAINED if name.startswith("pqn-breakout")):
         for score in (30, 100) if breakout.endswith("100") else (30,):
             figures[f"{breakout}.passed{score}.time"] = passed(breakout, score, "wall_seconds", minutes)
             figures[f"{breakout}.passed{score}.steps"] = passed(breakout, score, "env_steps", thousands)
