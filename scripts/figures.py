@@ -682,6 +682,14 @@ def _figures() -> dict[str, Figure]:
         figures[f"{key}.two"] = bench(xeon, run, col="2 workers (s)", fmt="{:.1f}")
         figures[f"{key}.speedup"] = bench(xeon, run, col="speed-up", fmt="{:.2f}")
 
+    figures["rejax.cpu"] = cpu("rejax")
+    for i, key in enumerate(("agentax", "yaml", "min")):  # its rows: agentax, Rejax's yaml, Rejax's ends only
+        figures[f"rejax.{key}.seconds"] = derived("rejax", lambda r, i=i: r["rows"][i][2], "{:.1f}")
+        if key != "yaml":  # the same training as "min"
+            figures[f"rejax.{key}.final"] = derived("rejax", lambda r, i=i: r["rows"][i][3], "{:.1f}")
+        if key != "agentax":
+            figures[f"rejax.{key}.ratio"] = derived("rejax", lambda r, i=i: r["rows"][i][4], "{:.2f}")
+
     # trained scores, each from its evidence folder: NAME.mean, .std, .episodes, .steps, .wall, .cpu
     for name in TRAINED:
         figures[f"{name}.mean"] = evidence(name, "eval.json", "mean_return", "{:,.1f}")
