@@ -85,4 +85,4 @@ lock:
 	rm -rf .lockenv
 
 clean:
-	rm -rf $(VENV) .pytest_cache $(KERNEL)
+	rm -rf $(VENV) .pytest_cache .jax_cache $(KERNEL)
