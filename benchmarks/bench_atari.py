@@ -365,28 +365,31 @@ print(json.dumps({"steps_per_second": (total - warmup) / (m[total] - m[warmup]),
 """
 
 
-def bench_venv_python() -> tuple[Path | None, str]:
-    """``.bench-venv``'s python with SB3, torch, ale-py and OpenCV (created or extended here; the other
-    benches' packages stay), or None and why not."""
-    python = BENCH_VENV / "bin" / "python"
-    check = [str(python), "-c", BENCH_IMPORTS]
+def bench_venv_python(
+    venv: Path = BENCH_VENV, requirements: list[str] = BENCH_REQUIREMENTS, imports: str = BENCH_IMPORTS
+) -> tuple[Path | None, str]:
+    """``venv``'s python where ``imports`` run in it (by default ``.bench-venv`` with SB3, torch, ale-py
+    and OpenCV), the venv created or extended with ``requirements`` here (other benches' packages
+    stay), or None and why not."""
+    python = venv / "bin" / "python"
+    check = [str(python), "-c", imports]
     try:
         if python.exists() and subprocess.run(check, capture_output=True).returncode == 0:
             return python, ""
         if not python.exists():
-            subprocess.run([sys.executable, "-m", "venv", str(BENCH_VENV)], check=True, capture_output=True)
-        install = [str(python), "-m", "pip", "install", "-q", *BENCH_REQUIREMENTS]
+            subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, capture_output=True)
+        install = [str(python), "-m", "pip", "install", "-q", *requirements]
         if Path("/opt/wheels").is_dir():
             install += ["--find-links", "/opt/wheels"]
         done = subprocess.run(install, capture_output=True, text=True, timeout=900)
         if done.returncode != 0:
-            return None, f"pip install {' '.join(BENCH_REQUIREMENTS)} failed: {done.stderr.strip()[-300:]}"
+            return None, f"pip install {' '.join(requirements)} failed: {done.stderr.strip()[-300:]}"
         probe = subprocess.run(check, capture_output=True, text=True)
         if probe.returncode != 0:
-            return None, f"`{BENCH_IMPORTS}` failed: {probe.stderr.strip()[-300:]}"
+            return None, f"`{imports}` failed: {probe.stderr.strip()[-300:]}"
         return python, ""
     except (subprocess.SubprocessError, OSError) as error:
-        return None, f"could not make .bench-venv: {error}"
+        return None, f"could not make {venv.name}: {error}"
 
 
 def sb3_dqn(python: Path) -> tuple[dict | None, str]:

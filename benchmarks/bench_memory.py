@@ -166,17 +166,24 @@ def sb3(out: dict) -> None:
     print(f"sb3: {out['sb3']}", flush=True)
 
 
+def first_train(args: list[str], timeout: float = 3_600) -> tuple[float, dict, list[str]]:
+    """The whole ``agentax train ARGS`` process compiling from an empty cache, as a new machine's
+    first run: ``(seconds, its eval.json, its metrics.csv lines)``."""
+    with tempfile.TemporaryDirectory() as tmp:
+        run = Path(tmp) / "run"
+        command = [sys.executable, "-m", "agentax.cli", "train", *args, "--out", str(run), "--no-progress"]
+        fresh = {**os.environ, "AGENTAX_JAX_CACHE": f"{tmp}/jax-cache"}
+        start = time.perf_counter()
+        subprocess.run(command, check=True, capture_output=True, text=True, timeout=timeout, env=fresh)
+        seconds = time.perf_counter() - start
+        evaluation = json.loads((run / "eval.json").read_text())
+        return seconds, evaluation, (run / "metrics.csv").read_text().splitlines()
+
+
 def agentax_zoo() -> dict:
     """The whole ``agentax train ppo`` process with the Zoo's settings, one seed: seconds and score."""
-    with tempfile.TemporaryDirectory() as tmp:
-        command = [sys.executable, "-m", "agentax.cli", "train", "ppo", "--env", ENV, *ZOO_ARGS]
-        command += ["--total-steps", str(ZOO_STEPS), "--seed", "0", "--stop-at-return", "none"]
-        command += ["--out", f"{tmp}/run", "--no-progress"]
-        fresh = {**os.environ, "AGENTAX_JAX_CACHE": f"{tmp}/jax-cache"}  # compiles, as a first run does
-        start = time.perf_counter()
-        subprocess.run(command, check=True, capture_output=True, text=True, timeout=3_600, env=fresh)
-        seconds = time.perf_counter() - start
-        evaluation = json.loads(Path(f"{tmp}/run/eval.json").read_text())
+    args = ["ppo", "--env", ENV, *ZOO_ARGS, "--total-steps", str(ZOO_STEPS), "--seed", "0"]
+    seconds, evaluation, _ = first_train([*args, "--stop-at-return", "none"])
     result = {"steps": ZOO_STEPS, "seconds": seconds, "mean": evaluation["mean_return"]}
     print(f"agentax zoo: {result}", flush=True)
     return result

@@ -21,10 +21,8 @@ program, so the second Rejax row is the fairer measure of its training.
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -63,19 +61,9 @@ print(json.dumps({"evaluations": returns.shape[1], "episodes": returns.shape[2],
 
 def rejax_python() -> tuple[Path | None, str]:
     """``.rejax-venv``'s python with Rejax (made here the first time), or None and why not."""
-    python = REJAX_VENV / "bin" / "python"
-    try:
-        if not python.exists():
-            subprocess.run([sys.executable, "-m", "venv", str(REJAX_VENV)], check=True, capture_output=True)
-        if subprocess.run([str(python), "-c", "import rejax"], capture_output=True).returncode != 0:
-            install = [str(python), "-m", "pip", "install", "-q", *REJAX_REQUIREMENTS]
-            done = subprocess.run(install, capture_output=True, text=True, timeout=900)
-            if done.returncode != 0:
-                failed = done.stderr.strip()[-300:]
-                return None, f"pip install {' '.join(REJAX_REQUIREMENTS)} failed: {failed}"
-        return python, ""
-    except (subprocess.SubprocessError, OSError) as error:
-        return None, f"could not make .rejax-venv: {error}"
+    from bench_atari import bench_venv_python
+
+    return bench_venv_python(REJAX_VENV, list(REJAX_REQUIREMENTS), "import rejax, gymnax")
 
 
 def rejax(python: Path, eval_freq: int) -> list:
@@ -93,16 +81,10 @@ def rejax(python: Path, eval_freq: int) -> list:
 
 def agentax() -> list:
     """The whole ``agentax train ppo --seeds 64`` command: a row."""
-    with tempfile.TemporaryDirectory() as tmp:
-        command = [sys.executable, "-m", "agentax.cli", "train", "ppo", "--env", "CartPole-v1"]
-        command += [*AGENTAX_ARGS, "--seeds", str(SEEDS), "--stop-at-return", "none"]
-        command += ["--out", f"{tmp}/run", "--no-progress"]
-        env = {**os.environ, "AGENTAX_JAX_CACHE": f"{tmp}/jax-cache"}  # compiles, as a first run does
-        start = time.perf_counter()
-        subprocess.run(command, capture_output=True, text=True, timeout=1_800, check=True, env=env)
-        seconds = time.perf_counter() - start
-        evaluation = json.loads(Path(f"{tmp}/run/eval.json").read_text())
-        metrics = Path(f"{tmp}/run/metrics.csv").read_text().splitlines()
+    from bench_memory import first_train
+
+    args = ["ppo", "--env", "CartPole-v1", *AGENTAX_ARGS, "--seeds", str(SEEDS), "--stop-at-return", "none"]
+    seconds, evaluation, metrics = first_train(args, timeout=1_800)
     header = metrics[0].split(",")
     evals = sum(1 for line in metrics[1:] if line.split(",")[header.index("eval_return")] != "")
     final = float(np.mean([seed["mean_return"] for seed in evaluation["per_seed"]]))
@@ -112,6 +94,7 @@ def agentax() -> list:
 
 
 def run() -> dict:
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
     rows = [agentax()]
     python, why = rejax_python()
     if python is not None:
