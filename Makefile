@@ -9,6 +9,10 @@ GYMNAX := gymnax==1.0.1
 # jax2onnx declares orbax-checkpoint<0.11.37 (flax wants 0.12) and hub packages it does not import for
 # conversion: installed without its declared dependencies too; what it imports is in the lock (extra export).
 JAX2ONNX := jax2onnx==0.17.1
+# The lock installs with uv (fetching in parallel: about 10 s from an empty cache, pip takes a minute);
+# uv is itself one wheel that pip installs into the venv.
+UV := uv==0.13.8
+INSTALL := $(VENV)/bin/uv pip install --quiet --python $(PY)
 
 .PHONY: kernel kernel-where-buildable demo test test-quick test-long bench figures lint docs lock clean
 
@@ -22,10 +26,10 @@ DNNL_LIB := $(abspath $(VENV))/lib
 
 $(STAMP): pyproject.toml requirements.lock csrc/onednn_conv.cc
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -r requirements.lock
-	$(PY) -m pip install --quiet --no-deps $(GYMNAX) $(JAX2ONNX)
-	$(PY) -m pip install --quiet --no-deps --no-build-isolation -e .
+	$(PY) -m pip install --quiet $(UV)
+	$(INSTALL) -r requirements.lock
+	$(INSTALL) --no-deps $(GYMNAX) $(JAX2ONNX)
+	$(INSTALL) --no-deps --no-build-isolation -e .
 	$(MAKE) --no-print-directory kernel-where-buildable
 	touch $(STAMP)
 
