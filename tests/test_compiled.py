@@ -15,6 +15,7 @@ import pytest
 from agentax.agents import ppo
 from agentax.envs import make_jax
 from agentax.errors import UsageError
+from agentax.runners import programs
 from agentax.runners.compiled import RunnerConfig, compiled_program, train_program
 from agentax.runs import Run, checkpoints, read_metrics
 from benchmarks import _pin  # benchmarks/_pin.py (tests/conftest.py puts the repo root on sys.path)
@@ -185,6 +186,34 @@ def test_seed_alone_equals_seed_inside_a_vmapped_batch_and_reruns_are_identical(
     ]
     for got, want in zip(_params(alone, 0), _params(again, 0), strict=True):
         np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(180)
+def test_seeds_run_in_groups_give_each_seed_the_numbers_of_one_vmapped_batch(monkeypatch):
+    """Four seeds two at a time (``lax.map`` over groups of a vmap) train as the four vmapped at once."""
+    runner = RunnerConfig(seed=0, num_seeds=4, updates_per_chunk=4, eval_episodes=3)
+    monkeypatch.setenv("AGENTAX_SEED_GROUP", "4")
+    together = _train(runner)
+    monkeypatch.setenv("AGENTAX_SEED_GROUP", "2")
+    grouped = _train(runner)
+    for seed in range(4):
+        for got, want in zip(_params(grouped, seed), _params(together, seed), strict=True):
+            np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+    for name in [f"return_seed{seed}" for seed in range(4)]:
+        assert [r[name] for r in grouped.rows] == pytest.approx([r[name] for r in together.rows])
+    np.testing.assert_allclose(grouped.final_returns[0], together.final_returns[0], rtol=1e-5)
+
+
+def test_seeds_are_grouped_only_where_their_agents_outgrow_a_cores_cache(monkeypatch):
+    monkeypatch.delenv("AGENTAX_SEED_GROUP", raising=False)
+    monkeypatch.setattr(programs._xla, "l2_cache_bytes", lambda: 2 << 20)
+    assert programs.seed_group(8, 100_000) == 8  # 0.8 MB together: one vmapped batch
+    assert programs.seed_group(64, 100_000) == 16  # 6.4 MB: groups of 1.6 MB
+    assert programs.seed_group(6, 800_000) == 2  # the largest divisor that fits
+    assert programs.seed_group(3, 4 << 20) == 1  # one agent outgrows the cache: one at a time
+    monkeypatch.setenv("AGENTAX_SEED_GROUP", "3")
+    assert programs.seed_group(64, 100_000) == 2  # asked for 3: the largest divisor of 64 below
 
 
 @pytest.mark.slow

@@ -51,6 +51,46 @@ def test_a_bf16_product_rounds_its_operands_sums_in_float32_and_returns_float32(
     np.testing.assert_allclose(dw, expected_dw, rtol=1e-5, atol=1e-4)
 
 
+@pytest.mark.skipif(not kernels.available(), reason="the oneDNN kernel is not built here")
+def test_onednns_bf16_product_and_gradients_are_the_float32_ones_to_bf16s_precision_also_per_seed():
+    """``bf16-onednn``: oneDNN's matmul with bfloat16 arithmetic allowed (it keeps float32 where its
+    bf16 kernels do not pay, e.g. a few rows), under vmap (a seed's own weights) too, and
+    differentiable. XLA's export precision for it is ``bf16``."""
+    kx, kw, kg = jax.random.split(jax.random.key(3), 3)
+    x, w, g = (
+        jax.random.normal(kx, (3, 5, 64)),
+        jax.random.normal(kw, (3, 64, 32)),
+        jax.random.normal(kg, (3, 5, 32)),
+    )
+
+    def loss(precision):
+        product = jax.vmap(lambda x, w: kernels.matmul(x, w, precision))
+        return jax.jit(jax.value_and_grad(lambda x, w: (product(x, w) * g).sum(), argnums=(0, 1)))
+
+    (value, (dx, dw)), (want, (want_dx, want_dw)) = loss("bf16-onednn")(x, w), loss("f32")(x, w)
+    assert "agentax_matmul" in loss("bf16-onednn").lower(x, w).as_text()  # oneDNN's call, not XLA's dot
+    for got, expected in ((value, want), (dx, want_dx), (dw, want_dw)):  # bf16 keeps 8 bits of mantissa
+        np.testing.assert_allclose(got, expected, rtol=2e-2, atol=0.1)
+    assert kernels.exportable("bf16-onednn") == "bf16" and kernels.exportable("f32") == "f32"
+
+
+def test_a_kept_choice_is_measured_again_once_a_new_candidate_can_run(tmp_path):
+    amx = ("Intel(R) Xeon(R) Processor", frozenset({"amx_bf16"}))
+    question, path, calls = kernel_choice.precision_question(64), tmp_path / "kernels.json", []
+
+    def timer(runnable, batch):  # the last candidate the fastest
+        calls.append(list(runnable))
+        return {name: 1.0 + i for i, name in enumerate(reversed(runnable))}, {}
+
+    def choose(runnable):
+        return kernel_choice.resolve(runnable, {}, path=path, cpu=amx, timer=timer, question=question)
+
+    three = ["f32", "bf16", "bf16-onednn"]
+    first, kept, again = choose(["f32", "bf16"]), choose(["f32", "bf16"]), choose(three)
+    assert (first["source"], kept["source"], again["source"]) == ("measured", "kept", "measured")
+    assert calls == [["f32", "bf16"], three] and again["backend"] == "bf16-onednn"
+
+
 def test_a_bf16_dense_layer_keeps_float32_parameters_and_outputs():
     x = jax.random.normal(jax.random.key(1), (8, 17))
     for precision in ("f32", "bf16"):
@@ -141,7 +181,7 @@ def test_a_bad_precision_is_one_line_and_exit_code_2(value, capsys):
     assert main(["train", "ppo", "--precision", value, "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1
-    assert f"--precision must be one of auto, f32, bf16, got '{value}'" in err
+    assert f"--precision must be one of auto, f32, bf16, bf16-onednn, got '{value}'" in err
 
 
 @pytest.mark.slow

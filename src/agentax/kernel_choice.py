@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from agentax import _xla
+from agentax import _xla, kernels
 from agentax.errors import UsageError
 from agentax.kernels import (
     BACKENDS,
@@ -211,9 +211,13 @@ def write_choices(path: Path | None, choices: dict[str, dict], keep: int = 32) -
 
 
 def _kept(entry: dict | None, runnable: list[str]) -> dict | None:
-    """A kept entry if it is whole and chose a backend that may still run here, else None."""
+    """A kept entry if it is whole, chose a backend that may still run here and timed (or tried) every
+    candidate runnable now, else None."""
     if entry is None or entry.get("backend") not in runnable or not isinstance(entry.get("ms"), dict):
         return None
+    known = entry.get("candidates") or [*entry["ms"], *entry.get("errors", {})]
+    if not set(runnable) <= set(known):
+        return None  # a candidate new since it was measured
     if not all(isinstance(ms, (int, float)) for ms in entry["ms"].values()):
         return None
     return entry
@@ -425,6 +429,7 @@ def resolve(
             ms, errors = (timer or question.timer)(runnable, question.batch)
             entry = {
                 "fields": fields,
+                "candidates": runnable,
                 "ms": ms,
                 "errors": errors,
                 "measured": time.strftime("%Y-%m-%d %H:%M:%S"),
@@ -610,10 +615,14 @@ def precision_choice(requested: str, width: int = 256, again: bool = False) -> d
     if requested != "auto":
         return {"mode": requested, "precision": requested, "why": f"--precision {requested}"}
     runnable, path = list(PRECISIONS), cache_path()
+    excluded = {}
+    if not kernels.available():
+        runnable.remove("bf16-onednn")
+        excluded["bf16-onednn"] = f"the oneDNN kernel is unavailable: {kernels.unavailable_reason()}"
     memo = ("precision", width, str(path))
     if again or memo not in _resolved:
         question = precision_question(width)
         measure_now = again or measuring()
-        about = resolve(runnable, {}, path=path, again=again, measuring=measure_now, question=question)
+        about = resolve(runnable, excluded, path=path, again=again, measuring=measure_now, question=question)
         _resolved[memo] = {**about, "precision": about["backend"]}
     return _resolved[memo]

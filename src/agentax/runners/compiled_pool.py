@@ -58,7 +58,7 @@ from agentax.errors import UsageError
 from agentax.returns import EpisodeStats
 from agentax.runners import host, kind_for
 from agentax.runners.rollout import OnPolicyCarry, RecurrentCarry, fresh_memory, on_policy_rollout
-from agentax.runners.session import TrainResult
+from agentax.runners.session import TrainResult, split_key
 from agentax.runs import Run
 
 XlaPool = XlaAtari | XlaMujoco
@@ -215,7 +215,7 @@ def make_learn(agent: Agent) -> Callable:
     ``agent.learn`` on one rollout, its key split from the learner's chain (the host runner's)."""
 
     def learn(state: Any, trajectory: Any, learner_key: jax.Array):
-        learner_key, learn_key = jax.random.split(learner_key)
+        learner_key, learn_key = split_key(learner_key)
         state, metrics = agent.learn(state, trajectory, learn_key)
         metrics = {**metrics, "masked_fraction": 1.0 - trajectory.info["valid"].mean()}
         return state, learner_key, metrics

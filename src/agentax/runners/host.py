@@ -48,7 +48,7 @@ from agentax.runners.driver import (
 from agentax.runners.host_memory import CarriedMemory, keep_actor
 from agentax.runners.replay_program import example_action
 from agentax.runners.rollout import scalars
-from agentax.runners.session import Session, TrainResult, checkpoint_target
+from agentax.runners.session import Session, TrainResult, checkpoint_target, split_key
 from agentax.runs import Run, load_checkpoint
 
 
@@ -180,6 +180,7 @@ class Actor:
         self.seed, self.key = seed, key
         self.memory = CarriedMemory(agent, self.num_envs) if agent.recurrent is not None else None
         self.act = self.memory.act if self.memory is not None else jax.jit(act_and_split(agent.act))
+        self.env_action = jax.jit(agent.env_action)  # one call, not one per jnp operation on the host
         self.state: Any = None
         self.steps, self.episodes = EnvironmentSteps(done_steps), NumberOfEpisodes()
         self.returns = FinishedReturns()
@@ -202,7 +203,7 @@ class Actor:
     def _run(self, observers: list, **limits: int) -> None:
         counters = [self.steps, self.episodes, self.returns, *([self.memory] if self.memory else [])]
         driver = Driver(
-            self.env, self.policy, [*counters, *observers], action_to_env=self.agent.env_action, **limits
+            self.env, self.policy, [*counters, *observers], action_to_env=self.env_action, **limits
         )
         self.time_step, self.key = driver.run(self.time_step, self.key)
 
@@ -414,7 +415,7 @@ def train(
     with session.begin(f"{agent.name} {env_id}", progress):
         try:
             while not collection_over(agent, actor.steps.count, actor.episodes.count, updates):
-                learner_key, learn_key = jax.random.split(learner_key)
+                learner_key, learn_key = split_key(learner_key)
                 if isinstance(experience, (OnPolicy, Episodes)):
                     if isinstance(experience, Episodes):
                         trajectory = actor.episodes_from_reset(state, experience.max_steps)

@@ -190,5 +190,10 @@ def restore(run_dir: Path, config: dict[str, Any], module: Any, cfg: Any, conv: 
     ``conv``, else on :func:`agent_maker`'s choice; its products in the run's precision)."""
     kind = kind_of(config)
     spec, _ = env_specs(kind, config["env"], *_host_options(config), config.get("encoders"))
-    agent = agent_maker(module, spec, cfg, conv, precision_of(config))()
+    from agentax import kernels
+
+    precision = precision_of(config)
+    if conv == "xla":  # a policy for export: XLA's products only
+        precision = kernels.exportable(precision)
+    agent = agent_maker(module, spec, cfg, conv, precision)()
     return RUNNERS[kind].load().restore(Path(run_dir), config, agent)

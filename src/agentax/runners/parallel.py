@@ -63,7 +63,7 @@ from agentax.runners.host import (
     refuse_seeds,
     replay_for,
 )
-from agentax.runners.session import Session, TrainResult
+from agentax.runners.session import Session, TrainResult, split_key
 from agentax.runs import Run
 
 
@@ -334,7 +334,7 @@ def _on_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, don
             thread.lag_sum, thread.lag_count = thread.lag_sum + k - version, thread.lag_count + 1
             parts.append(trajectory)
         trajectory = jax.tree.map(lambda *xs: np.concatenate(xs, axis=1), *parts)
-        learner_key, learn_key = jax.random.split(learner_key)
+        learner_key, learn_key = split_key(learner_key)
         state, metrics = learn(state, trajectory, learn_key)
         updates = k + 1
         channel.publish(updates, state)
@@ -400,7 +400,7 @@ def _off_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, do
         ready, waited = limiter.await_learn()
         learner_wait += waited
         if ready and replay.size:
-            learner_key, learn_key = jax.random.split(learner_key)
+            learner_key, learn_key = split_key(learner_key)
             state, metrics = learner.phase(state, learn_key, limiter.inserted)
             updates += experience.gradient_steps
             limiter.learned_steps(experience.gradient_steps)

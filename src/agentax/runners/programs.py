@@ -23,6 +23,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import math
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -169,6 +170,47 @@ def make_chunk(algorithm: Program, env: Environment, updates_per_chunk: int, eva
     return chunk
 
 
+def agent_bytes(carry_shapes: Any) -> int:
+    """Bytes of one seed's agent state (parameters, optimizer moments, targets) in a carry's shapes
+    ``[S, ...]``: its ``agent`` (a sweep's inside its ``inner``), else the whole carry."""
+    carry = getattr(carry_shapes, "inner", carry_shapes)
+    leaves = jax.tree.leaves(getattr(carry, "agent", carry))
+    seeds = max(leaves[0].shape[0], 1) if leaves and leaves[0].shape else 1
+    return sum(math.prod(x.shape) * np.dtype(x.dtype).itemsize for x in leaves) // seeds
+
+
+def seed_group(num_seeds: int, per_seed: int) -> int:
+    """How many seeds one vmapped step takes: all of them while their agents fit in a core's L2 cache
+    together, else the largest divisor of ``num_seeds`` whose agents do (at least 1).
+
+    Past the cache a vmapped product streams every seed's weights from memory at each step (64 seeds
+    of PureJaxRL's GRU agent: 49 GFLOP/s against 117-121 for 1 or 8 seeds on an Intel Xeon); the
+    chunk then runs the seeds group after group (:func:`in_groups`). ``AGENTAX_SEED_GROUP`` sets it."""
+    if jax.default_backend() != "cpu":
+        return num_seeds  # an accelerator wants every seed in one batch
+    if os.environ.get("AGENTAX_SEED_GROUP"):
+        wanted = max(1, min(num_seeds, int(os.environ["AGENTAX_SEED_GROUP"])))
+    else:
+        wanted = max(1, _xla.l2_cache_bytes() // max(per_seed, 1))
+    return max(g for g in range(1, num_seeds + 1) if num_seeds % g == 0 and g <= wanted)
+
+
+def in_groups(chunk: Callable, group: int) -> Callable:
+    """``chunk`` (vmapped over seeds, ``in_axes=(0, None, None, 0, None)``) run on ``group`` seeds at a
+    time by ``lax.map``: the same numbers for each seed, its agents' arrays kept in cache."""
+
+    def grouped(state, num_active, do_eval, keys, evaluation):
+        split = lambda x: x.reshape(x.shape[0] // group, group, *x.shape[1:])  # noqa: E731
+        merge = lambda x: x.reshape(x.shape[0] * group, *x.shape[2:])  # noqa: E731
+        out = jax.lax.map(
+            lambda part: chunk(part[0], num_active, do_eval, part[1], evaluation),
+            (jax.tree.map(split, state), split(keys)),
+        )
+        return jax.tree.map(merge, out)
+
+    return grouped
+
+
 def build(
     algorithm: Program,
     env: Environment,
@@ -191,6 +233,9 @@ def build(
         in_axes=(0, None, None, 0, None),
         axis_name=SEED_AXIS,
     )
+    group = seed_group(len(seeds), agent_bytes(shapes))
+    if group < len(seeds):
+        chunk = in_groups(chunk, group)
 
     def flat_init(seeds):
         return jax.tree.leaves(init_from_seeds(algorithm)(seeds))

@@ -67,6 +67,14 @@ def agent_keys(seed: int) -> tuple[jax.Array, jax.Array, jax.Array]:
     return init_key, learner_key, actors_key
 
 
+@jax.jit
+def split_key(key: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """``jax.random.split(key)`` as a pair, in one compiled call (on the host, splitting and unpacking
+    op by op is three: ~0.1 ms of an off-policy runner's step)."""
+    new, sub = jax.random.split(key)
+    return new, sub
+
+
 def checkpoint_target(agent: Agent) -> Any:
     """The shapes of a checkpoint of these runners: ``(agent state, learner key)``."""
     return jax.eval_shape(lambda key: (agent.init(key), key), jax.random.key(0))
