@@ -28,17 +28,24 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-PRECISIONS = ("f32", "bf16")
+PRECISIONS = ("f32", "bf16", "bf16-onednn")
 ROUNDS = 6
 LEARNING_SEEDS = 3
 LEARNING_STEPS = 5_000
 
 
-def timed_pair(make: Callable[[str], tuple[Callable, Any]], rounds: int = ROUNDS, calls: int = 5) -> dict:
+def precisions() -> tuple[str, ...]:
+    """The precisions this machine runs: ``bf16-onednn`` only where the oneDNN kernel is built."""
+    from agentax import kernels
+
+    return PRECISIONS if kernels.available() else PRECISIONS[:2]
+
+
+def timed_each(make: Callable[[str], tuple[Callable, Any]], rounds: int = ROUNDS, calls: int = 5) -> dict:
     """ms per call of ``step(state) -> state`` (``make(precision) -> (step, state)``) in each
     precision: compiled first, then ``rounds`` interleaved rounds of ``calls`` calls, the fastest round
     of each kept (and the median, to show the noise)."""
-    steps = {p: make(p) for p in PRECISIONS}
+    steps = {p: make(p) for p in precisions()}
     for step, state in steps.values():
         jax.block_until_ready(step(state))
     times = {p: [] for p in PRECISIONS}
@@ -122,14 +129,14 @@ def learning_row() -> list:
     runner = RunnerConfig(seed=0, num_seeds=LEARNING_SEEDS, updates_per_chunk=1_000, eval_episodes=10)
     env = make_jax("Pendulum-v1")
     finals, start = {}, time.perf_counter()
-    for precision in PRECISIONS:
+    for precision in precisions():
         agent = agent_maker(algorithm("sac"), EnvSpec.of(env), cfg, precision=precision)()
         result = train_program(program_of(agent, env, runner), env, runner)
         finals[precision] = [round(float(r), 1) for r in result.eval["per_seed_mean"]]
     means = {p: float(np.mean(f)) for p, f in finals.items()}
-    shown = {p: f"{means[p]:.1f} (per seed {finals[p]})" for p in PRECISIONS}
+    shown = [f"{means[p]:.1f} (per seed {finals[p]})" for p in precisions()]
     name = f"SAC Pendulum-v1 final greedy return, {LEARNING_SEEDS} seeds, {LEARNING_STEPS:,} steps"
-    return [name, shown["f32"], shown["bf16"], None, round(time.perf_counter() - start, 1), None]
+    return [name, *shown, *[None] * (len(precisions()) - 1), round(time.perf_counter() - start, 1), None]
 
 
 def run() -> dict:
@@ -144,39 +151,41 @@ def run() -> dict:
             "pqn", "gymnax/Breakout-MinAtar", "minatar", p
         ),
     }
-    headers = ["workload", "f32 ms (best; median)", "bf16 ms (best; median)", "f32 ÷ bf16", "s", "auto"]
+    names, lower = precisions(), precisions()[1:]
+    headers = ["workload", *[f"{p} ms (best; median)" for p in names], *[f"f32 ÷ {p}" for p in lower]]
+    headers += ["s", "auto"]
     rows = []
     for name, make in workloads.items():
         start = time.perf_counter()
-        ms = timed_pair(make)
-        f32, bf16 = ms["f32"], ms["bf16"]
-        shown = {p: f"{ms[p]['best']:.3f}; {ms[p]['median']:.3f}" for p in PRECISIONS}
-        auto = "bf16" if bf16["best"] < f32["best"] else "f32"
-        seconds = round(time.perf_counter() - start, 1)
-        rows.append([name, shown["f32"], shown["bf16"], round(f32["best"] / bf16["best"], 3), seconds, auto])
+        ms = timed_each(make)
+        shown = [f"{ms[p]['best']:.3f}; {ms[p]['median']:.3f}" for p in names]
+        ratios = [round(ms["f32"]["best"] / ms[p]["best"], 3) for p in lower]
+        auto = min(names, key=lambda p: ms[p]["best"])
+        rows.append([name, *shown, *ratios, round(time.perf_counter() - start, 1), auto])
     for width in (64, 256):
-        ms, errors = kernel_choice.time_precisions(list(PRECISIONS), kernel_choice.PRECISION_BATCH, width)
+        ms, errors = kernel_choice.time_precisions(list(names), kernel_choice.PRECISION_BATCH, width)
         rows.append([f"--precision auto's own measure: MLP step, 2 hidden layers of {width}, batch 256",
-                     f"{ms['f32']:.3f}", f"{ms['bf16']:.3f}", round(ms["f32"] / ms["bf16"], 3), None,
-                     "bf16" if ms["bf16"] < ms["f32"] else "f32"])  # fmt: skip
+                     *[f"{ms[p]:.3f}" for p in names], *[round(ms["f32"] / ms[p], 3) for p in lower], None,
+                     min(names, key=ms.get)])  # fmt: skip
     rows.append(learning_row())
     cpu = kernel_choice.cpu_info()[0]
     notes = (
-        f"CPU: {cpu}. Each learning step compiled in both precisions (bf16: bfloat16 operands into "
+        f"CPU: {cpu}. Each learning step compiled in each precision (bf16: bfloat16 operands into "
         "every dense product and MinAtar's matrix-product convolution, float32 sums, float32 "
-        "parameters, Adam moments, targets and losses), then timed in "
+        "parameters, Adam moments, targets and losses; bf16-onednn: the same products by oneDNN's "
+        "matmul, bfloat16 arithmetic allowed, where the kernel is built), then timed in "
         f"{ROUNDS} interleaved rounds of 5 calls each; the best round and the median are shown, the "
-        "ratio is of the best rounds (>1: bf16 faster). The machine's 2 cores were shared with other "
-        "processes, so the medians are noisy; the ratio is the figure to read. `auto` is what "
-        "`--precision auto` would choose for that workload by this row's timing (the flag itself times "
-        "the MLP step of the run's widest layer, the last rows). Learning rows: SAC on Pendulum-v1 "
+        "ratios are of the best rounds (>1: the lower precision faster). The machine's 2 cores were "
+        "shared with other processes, so the medians are noisy; the ratios are the figures "
+        "to read. `auto` is what `--precision auto` would choose for that workload by this row's "
+        "timing (the flag itself times the MLP step of the run's widest layer, the last rows). Learning rows: SAC on Pendulum-v1 "
         f"(64-64, 500 random steps, lr 1e-3) for {LEARNING_STEPS:,} env steps, {LEARNING_SEEDS} seeds "
         "vmapped on the compiled runner; the final evaluation is 10 greedy episodes per seed (wall-clock "
         "includes compilation)."
     )
     return {
         "name": "precision",
-        "title": "Mixed precision: f32 against bf16 products, per learning step",
+        "title": "Mixed precision: f32 against bf16 products (XLA's and oneDNN's), per learning step",
         "headers": headers,
         "rows": rows,
         "notes": notes,
