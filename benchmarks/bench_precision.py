@@ -176,12 +176,12 @@ def run() -> dict:
         "matmul, bfloat16 arithmetic allowed, where the kernel is built), then timed in "
         f"{ROUNDS} interleaved rounds of 5 calls each; the best round and the median are shown, the "
         "ratios are of the best rounds (>1: the lower precision faster). The machine's 2 cores were "
-        "shared with other processes, so the medians are noisy; the ratios are the figures "
-        "to read. `auto` is what `--precision auto` would choose for that workload by this row's "
-        "timing (the flag itself times the MLP step of the run's widest layer, the last rows). Learning rows: SAC on Pendulum-v1 "
-        f"(64-64, 500 random steps, lr 1e-3) for {LEARNING_STEPS:,} env steps, {LEARNING_SEEDS} seeds "
-        "vmapped on the compiled runner; the final evaluation is 10 greedy episodes per seed (wall-clock "
-        "includes compilation)."
+        "shared with other processes, so the medians are noisy; the ratios are the figures to read. "
+        "`auto` is what `--precision auto` would choose for that workload by this row's timing (the "
+        "flag itself times the MLP step of the run's widest layer, the last rows). Learning rows: SAC "
+        f"on Pendulum-v1 (64-64, 500 random steps, lr 1e-3) for {LEARNING_STEPS:,} env steps, "
+        f"{LEARNING_SEEDS} seeds vmapped on the compiled runner; the final evaluation is 10 greedy "
+        "episodes per seed (wall-clock includes compilation)."
     )
     return {
         "name": "precision",
