@@ -2,9 +2,10 @@
 
 Rows, all measured in this run:
 
-- SAC's ``pendulum`` preset (the RL Zoo's Pendulum-v1 settings: SB3's defaults with lr 1e-3, 20k env
-  steps) on the compiled runner, 8 seeds vmapped into one program over agentax's JAX Pendulum: how
-  many seeds' final evaluation (10 greedy episodes each) reaches -200, and the wall-clock;
+- the whole ``agentax train sac --env Pendulum-v1 --seeds 8 --precision auto`` command (SAC's
+  ``pendulum`` preset, the RL Zoo's Pendulum-v1 settings: SB3's defaults with lr 1e-3, 20k env steps;
+  the compiled runner on agentax's JAX Pendulum): how many seeds' final evaluation (10 greedy
+  episodes each) reaches -200, and the wall-clock;
 - the whole ``agentax train sac --env Pendulum-v1`` process for one seed (start-up, compile, 20k steps,
   final evaluation, run folder), against SB3's SAC with the same settings and steps (whole process);
 
@@ -16,6 +17,7 @@ SB3 rows and ratios are left out.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -64,37 +66,40 @@ def pendulum_id() -> str:
     return "Pendulum-v1" if "Pendulum-v1" in JAX_ENVS else "gymnax/Pendulum-v1"
 
 
-def compiled_seeds_row() -> list:
-    import agentax
-
+def process(args: list[str]) -> tuple[float, dict, dict]:
+    """``agentax train sac --env Pendulum-v1 ARGS`` as a whole process from an empty compilation
+    cache: ``(seconds, eval.json, config.json)``."""
     with tempfile.TemporaryDirectory() as out:
+        command = [sys.executable, "-m", "agentax.cli", "train", "sac", "--env", "Pendulum-v1", *args]
+        command += ["--out", out + "/run", "--no-progress", "--stop-at-return", "none"]
+        env = {**os.environ, "AGENTAX_JAX_CACHE": out + "/cache"}
         start = time.perf_counter()
-        run = agentax.train(
-            "sac", env=pendulum_id(), seeds=SEEDS, preset="pendulum", runner="compiled",
-            out=Path(out) / "run", progress=False, stop_at_return=None,
-        )  # fmt: skip
+        subprocess.run(command, check=True, capture_output=True, timeout=3600, env=env)
         seconds = time.perf_counter() - start
-    per_seed = np.array([seed["mean_return"] for seed in run.result.eval["per_seed"]])
+        evaluation = json.loads((Path(out) / "run" / "eval.json").read_text())
+        config = json.loads((Path(out) / "run" / "config.json").read_text())
+    return seconds, evaluation, config
+
+
+def seeds_row() -> list:
+    """The whole ``agentax train sac --env Pendulum-v1 --seeds 8 --precision auto`` command."""
+    seconds, evaluation, config = process(["--seeds", str(SEEDS), "--precision", "auto"])
+    per_seed = np.array([seed["mean_return"] for seed in evaluation["per_seed"]])
+    workers = config["runner"].get("workers", 1)
     return [
-        f"agentax compiled, {SEEDS} seeds vmapped ({pendulum_id()})",
+        f"`agentax train sac --env Pendulum-v1 --seeds {SEEDS} --precision auto` process",
         SEEDS,
         f"{int(np.sum(per_seed >= SOLVED))}/{SEEDS}",
         f"{per_seed.min():.1f} … {per_seed.max():.1f}",
         round(seconds, 1),
         round(PENDULUM_STEPS * SEEDS / seconds, 1),
+        f"{config['precision']}, {workers} worker process{'es' if workers > 1 else ''}",
     ]
 
 
 def process_row() -> list:
-    """The whole ``agentax train sac --env Pendulum-v1`` process, one seed (its default preset there)."""
-    with tempfile.TemporaryDirectory() as out:
-        command = [sys.executable, "-m", "agentax.cli", "train", "sac", "--env", "Pendulum-v1"]
-        command += ["--out", out + "/run", "--no-progress"]
-        start = time.perf_counter()
-        subprocess.run(command, check=True, capture_output=True, timeout=1800)
-        seconds = time.perf_counter() - start
-        evaluation = json.loads((Path(out) / "run" / "eval.json").read_text())
-        config = json.loads((Path(out) / "run" / "config.json").read_text())
+    """The whole ``agentax train sac --env Pendulum-v1`` process, one seed (its defaults there)."""
+    seconds, evaluation, config = process([])
     mean = evaluation["mean_return"]
     return [
         f"`agentax train sac --env Pendulum-v1` process ({config.get('runner_kind', '?')} runner)",
@@ -103,6 +108,7 @@ def process_row() -> list:
         f"{mean:.1f}",
         round(seconds, 1),
         round(PENDULUM_STEPS / seconds, 1),
+        config["precision"],
     ]
 
 
@@ -131,7 +137,8 @@ def sb3(algo: str, env_id: str, steps: int, learning_starts: int, threads: int) 
 
 def run() -> dict:
     headers = ["run", "seeds", "final eval ≥ -200", "final eval (10 episodes)", "wall-clock s", "env steps/s"]
-    rows = [compiled_seeds_row(), process_row()]
+    headers.append("precision, processes")
+    rows = [seeds_row(), process_row()]
     threads = sb3_threads()
     reference = sb3("sac", "Pendulum-v1", PENDULUM_STEPS, 100, threads) if threads is not None else None
     if reference is not None:
@@ -144,6 +151,7 @@ def run() -> dict:
                 f"{mean:.1f}",
                 round(reference["total_seconds"], 1),
                 round(PENDULUM_STEPS / reference["total_seconds"], 1),
+                f"f32, torch threads: {threads or 'every core'}",
             ]
         )
     for row in rows:
@@ -153,12 +161,12 @@ def run() -> dict:
     notes = (
         f"SAC's `pendulum` preset: the RL Zoo's Pendulum-v1 SAC (SB3's defaults: 256-256 networks, batch "
         f"256, one update per env step after 100 random steps, τ 0.005, automatic entropy, lr 1e-3), "
-        f"{PENDULUM_STEPS:,} env steps; the final evaluation is 10 greedy episodes per seed. The compiled "
-        f"row trains {SEEDS} seeds in one program (its wall-clock includes compilation); the process row "
-        "runs `python -m agentax.cli train sac --env Pendulum-v1` in a subprocess with an empty "
-        "compilation cache. SB3 (stable-baselines3 + torch in `.bench-venv`, every core) runs the same "
-        "settings and steps as one whole process, with torch's faster thread count measured first; the "
-        "last column divides each wall-clock by SB3's."
+        f"{PENDULUM_STEPS:,} env steps; the final evaluation is 10 greedy episodes per seed. The agentax "
+        f"rows are whole `python -m agentax.cli train sac --env Pendulum-v1` processes with an empty "
+        f"compilation cache: {SEEDS} seeds on the compiled runner at `--precision auto` (split over the "
+        "cores by the programs' cost), and one seed with the defaults. SB3 (stable-baselines3 + torch "
+        "in `.bench-venv`) runs the same settings and steps as one whole process, with torch's faster "
+        "thread count measured first; the last column divides each wall-clock by SB3's."
     )
     if threads is not None:
         notes += f" torch threads: {threads or 'every core (default)'}."
