@@ -22,7 +22,7 @@ from pathlib import Path
 from bench_sac import ROOT, sb3, sb3_threads  # benchmarks/ is on sys.path (run.py)
 
 RANDOM, STEPS = 1_000, 4_000
-RUNS = (("host", "f32"), ("host", "auto"), ("parallel", "auto"))
+RUNS = (("host", "f32"), ("host", "auto"), ("parallel", "auto"), ("compiled", "auto"))
 """agentax's rows: runner and ``--precision``."""
 SBX_VENV = ROOT / ".sbx-venv"
 SBX_REQUIREMENTS = ["sbx-rl==0.28.0", "jax==0.10.2", "jaxlib==0.10.2", "mujoco==4.0.0", "gymnasium==1.4.0"]
@@ -99,9 +99,11 @@ def run() -> dict:
         f"Gymnasium's HalfCheetah-v5, one env, {RANDOM:,} random steps then one learning step per env "
         f"step until {STEPS:,}: the RL Zoo's MuJoCo settings on every side (agentax's `mujoco` presets). "
         "The host runner steps the env and learns one after the other; the parallel runner's actor "
-        "threads step it beside the learner. Steps/s are env steps (= agent steps: one env) per second "
-        "of the training loop, compilation included. The precision is what the networks' products ran in "
-        "(`bf16-onednn`: oneDNN's matmul with bfloat16 arithmetic; `bf16`: XLA's bfloat16 products)."
+        "threads step it beside the learner; the compiled runner steps EnvPool's HalfCheetah-v5 inside "
+        "one program with acting, the replay and learning, a row's steps per call. Steps/s are env "
+        "steps (= agent steps: one env) per second of the training loop, compilation included. The "
+        "precision is what the networks' products ran in (`bf16-onednn`: oneDNN's matmul with bfloat16 "
+        "arithmetic; `bf16`: XLA's bfloat16 products)."
     )
     if not any(row[1].startswith("Stable") for row in rows):
         notes += " `.bench-venv` holds no stable-baselines3 with mujoco here, so there are no SB3 rows."

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from agentax.agents import ppo, presets
+from agentax.agents import algorithm, ppo, presets
 from agentax.agents.protocol import EnvSpec
 from agentax.errors import UsageError
 from agentax.runners import kind_for
@@ -222,7 +222,12 @@ def test_compiled_ppo_on_hopper_two_updates(tmp_path):
     )
 
 
-def test_compiled_runner_refuses_an_off_policy_agent_and_other_envs():
+def _sac_agent(spec: EnvSpec, **settings):
+    cfg = presets.preset("sac", "mujoco", hidden=(64, 64), batch_size=64, **settings).config
+    return agent_maker(algorithm("sac"), spec, cfg)()
+
+
+def test_compiled_runner_refuses_what_its_program_cannot_train():
     from agentax.runners.compiled_pool import Config, check
 
     spec = EnvSpec((11,), XlaMujoco("Hopper-v5", 1).action_space())
@@ -232,6 +237,56 @@ def test_compiled_runner_refuses_an_off_policy_agent_and_other_envs():
         check(agent, "Pendulum-v1", Config())
     with pytest.raises(UsageError, match="--env-backend ale"):
         check(agent, "Hopper-v5", Config(env_backend="ale"))
+    check(_sac_agent(spec), "Hopper-v5", Config())  # SAC and TD3 with one env and one-step targets
+    for settings in ({"num_envs": 2}, {"n_step": 3}):
+        with pytest.raises(UsageError, match="one env and one-step targets"):
+            check(_sac_agent(spec, **settings), "Hopper-v5", Config())
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(180)
+def test_compiled_sac_on_hopper_keeps_its_replay_in_the_program_and_beside_the_checkpoints(tmp_path):
+    """SAC with EnvPool's Hopper-v5, the replay and learning in one program: 600 steps in rows of 200.
+    An untrained Hopper falls within ~20-80 steps, so EnvPool's reset steps come often: none of them
+    is stored (the replay holds fewer transitions than steps). The replay is saved beside each
+    checkpoint, and a resumed run restores it into the program's carry."""
+    from agentax.runners import compiled_pool
+
+    pool = XlaMujoco("Hopper-v5", 1)
+    spec = EnvSpec.of(pool)
+    pool.close()
+    agent = _sac_agent(spec, total_steps=600, learning_starts=200)
+    runner = compiled_pool.Config(log_every_steps=200, eval_episodes=1)
+    config = run_config("sac", "Hopper-v5", "mujoco", "compiled-mujoco", runner, {})
+    result = compiled_pool.train(agent, "Hopper-v5", runner, Run.create(tmp_path / "run", config))
+    assert result.updates == 600 and result.env_steps == 600
+    rows = read_metrics(tmp_path / "run")
+    assert [r["env_steps"] for r in rows] == [200, 400, 600]
+    assert all(np.isfinite(r["mean_return"]) for r in rows)  # falls: episodes end in every row
+    assert 500 < rows[-1]["replay_size"] < 600  # a reset step after each fall, none of them stored
+    assert all(np.isfinite(r["critic_loss"]) and r["critic_loss"] > 0 for r in rows)  # from step 200 on
+    assert list((tmp_path / "run" / "checkpoints").glob("replay-*.npz"))
+    resumed = compiled_pool.train(agent, "Hopper-v5", runner, Run.open(tmp_path / "run"), resume=True)
+    assert resumed.updates == 600  # restored at its end, its replay loaded into the carry: nothing left
+
+
+def test_the_programs_replay_saves_and_loads_as_a_replay_buffer():
+    from flax import struct
+
+    from agentax.replay import uniform
+    from agentax.runners.compiled_pool import ProgramReplay
+
+    @struct.dataclass
+    class Carry:
+        replay: uniform.UniformState
+
+    empty = Carry(uniform.init(4, {"obs": jnp.zeros(3), "reward": jnp.float32(0)}))
+    filled = empty.replace(replay=uniform.add(empty.replay, {"obs": jnp.ones((3, 3)), "reward": jnp.ones(3)}))
+    loaded = ProgramReplay(empty)
+    loaded.load_state_dict(ProgramReplay(filled).state_dict())
+    assert int(loaded.carry.replay.size) == 3
+    for got, want in zip(jax.tree.leaves(loaded.carry), jax.tree.leaves(filled), strict=True):
+        np.testing.assert_array_equal(got, want)
 
 
 @pytest.mark.slow

@@ -1,4 +1,6 @@
-"""The compiled EnvPool runner: an on-policy agent's rollout *and* EnvPool's step in one program.
+"""The compiled EnvPool runner: an on-policy agent's rollout *and* EnvPool's step in one program;
+on MuJoCo tasks also SAC and TD3, their acting, replay and learning in one program
+(:func:`train_off_policy`).
 
 For ``agentax train ppo --env ALE/Breakout-v5 --runner compiled`` (runner kind ``compiled-atari``)
 and ``agentax train ppo --env HalfCheetah-v5 --runner compiled`` (``compiled-mujoco``: EnvPool's
@@ -33,6 +35,7 @@ random actions).
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -40,10 +43,11 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from agentax import kernel_choice
-from agentax.agents.protocol import Agent, OnPolicy
+from agentax.agents.protocol import Agent, OffPolicy, OnPolicy
 from agentax.envs.atari import FRAME_SKIP, is_atari_id
 from agentax.envs.core import TimeStep
 from agentax.envs.envpool_xla import (
@@ -57,7 +61,8 @@ from agentax.envs.envpool_xla import (
 from agentax.errors import UsageError
 from agentax.returns import EpisodeStats
 from agentax.runners import host, kind_for
-from agentax.runners.rollout import OnPolicyCarry, RecurrentCarry, fresh_memory, on_policy_rollout
+from agentax.runners.replay_program import off_policy_program
+from agentax.runners.rollout import OnPolicyCarry, Program, RecurrentCarry, fresh_memory, on_policy_rollout
 from agentax.runners.session import TrainResult, split_key
 from agentax.runs import Run
 
@@ -98,8 +103,11 @@ def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[Config, str]:
     """The runner's settings for a run (:mod:`agentax.runners.launch`), refused where the program
     cannot step the env or train the agent."""
     common = host.one_seed_settings(run_args, preset, kind_for("compiled", run_args.env))
-    runner = Config(**common, policy_lag=run_args.policy_lag)
+    on_policy = isinstance(agent.experience, OnPolicy)  # an off-policy agent acts on its newest parameters
+    runner = Config(**common, policy_lag=run_args.policy_lag if on_policy else 0)
     check(agent, run_args.env, runner, run_args.seeds)
+    if not on_policy:
+        return runner, "compiled, EnvPool and the replay inside the program"
     return runner, f"compiled, EnvPool inside the program, policy lag {runner.policy_lag}"
 
 
@@ -126,10 +134,16 @@ class Pool:
 
 class PoolEnvs:
     """``env``'s pool (Atari or MuJoCo) as a :class:`~agentax.runners.rollout.BatchedEnv` of the
-    on-policy rollout."""
+    on-policy rollout and the off-policy program; ``first``: the pool's ``(handle, obs)`` after its
+    reset on the host, what :meth:`reset` gives a program."""
 
-    def __init__(self, env: XlaPool):
-        self.env, self.num_envs = env, env.num_envs
+    def __init__(self, env: XlaPool, first: tuple[jax.Array, jax.Array] | None = None):
+        self.env, self.num_envs, self.first = env, env.num_envs, first
+
+    def reset(self, key: jax.Array) -> tuple[jax.Array, Pool]:
+        """The pool's first observations and state (``key`` unused: EnvPool reset it on the host)."""
+        handle, obs = self.first
+        return obs, Pool(handle, EpisodeTracker.create(self.num_envs))
 
     def step(self, key: jax.Array, pool: Pool, action: jax.Array) -> tuple[TimeStep, Pool, dict[str, Any]]:
         """EnvPool's step of every env (``key`` unused) read by :func:`track`: the learning view
@@ -166,9 +180,17 @@ def check(agent: Agent, env_id: str, runner: Config, num_seeds: int = 1) -> None
             f"the compiled EnvPool runner steps EnvPool inside the program; --env-backend "
             f"{runner.env_backend} cannot run there (use envpool, or --runner host)"
         )
-    if not isinstance(agent.experience, OnPolicy):
+    experience = agent.experience
+    if isinstance(experience, OffPolicy):
+        if not is_envpool_mujoco_id(env_id) or experience.num_envs != 1 or experience.n_step != 1:
+            raise UsageError(
+                f"the compiled EnvPool runner trains {agent.name} on EnvPool's MuJoCo tasks with one env "
+                "and one-step targets (the mujoco preset's); other settings need --runner host"
+            )
+    elif not isinstance(experience, OnPolicy):
         raise UsageError(
-            f"the compiled EnvPool runner trains on-policy agents (ppo); {agent.name} needs --runner host"
+            f"the compiled EnvPool runner trains on-policy agents (ppo) and, on MuJoCo tasks, sac and "
+            f"td3; {agent.name} needs --runner host"
         )
 
 
@@ -289,6 +311,8 @@ def train(
     in one program per iteration; log, checkpoint and evaluate into ``run`` as
     :func:`agentax.runners.host.train` does (the evaluation on the host adapter: Gymnasium's MuJoCo)."""
     check(agent, env_id, runner)
+    if isinstance(agent.experience, OffPolicy):
+        return train_off_policy(agent, env_id, runner, run, resume=resume, progress=progress)
     session = host.host_session(agent, env_id, runner, run, resume)  # (on-policy: no replay)
     learner_key, updates, env_steps = session.learner_key, session.updates, session.env_steps
     games_done = int(session.meta.get("games", 0))
@@ -324,3 +348,86 @@ def train(
             steps.close()  # the collector's rollout ends before its pool does
             env.close()
     return session.finish(state, env_steps, updates)
+
+
+# ---------------------------------------------------------------- off-policy agents (SAC, TD3)
+
+
+class ProgramReplay:
+    """The replay inside the program's carry as the session saves and restores a replay buffer
+    (``state_dict``, ``load_state_dict``, ``lock``): ``carry`` is set to the newest carry."""
+
+    def __init__(self, carry: Any):
+        self.carry, self.lock = carry, contextlib.nullcontext()
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        leaves = jax.tree_util.tree_flatten_with_path(jax.device_get(self.carry.replay))[0]
+        return {jax.tree_util.keystr(path): np.asarray(leaf) for path, leaf in leaves}
+
+    def load_state_dict(self, arrays: dict[str, np.ndarray]) -> None:
+        paths, tree = jax.tree_util.tree_flatten_with_path(self.carry.replay)
+        leaves = [jnp.asarray(arrays[jax.tree_util.keystr(path)]) for path, _ in paths]
+        self.carry = self.carry.replace(replay=jax.tree.unflatten(tree, leaves))
+
+
+def make_chunk(program: Program, length: int) -> Callable:
+    """``chunk(carry, num_active) -> (carry, metrics)`` (jittable): ``num_active`` (≤ ``length``) of
+    the program's updates, a branch, not a select, skipping the rest (the replay is never copied);
+    ``metrics`` their means."""
+
+    def chunk(carry: Any, num_active: jax.Array):
+        zeros = jax.tree.map(lambda m: jnp.zeros(m.shape, m.dtype), jax.eval_shape(program.update, carry)[1])
+
+        def body(carry, i):
+            return jax.lax.cond(i < num_active, program.update, lambda c: (c, zeros), carry)
+
+        carry, metrics = jax.lax.scan(body, carry, jnp.arange(length))
+        return carry, jax.tree.map(lambda m: m.sum(0) / jnp.maximum(num_active, 1), metrics)
+
+    return chunk
+
+
+def episode_means(before: EpisodeStats, after: EpisodeStats) -> list[float]:
+    """The mean return of the episodes finished between two EpisodeStats (none: ``[]``)."""
+    completed = int(after.completed - before.completed)
+    return [float(after.return_sum - before.return_sum) / completed] if completed else []
+
+
+def train_off_policy(
+    agent: Agent, env_id: str, runner: Config, run: Run | None, *, resume: bool, progress: bool
+) -> TrainResult:
+    """Train SAC or TD3 on an EnvPool MuJoCo task with acting, EnvPool's step, the replay and learning
+    in one program (:func:`agentax.runners.replay_program.off_policy_program`), called once per
+    row (``log_every_steps`` env steps, scanned); the replay is saved beside the checkpoints."""
+    session = host.host_session(agent, env_id, runner, run, resume)
+    updates, env_steps, experience = session.updates, session.env_steps, agent.experience
+    env = make_pool(env_id, experience.num_envs, host.actor_seed(runner.seed, 0, updates), runner)
+    program = off_policy_program(agent, PoolEnvs(env, env.reset()))
+    carry = jax.jit(program.init)(host.fold_actor_key(session.actors_key, 0, updates))
+    episodes = carry.episodes.replace(env_steps=jnp.int32(env_steps))
+    replay = ProgramReplay(carry.replace(agent=session.state, episodes=episodes))
+    session.keep_replay(replay)  # a resumed run's replay restored into the carry
+    # its own buffer for each leaf (an agent's target network starts as its network's arrays): donated
+    carry, length = (
+        jax.tree.map(jnp.copy, replay.carry),
+        max(1, runner.log_every_steps // program.steps_per_update),
+    )
+    chunk = jax.jit(make_chunk(program, length), donate_argnums=0)
+    with session.begin(f"{agent.name} {env_id} (compiled)", progress):
+        try:
+            while updates < program.num_updates:
+                before = jax.device_get(carry.episodes)
+                carry, metrics = chunk(carry, min(length, program.num_updates - updates))
+                updates += min(length, program.num_updates - updates)
+                replay.carry, stats = carry, jax.device_get(carry.episodes)
+                env_steps, last = int(stats.env_steps), updates >= program.num_updates
+                session.row_due(env_steps, True)
+                extra = {"replay_size": int(carry.replay.size)}
+                args = (carry.agent, session.learner_key, env_steps, updates, episode_means(before, stats))
+                if session.log_row(
+                    *args, metrics, final=last, extra=extra, counts={"episodes": int(stats.completed)}
+                ):
+                    break
+        finally:
+            env.close()
+    return session.finish(carry.agent, env_steps, updates)

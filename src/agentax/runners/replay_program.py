@@ -222,7 +222,11 @@ def learn_where(
     return learned, keep(metrics, no_metrics)
 
 
-def off_policy_program(agent: Agent, envs: VectorEnv, freeze: Freeze | None = None) -> Program:
+def off_policy_program(agent: Agent, envs: Any, freeze: Freeze | None = None) -> Program:
+    """The :class:`Program` of an off-policy ``agent`` on ``envs``: a :class:`VectorEnv`, or the
+    compiled EnvPool runner's pool of one env (:class:`agentax.runners.compiled_pool.PoolEnvs`, whose
+    ``reset`` is the pool's first observation and whose reset steps, ``info["valid"]`` False, store
+    nothing); ``freeze`` (a VectorEnv's only) stops each seed's learning at a return."""
     experience: OffPolicy = agent.experience
     replay = replay_for(experience)
     by_episode = experience.by_episode
@@ -249,7 +253,8 @@ def off_policy_program(agent: Agent, envs: VectorEnv, freeze: Freeze | None = No
         key, act_key, step_key, monitor_key = jax.random.split(carry.key, 4)
         progress = carry.episodes.completed if by_episode else carry.episodes.env_steps
         action, info = agent.act(carry.agent, carry.obs, act_key, progress)
-        time_step, env_state, _ = envs.step(step_key, carry.env_state, agent.env_action(action))
+        time_step, env_state, env_info = envs.step(step_key, carry.env_state, agent.env_action(action))
+        valid = jnp.all(env_info.get("valid", True))  # False on EnvPool's reset step (its one env)
         time_step = time_step.replace(
             obs=time_step.obs.astype(jnp.float32), final_obs=time_step.final_obs.astype(jnp.float32)
         )
@@ -263,7 +268,7 @@ def off_policy_program(agent: Agent, envs: VectorEnv, freeze: Freeze | None = No
             experience.discount_factor,
         )
         carry = carry.replace(
-            replay=replay.add(carry.replay, emitted, full & active),
+            replay=replay.add(carry.replay, emitted, full & active & valid),
             accumulator=accumulator,
             env_state=env_state,
             obs=time_step.obs,
