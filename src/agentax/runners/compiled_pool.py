@@ -57,7 +57,7 @@ from agentax.envs.envpool_xla import (
 from agentax.errors import UsageError
 from agentax.returns import EpisodeStats
 from agentax.runners import host, kind_for
-from agentax.runners.rollout import OnPolicyCarry, RecurrentCarry, fresh_memory, on_policy_rollout
+from agentax.runners.rollout import OnPolicyCarry, on_policy_carry, on_policy_rollout
 from agentax.runners.session import TrainResult
 from agentax.runs import Run
 
@@ -65,29 +65,13 @@ XlaPool = XlaAtari | XlaMujoco
 
 
 @dataclass(frozen=True)
-class Config:
-    """The compiled EnvPool runner's settings; saved in config.json under "runner" (a run written
-    before ``policy_lag`` existed resumes with 0, as it ran). The fields it shares with
-    :class:`~agentax.runners.host.HostRunnerConfig` mean the same, so the two compare number for number."""
+class Config(host.HostRunnerConfig):
+    """The compiled EnvPool runner's settings; saved in config.json under "runner". The host runner's
+    mean the same here (so the two compare number for number; the env steps are the pool's, reset
+    steps included; the evaluation is on the host adapter; the replay settings are kept as older
+    runs' config.json hold them: the on-policy agents it trains keep no replay), and a run written
+    before ``policy_lag`` existed resumes with 0, as it ran."""
 
-    seed: int = 0
-    """seed of the agent and of the pool"""
-    log_every_steps: int = 2_048
-    """write a metrics row every this many env steps (the pool's, reset steps included)"""
-    eval_episodes: int = 10
-    """games of the final evaluation (and of the stop-at-return checks), on the host adapter"""
-    stop_at_return: float | None = None
-    """stop once an evaluation (run at each row) reaches this mean return (None: train to the end)"""
-    checkpoint_every_seconds: float = 30.0
-    """write a checkpoint at most this often (and at the end)"""
-    env_backend: str = "auto"
-    """envpool (auto); the evaluation's host adapter follows it"""
-    sticky_actions: float = 0.25
-    """Atari: the probability that the emulator repeats the last action (Gymnasium's v5: 0.25)"""
-    checkpoint_replay: bool = True
-    """kept as older runs' config.json hold it (the on-policy agents it trains keep no replay)"""
-    replay_checkpoint_every_seconds: float = 600.0
-    """kept as older runs' config.json hold it (unused: no replay)"""
     policy_lag: int = 0
     """parameter versions between collecting a rollout and learning from it: 0 runs rollout and
     learning one after the other in one program; 1 collects rollout k+1 in a thread beside the
@@ -188,10 +172,8 @@ def start(
     with memory a :class:`RecurrentCarry`, every env's memory fresh."""
     handle, obs = env.reset()
     episodes = EpisodeStats.create(env.num_envs).replace(env_steps=jnp.int32(env_steps))
-    fields = (agent_state, Pool(handle, EpisodeTracker.create(env.num_envs)), obs, key, episodes)
-    if agent is None or agent.recurrent is None:
-        return OnPolicyCarry(*fields)
-    return RecurrentCarry(*fields, *fresh_memory(agent, env.num_envs))
+    pool = Pool(handle, EpisodeTracker.create(env.num_envs))
+    return on_policy_carry(agent, env.num_envs, agent_state, pool, obs, key, episodes)
 
 
 def make_collect(agent: Agent, env: XlaPool) -> Callable:

@@ -45,7 +45,7 @@ from agentax.runners.driver import (
     TrajectoryObserver,
     first_time_step,
 )
-from agentax.runners.host_memory import CarriedMemory, keep_actor
+from agentax.runners.host_memory import CarriedMemory, act_and_split, keep_actor
 from agentax.runners.replay_program import example_action
 from agentax.runners.rollout import scalars
 from agentax.runners.session import Session, TrainResult, checkpoint_target
@@ -152,17 +152,6 @@ def record_returns(returns: FinishedReturns, trajectory: Transition, episodes: b
     for t in range(len(reward)):
         returns(_Ends(reward[t], terminated[t], truncated[t]))
     return int(trajectory.info["valid"].sum()) if episodes else reward.size
-
-
-def act_and_split(act):
-    """``agent.act`` that also advances its key, so an actor makes one compiled call per step."""
-
-    def act_next(state, obs, key, progress):
-        key, act_key = jax.random.split(key)
-        action, info = act(state, obs, act_key, progress)
-        return action, info, key
-
-    return act_next
 
 
 class Actor:

@@ -72,15 +72,6 @@ def checkpoint_target(agent: Agent) -> Any:
     return jax.eval_shape(lambda key: (agent.init(key), key), jax.random.key(0))
 
 
-def evaluated_if_stopping(row: dict[str, float], runner: Any, evaluator: Any, state: Any) -> bool:
-    """When the run may stop early, evaluate the greedy policy into ``row["eval_return"]``; whether
-    it reached ``runner.stop_at_return``."""
-    if runner.stop_at_return is None:
-        return False
-    row["eval_return"] = float(np.mean(evaluator(state)[0]))
-    return row["eval_return"] >= runner.stop_at_return
-
-
 def final_evaluation(evaluator: Any, state: Any, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """The final evaluation's returns and lengths: fresh episodes, from ``seed + EVAL_SEED_OFFSET``."""
     return evaluator(state, seed=seed + EVAL_SEED_OFFSET)
@@ -219,9 +210,15 @@ class Session:
         """Keep ``replay`` beside the checkpoints (:class:`ReplayCheckpoints`, as the runner's
         settings say), restored from the one this run resumed from."""
         runner = self.runner
-        kept = ReplayCheckpoints(
-            self.run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
+        self.keep(
+            ReplayCheckpoints(
+                self.run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
+            )
         )
+
+    def keep(self, kept: Any) -> None:
+        """Save ``kept`` before each checkpoint commits (``kept.before_checkpoint(updates, force)``),
+        restored from the checkpoint this run resumed from (``kept.restore(path)``)."""
         self.before_checkpoint = kept.before_checkpoint
         if "checkpoint" in self.meta:  # a resumed run
             kept.restore(self.meta["checkpoint"])
@@ -263,9 +260,10 @@ class Session:
         speed = (env_steps - self.steps_at_log) / max(now - self.time_at_log, 1e-9)
         finished = [float(np.mean(returns)) if returns else math.nan]
         row = {**row_of(env_steps, updates, finished, speed), **(extra or {})}
-        solved = evaluated_if_stopping(row, self.runner, self.evaluator, state) and self.confirmed(
-            state, env_steps
-        )
+        solved = False
+        if self.runner.stop_at_return is not None:  # the run may stop: evaluate, and confirm a solve
+            row["eval_return"] = float(np.mean(self.evaluator(state)[0]))
+            solved = row["eval_return"] >= self.runner.stop_at_return and self.confirmed(state, env_steps)
         self.logger.log(row, metrics)
         self.steps_at_log, self.time_at_log = env_steps, time.perf_counter()
         meta = {
