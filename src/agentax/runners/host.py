@@ -1,20 +1,16 @@
 """The host runner: any agent of :mod:`agentax.agents.protocol` on any env id, stepped on the host.
 
 TF-Agents' training loop, one step after the other: an :class:`Actor` drives its vector env with
-the agent's collect policy (``agent.act``, jitted once for the whole batch of envs) through a
-:class:`~agentax.runners.driver.Driver`; observers count steps, keep finished returns and feed the
-experience the agent asked for — a rollout of T steps (on-policy), whole episodes (REINFORCE), or a
-replay buffer (off-policy, with ``as_dataset`` drawing batches ahead); then ``agent.learn`` (jitted)
-trains on it. :mod:`agentax.runners.parallel` runs the same actors and learning steps in threads.
-
-Keys: :func:`~agentax.runners.session.agent_keys`, actor ``i`` folding its own and seeding its envs
-by :func:`fold_actor_key` and :func:`actor_seed`; so the host runner is the parallel runner's
+the collect policy (``agent.act``, jitted for the batch of envs) through a
+:class:`~agentax.runners.driver.Driver` whose observers count steps, keep returns and feed the
+experience the agent asked for (a rollout, whole episodes, or a replay buffer that ``as_dataset``
+draws batches from ahead); then ``agent.learn`` (jitted) trains on it. With the keys of
+:func:`fold_actor_key` and :func:`actor_seed` the host runner is the parallel runner's
 policy-lag-0 run with one actor, number for number.
 
-Checkpoints hold the agent state and the learner's key, and beside them the replay buffer
-(:class:`~agentax.runners.session.ReplayCheckpoints`) or a recurrent agent's actor, its envs' memory
-with them (:mod:`agentax.runners.host_memory`); a resumed run restarts envs whose state cannot be
-saved (a Gymnasium env's) from seeds that depend on how far the run had come.
+Checkpoints hold ``(agent state, learner key)`` and beside them the replay buffer or a recurrent
+agent's actor (:mod:`agentax.runners.host_memory`); a resumed run restarts envs whose state cannot
+be saved (a Gymnasium env's) from seeds that depend on how far the run had come.
 """
 
 from __future__ import annotations
@@ -241,6 +237,11 @@ def replay_for(agent: Agent, obs_shape: tuple[int, ...], seed: int) -> Any:
     stacked frames the frame-deduplicated one (each frame stored once, n-step returns at sampling),
     else a plain one."""
     experience = agent.experience
+    sampling = {
+        "prioritized": experience.prioritized,
+        "priority_exponent": experience.priority_exponent,
+        "seed": seed,
+    }
     if is_image(obs_shape):
         from agentax.replay.frames import FrameReplayBuffer
 
@@ -251,19 +252,11 @@ def replay_for(agent: Agent, obs_shape: tuple[int, ...], seed: int) -> Any:
             frame_shape=obs_shape[1:],
             n_step=experience.n_step,
             discount_factor=experience.discount_factor,
-            prioritized=experience.prioritized,
-            priority_exponent=experience.priority_exponent,
-            seed=seed,
+            **sampling,
         )
     obs = np.zeros(obs_shape, np.float32)
     one = jax.device_get(example_transition(obs, example_action(agent, obs[None])))
-    return ReplayBuffer(
-        experience.capacity,
-        one,
-        prioritized=experience.prioritized,
-        priority_exponent=experience.priority_exponent,
-        seed=seed,
-    )
+    return ReplayBuffer(experience.capacity, one, **sampling)
 
 
 class OffPolicyLearner:
@@ -423,8 +416,7 @@ def train(
                     continue
                 extra = {"replay_size": replay.size, "replay_bytes": replay.nbytes} if replayed else {}
                 counts = {"episodes": actor.episodes.count}
-                returns = drain_returns()
-                args = (state, learner_key, env_steps, updates, returns, metrics)
+                args = (state, learner_key, env_steps, updates, drain_returns(), metrics)
                 if session.log_row(*args, final=finished, extra=extra, counts=counts):
                     break
         finally:
