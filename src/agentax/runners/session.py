@@ -22,10 +22,12 @@ import jax
 import numpy as np
 
 from agentax.agents.protocol import Agent
+from agentax.curves import plot_curves
 from agentax.errors import StorageFull
+from agentax.evaluate import EvalStats
 from agentax.policies import Policy
 from agentax.replay.files import restore_replay, save_replay
-from agentax.runners.logger import RunLogger, finish_run
+from agentax.runners.logger import RunLogger
 from agentax.runs import CHECKPOINT_PREFIX, REPLAY_PREFIX, Run, checkpoints, load_checkpoint, replay_beside
 
 EVAL_SEED_OFFSET = 123_457
@@ -125,11 +127,17 @@ def open_logger(
 def conclude(run: Run | None, result: TrainResult, returns: Any, lengths: Any, *written: str, **extra: Any):
     """``result`` with its final evaluation (``returns``, ``lengths``: ``[seeds, episodes]``) in
     ``result.eval``: eval.json (with the counts, ``result``'s ``written`` fields and ``extra``) and
-    curve.png in ``run``, if any. Every runner's result ends here."""
+    curve.png in ``run`` (then closed), if any. Every runner's result ends here."""
+    returns, lengths = np.atleast_2d(returns), np.atleast_2d(lengths)
     fields = {name: getattr(result, name) for name in written}
-    result.eval = finish_run(
-        run, returns, lengths, env_steps=result.env_steps, updates=result.updates, **fields, **extra
-    )
+    extra = {"env_steps": result.env_steps, "updates": result.updates, **fields, **extra}
+    if run is None:
+        stats = vars(EvalStats.from_returns(returns.ravel(), lengths.ravel()))
+        result.eval = {**stats, "per_seed_mean": returns.mean(axis=1).tolist(), **extra}
+        return result
+    result.eval = run.write_eval(returns, lengths, **extra)
+    plot_curves([run.path], run.path / "curve.png")
+    run.close()
     return result
 
 
