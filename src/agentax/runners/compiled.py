@@ -36,7 +36,7 @@ from agentax.envs.core import Environment
 from agentax.errors import UsageError
 from agentax.policies import Policy
 from agentax.runners import algorithm_of, cost, programs, workers
-from agentax.runners.launch import agent_maker, env_specs, parse_return, precision_of
+from agentax.runners.launch import agent_maker, parse_return, precision_of, run_agent_maker
 from agentax.runners.programs import CHUNK_COMPILER_OPTIONS, init_from_seeds
 from agentax.runners.replay_program import Freeze, off_policy_program
 from agentax.runners.rollout import Program, VectorEnv, episodes_program, on_policy_program
@@ -424,9 +424,7 @@ def train_worker(
     config: dict[str, Any], run: Run, runner: RunnerConfig, *, resume: bool, progress: bool
 ) -> TrainResult:
     """One worker's seeds (``runner``) of the run ``config`` describes, in this process, into ``run``."""
-    module, cfg = algorithm_of(config)
-    spec, _ = env_specs("compiled", config["env"], encoders=config.get("encoders"))  # as launch.prepare's
-    agent = agent_maker(module, spec, cfg, precision=precision_of(config))()
+    agent = run_agent_maker(config, *algorithm_of(config))()  # as launch.prepare made it
     return train(agent, config["env"], runner, run, resume=resume, progress=progress)
 
 
