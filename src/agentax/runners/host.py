@@ -223,10 +223,8 @@ class Actor:
     def collect(self, state: Any, replay: ReplayObserver, amount: int) -> None:
         """``amount`` steps per env (or ``amount`` episodes, in the episode schedule) into the replay."""
         self.state = state
-        if self.by_episode:
-            self._run([replay], max_episodes=amount)
-        else:
-            self._run([replay], max_steps=amount * self.env.num_envs)
+        limit = {"max_episodes": amount} if self.by_episode else {"max_steps": amount * self.num_envs}
+        self._run([replay], **limit)
 
     def close(self) -> None:
         self.env.close()
