@@ -104,9 +104,16 @@ budget of 10 minutes on a new 2-core machine."""
 
 
 def pytest_configure(config):
+    import jax
+
     from agentax import _xla
 
     _xla.enable_compilation_cache()
+    # jax's CPU client now, on one CPU (agentax's cure for the XLA hang): whichever test a worker runs
+    # first, a host runner's (which would make it for every CPU) or a compiled one's. A worker that
+    # ran EnvPool's compiled Hopper first, its client for both CPUs, hung in the next compiled
+    # runner's first call of its seeds' program.
+    jax.devices("cpu")
 
 
 def is_long_case(nodeid: str) -> bool:

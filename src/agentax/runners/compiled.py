@@ -1,22 +1,18 @@
 """The compiled runner: the whole training of a JAX env under ``jit`` + ``lax.scan``, vmapped over seeds.
 
-**The program**, one seed's :class:`~agentax.runners.rollout.Program`, is built from the agent by
-:func:`program_of`, the same for every algorithm. The runner compiles ``jax.jit(jax.vmap(chunk))``
-(:func:`agentax.runners.programs.build`, kept on disk so a repeated run neither traces nor compiles
-it), where ``chunk`` scans ``update`` ``updates_per_chunk`` times (a shared, unbatched count
-discards the updates past the end in a last, shorter chunk, so no second program is compiled) and
-then, when asked, evaluates the greedy policy on fresh evaluation keys. Seed ``k`` of a batch
-starting at ``seed`` uses ``jax.random.key(seed + k)``, so seed ``k`` run alone gives the same
-numbers as inside a batch.
+One seed's :class:`~agentax.runners.rollout.Program` (:func:`program_of`, the same for every
+algorithm) becomes ``jax.jit(jax.vmap(chunk))`` (:func:`agentax.runners.programs.build`, kept on
+disk so a repeated run neither traces nor compiles it): ``chunk`` scans ``update``
+``updates_per_chunk`` times (an unbatched count discards the updates past the end in a last,
+shorter chunk: no second program) and then, when asked, evaluates the greedy policy on fresh keys.
+Seed ``k`` of a batch starting at ``seed`` uses ``jax.random.key(seed + k)``, so it gives the same
+numbers alone as inside a batch.
 
-Between chunks (:class:`ChunkSchedule`), back in Python, it logs a row through the session's pieces
-(:mod:`agentax.runners.session`), checkpoints the whole carry (so a resumed run continues exactly),
-and stops early once every seed's evaluation mean reaches ``stop_at_return``. At the end it
-evaluates the greedy policies once more on fresh keys (:func:`~agentax.runners.session.conclude`).
-With ``workers > 1`` :func:`train` splits the seeds over processes (:mod:`agentax.runners.workers`).
-
-``import agentax`` has jax create its CPU client on one CPU (:mod:`agentax._xla`), the cure for
-the XLA CPU hang this program, called over and over, once met.
+Between chunks (:class:`ChunkSchedule`) it logs a row, checkpoints the whole carry (a resumed run
+continues exactly) and stops once every seed's evaluation mean reaches ``stop_at_return``; at the
+end it evaluates on fresh keys once more. With ``workers > 1`` the seeds are split over processes
+(:mod:`agentax.runners.workers`). ``import agentax`` has jax create its CPU client on one CPU
+(:mod:`agentax._xla`), the cure for the XLA CPU hang this program, called over and over, once met.
 """
 
 from __future__ import annotations
@@ -40,18 +36,11 @@ from agentax.envs.core import Environment
 from agentax.errors import UsageError
 from agentax.policies import Policy
 from agentax.runners import algorithm_of, cost, programs, workers
-from agentax.runners.launch import agent_maker, env_specs, parse_return, precision_of
+from agentax.runners.launch import agent_maker, parse_return, precision_of, run_agent_maker
 from agentax.runners.programs import CHUNK_COMPILER_OPTIONS, init_from_seeds
 from agentax.runners.replay_program import Freeze, off_policy_program
 from agentax.runners.rollout import Program, VectorEnv, episodes_program, on_policy_program
-from agentax.runners.session import (
-    SOLVED,
-    TIMINGS,
-    TrainResult,
-    conclude,
-    open_logger,
-    row_of,
-)
+from agentax.runners.session import SOLVED, TIMINGS, TrainResult, conclude, open_logger, row_of
 from agentax.runs import Run, load_checkpoint
 
 
@@ -129,12 +118,10 @@ def eval_every_chunks(runner: RunnerConfig, num_updates: int) -> int:
 
 
 def check_fits(algorithm: Program, runner: RunnerConfig) -> None:
-    """A ``UsageError`` when the seeds' training state cannot fit in this machine's memory (refused
-    up front: a vmap over more seeds than memory holds would swap or stall before its first chunk).
-
-    Counts the carry of one seed (parameters, optimizer state, env states, replay) times the seeds,
-    twice: the program's buffers and the host copy a checkpoint makes. One seed is not checked (its
-    settings are the algorithm's to refuse), so the default run pays no extra trace."""
+    """A ``UsageError`` when the seeds' training state cannot fit in memory (else a vmap over them
+    would swap or stall before its first chunk): one seed's carry times the seeds, twice (the
+    program's buffers and a checkpoint's host copy). One seed is the algorithm's to refuse, so the
+    default run pays no extra trace."""
     agents = runner.num_seeds * runner.num_settings
     if agents == 1:
         return
@@ -237,12 +224,8 @@ def train_program(
     stats = jax.device_get(state.episodes)
     counts = Counts(int(meta["updates"]), int(meta["evaluations"]), float(np.mean(stats.env_steps)))
     counts.solved_env_steps, counts.solved_seconds = (meta.get(name) for name in SOLVED)
-    schedule = ChunkSchedule(
-        algorithm.num_updates,
-        runner.updates_per_chunk,
-        eval_every_chunks(runner, algorithm.num_updates),
-        max_chunks,
-    )
+    every = eval_every_chunks(runner, algorithm.num_updates)
+    schedule = ChunkSchedule(algorithm.num_updates, runner.updates_per_chunk, every, max_chunks)
     total_steps = algorithm.num_updates * algorithm.steps_per_update
     logger = open_logger(run, total_steps, counts.env_steps, runner, float(meta["elapsed"]), progress)
     with logger:
@@ -441,9 +424,7 @@ def train_worker(
     config: dict[str, Any], run: Run, runner: RunnerConfig, *, resume: bool, progress: bool
 ) -> TrainResult:
     """One worker's seeds (``runner``) of the run ``config`` describes, in this process, into ``run``."""
-    module, cfg = algorithm_of(config)
-    spec, _ = env_specs("compiled", config["env"], encoders=config.get("encoders"))  # as launch.prepare's
-    agent = agent_maker(module, spec, cfg, precision=precision_of(config))()
+    agent = run_agent_maker(config, *algorithm_of(config))()  # as launch.prepare made it
     return train(agent, config["env"], runner, run, resume=resume, progress=progress)
 
 

@@ -2,35 +2,27 @@
 on MuJoCo tasks also SAC and TD3, their acting, replay and learning in one program
 (:func:`train_off_policy`).
 
-For ``agentax train ppo --env ALE/Breakout-v5 --runner compiled`` (runner kind ``compiled-atari``)
-and ``agentax train ppo --env HalfCheetah-v5 --runner compiled`` (``compiled-mujoco``: EnvPool's
-MuJoCo v5 tasks, :class:`~agentax.envs.envpool_xla.XlaMujoco`, raw rewards, episodes for games).
-Which backend steps a MuJoCo id: ``--runner compiled`` is EnvPool inside the program; ``auto``
-(the host, parallel and Ray runners) is Gymnasium's env on the ``mujoco`` package.
+``--runner compiled`` on an Atari id (kind ``compiled-atari``) or on EnvPool's MuJoCo v5 tasks
+(``compiled-mujoco``, :class:`~agentax.envs.envpool_xla.XlaMujoco`: raw rewards, episodes for
+games; the other runners step a MuJoCo id with Gymnasium's env). Each iteration is one jitted call,
+:func:`make_update`: the compiled runner's on-policy rollout
+(:func:`agentax.runners.rollout.on_policy_rollout`) on :class:`PoolEnvs`, EnvPool's step of the pool
+(:mod:`agentax.envs.envpool_xla`, the host adapter's preprocessing), then ``agent.learn`` — no
+Python between the env and the network (as CleanRL's ``ppo_atari_envpool_xla_jax.py``). One seed
+per process: EnvPool's pool handle cannot be vmapped.
 
-Each iteration is one jitted call, :func:`make_update`: the compiled runner's on-policy rollout
-(:func:`agentax.runners.rollout.on_policy_rollout`, a ``lax.scan`` of ``num_steps`` steps of the
-agent's collect policy) on :class:`PoolEnvs`, EnvPool's step of the pool
-(:mod:`agentax.envs.envpool_xla`, the host adapter's preprocessing and settings), then
-``agent.learn`` on the rollout — no Python between the env and the network (CleanRL's
-``ppo_atari_envpool_xla_jax.py`` does the same). One seed per process: EnvPool's pool handle cannot
-be vmapped.
-
-**EnvPool's reset step.** The step after an episode's end (a lost life, a game over, the frame
-limit) is EnvPool's reset: it ignores its action and returns the next episode's first observation.
-The rollout keeps it (fixed shapes), marks it ``info["valid"] = False`` and learns nothing from it
-(PPO leaves such steps out of every loss term and of the advantages' normalisation); the step before
-it carries the episode's end (``terminated``, or ``truncated`` at the frame limit), so GAE neither
-bootstraps through it nor carries its λ-trace across. The env steps counted (``env_steps``, the
-progress bar, ``total_steps``) are the pool's steps, reset steps included; ``masked_fraction``
-in metrics.csv is their share.
+**EnvPool's reset step.** The step after an episode's end is EnvPool's reset: it ignores its action
+and returns the next episode's first observation. The rollout keeps it (fixed shapes) marked
+``info["valid"] = False``, and PPO learns nothing from it; the step before carries the episode's
+end, so GAE neither bootstraps nor carries its λ-trace across. The env steps counted (rows,
+progress bar, ``total_steps``) are the pool's, reset steps included; ``masked_fraction`` in
+metrics.csv is their share.
 
 **The rest is the host runner's** (:mod:`agentax.runners.host`), so the two compare number for
-number where they can: the same settings, keys (:func:`~agentax.runners.session.agent_keys`; the pool
-seeded as the host actor's envs, an act key per step as the host actor's), rows (``mean_return``:
-the true score of the whole games finished since the last row), checkpoints (a resumed run restarts
-its pool from a new seed) and final evaluation (whole games on the host adapter, greedy with 1 %
-random actions).
+number where they can: settings, keys (the pool seeded as the host actor's envs, an act key per
+step as the host actor's), rows (``mean_return``: the true scores of the whole games finished since
+the last row), checkpoints (a resumed run restarts its pool from a new seed) and the final
+evaluation (whole games on the host adapter, greedy with 1 % random actions).
 """
 
 from __future__ import annotations
@@ -62,7 +54,7 @@ from agentax.errors import UsageError
 from agentax.returns import EpisodeStats
 from agentax.runners import host, kind_for
 from agentax.runners.replay_program import off_policy_program
-from agentax.runners.rollout import OnPolicyCarry, Program, RecurrentCarry, fresh_memory, on_policy_rollout
+from agentax.runners.rollout import OnPolicyCarry, Program, on_policy_carry, on_policy_rollout
 from agentax.runners.session import TrainResult, split_key
 from agentax.runs import Run
 
@@ -90,9 +82,9 @@ class Config:
     sticky_actions: float = 0.25
     """Atari: the probability that the emulator repeats the last action (Gymnasium's v5: 0.25)"""
     checkpoint_replay: bool = True
-    """kept as older runs' config.json hold it (the on-policy agents it trains keep no replay)"""
+    """SAC and TD3: save the program's replay beside the checkpoints (PPO keeps none)"""
     replay_checkpoint_every_seconds: float = 600.0
-    """kept as older runs' config.json hold it (unused: no replay)"""
+    """SAC and TD3: save the replay at most this often (and with the first and last checkpoints)"""
     policy_lag: int = 0
     """parameter versions between collecting a rollout and learning from it: 0 runs rollout and
     learning one after the other in one program; 1 collects rollout k+1 in a thread beside the
@@ -210,10 +202,8 @@ def start(
     with memory a :class:`RecurrentCarry`, every env's memory fresh."""
     handle, obs = env.reset()
     episodes = EpisodeStats.create(env.num_envs).replace(env_steps=jnp.int32(env_steps))
-    fields = (agent_state, Pool(handle, EpisodeTracker.create(env.num_envs)), obs, key, episodes)
-    if agent is None or agent.recurrent is None:
-        return OnPolicyCarry(*fields)
-    return RecurrentCarry(*fields, *fresh_memory(agent, env.num_envs))
+    pool = Pool(handle, EpisodeTracker.create(env.num_envs))
+    return on_policy_carry(agent, env.num_envs, agent_state, pool, obs, key, episodes)
 
 
 def make_collect(agent: Agent, env: XlaPool) -> Callable:
@@ -292,10 +282,10 @@ def side_by_side(
             yield state, learner_key, metrics, games
 
 
-def finished_games(games: Games) -> list[tuple[float, int]]:
-    """``(true score, length)`` of each game a rollout finished, in time order (``drain_scores``'s)."""
-    finished, score, length = jax.device_get((games.finished, games.score, games.length))
-    return [(float(s), int(n)) for s, n in zip(score[finished], length[finished], strict=True)]
+def finished_scores(games: Games) -> list[float]:
+    """The true score of each game a rollout finished, in time order (``drain_scores``'s)."""
+    finished, score = jax.device_get((games.finished, games.score))
+    return score[finished].tolist()
 
 
 def train(
@@ -332,17 +322,16 @@ def train(
                 state, learner_key, metrics, games = next(steps)
                 updates += 1
                 env_steps += experience.num_envs * experience.num_steps
-                finished = finished_games(games)  # waits for the rollout: speeds count all of it
+                finished = finished_scores(games)  # waits for the rollout: speeds count all of it
                 games_done += len(finished)
-                scores += [score for score, _ in finished]
+                scores += finished
                 last = updates >= total_updates
                 if not session.row_due(env_steps, last):
                     continue
                 args = (state, learner_key, env_steps, updates, scores, metrics)
                 extra = {"frames": FRAME_SKIP * env_steps} if isinstance(env, XlaAtari) else {}
-                counts = {"games": games_done}
                 scores = []
-                if session.log_row(*args, final=last, extra=extra, counts=counts):
+                if session.log_row(*args, final=last, extra=extra, counts={"games": games_done}):
                     break
         finally:
             steps.close()  # the collector's rollout ends before its pool does

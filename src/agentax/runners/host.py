@@ -1,20 +1,16 @@
 """The host runner: any agent of :mod:`agentax.agents.protocol` on any env id, stepped on the host.
 
 TF-Agents' training loop, one step after the other: an :class:`Actor` drives its vector env with
-the agent's collect policy (``agent.act``, jitted once for the whole batch of envs) through a
-:class:`~agentax.runners.driver.Driver`; observers count steps, keep finished returns and feed the
-experience the agent asked for — a rollout of T steps (on-policy), whole episodes (REINFORCE), or a
-replay buffer (off-policy, with ``as_dataset`` drawing batches ahead); then ``agent.learn`` (jitted)
-trains on it. :mod:`agentax.runners.parallel` runs the same actors and learning steps in threads.
-
-Keys: :func:`~agentax.runners.session.agent_keys`, actor ``i`` folding its own and seeding its envs
-by :func:`fold_actor_key` and :func:`actor_seed`; so the host runner is the parallel runner's
+the collect policy (``agent.act``, jitted for the batch of envs) through a
+:class:`~agentax.runners.driver.Driver` whose observers count steps, keep returns and feed the
+experience the agent asked for (a rollout, whole episodes, or a replay buffer that ``as_dataset``
+draws batches from ahead); then ``agent.learn`` (jitted) trains on it. With the keys of
+:func:`fold_actor_key` and :func:`actor_seed` the host runner is the parallel runner's
 policy-lag-0 run with one actor, number for number.
 
-Checkpoints hold the agent state and the learner's key, and beside them the replay buffer
-(:class:`~agentax.runners.session.ReplayCheckpoints`) or a recurrent agent's actor, its envs' memory
-with them (:mod:`agentax.runners.host_memory`); a resumed run restarts envs whose state cannot be
-saved (a Gymnasium env's) from seeds that depend on how far the run had come.
+Checkpoints hold ``(agent state, learner key)`` and beside them the replay buffer or a recurrent
+agent's actor (:mod:`agentax.runners.host_memory`); a resumed run restarts envs whose state cannot
+be saved (a Gymnasium env's) from seeds that depend on how far the run had come.
 """
 
 from __future__ import annotations
@@ -45,7 +41,7 @@ from agentax.runners.driver import (
     TrajectoryObserver,
     first_time_step,
 )
-from agentax.runners.host_memory import CarriedMemory, keep_actor
+from agentax.runners.host_memory import CarriedMemory, act_and_split, keep_actor
 from agentax.runners.replay_program import example_action
 from agentax.runners.rollout import scalars
 from agentax.runners.session import Session, TrainResult, checkpoint_target, split_key
@@ -154,17 +150,6 @@ def record_returns(returns: FinishedReturns, trajectory: Transition, episodes: b
     return int(trajectory.info["valid"].sum()) if episodes else reward.size
 
 
-def act_and_split(act):
-    """``agent.act`` that also advances its key, so an actor makes one compiled call per step."""
-
-    def act_next(state, obs, key, progress):
-        key, act_key = jax.random.split(key)
-        action, info = act(state, obs, act_key, progress)
-        return action, info, key
-
-    return act_next
-
-
 class Actor:
     """One actor: its own vector env, the collect policy on the parameters it is given, a Driver.
 
@@ -239,10 +224,8 @@ class Actor:
     def collect(self, state: Any, replay: ReplayObserver, amount: int) -> None:
         """``amount`` steps per env (or ``amount`` episodes, in the episode schedule) into the replay."""
         self.state = state
-        if self.by_episode:
-            self._run([replay], max_episodes=amount)
-        else:
-            self._run([replay], max_steps=amount * self.env.num_envs)
+        limit = {"max_episodes": amount} if self.by_episode else {"max_steps": amount * self.num_envs}
+        self._run([replay], **limit)
 
     def close(self) -> None:
         self.env.close()
@@ -253,6 +236,11 @@ def replay_for(agent: Agent, obs_shape: tuple[int, ...], seed: int) -> Any:
     stacked frames the frame-deduplicated one (each frame stored once, n-step returns at sampling),
     else a plain one."""
     experience = agent.experience
+    sampling = {
+        "prioritized": experience.prioritized,
+        "priority_exponent": experience.priority_exponent,
+        "seed": seed,
+    }
     if is_image(obs_shape):
         from agentax.replay.frames import FrameReplayBuffer
 
@@ -263,19 +251,11 @@ def replay_for(agent: Agent, obs_shape: tuple[int, ...], seed: int) -> Any:
             frame_shape=obs_shape[1:],
             n_step=experience.n_step,
             discount_factor=experience.discount_factor,
-            prioritized=experience.prioritized,
-            priority_exponent=experience.priority_exponent,
-            seed=seed,
+            **sampling,
         )
     obs = np.zeros(obs_shape, np.float32)
     one = jax.device_get(example_transition(obs, example_action(agent, obs[None])))
-    return ReplayBuffer(
-        experience.capacity,
-        one,
-        prioritized=experience.prioritized,
-        priority_exponent=experience.priority_exponent,
-        seed=seed,
-    )
+    return ReplayBuffer(experience.capacity, one, **sampling)
 
 
 class OffPolicyLearner:
@@ -435,8 +415,7 @@ def train(
                     continue
                 extra = {"replay_size": replay.size, "replay_bytes": replay.nbytes} if replayed else {}
                 counts = {"episodes": actor.episodes.count}
-                returns = drain_returns()
-                args = (state, learner_key, env_steps, updates, returns, metrics)
+                args = (state, learner_key, env_steps, updates, drain_returns(), metrics)
                 if session.log_row(*args, final=finished, extra=extra, counts=counts):
                     break
         finally:

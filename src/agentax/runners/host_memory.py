@@ -41,13 +41,14 @@ from agentax.runs import CHECKPOINT_PREFIX, Run, checkpoints, load_tree, save_tr
 ACTORS_PREFIX = "actors-"
 
 
-def act_with_memory_and_split(act):
-    """``agent.recurrent.act`` that also advances its key (split as the host runner's ``act``)."""
+def act_and_split(act):
+    """``act(..., key, progress)`` (``agent.act``, or ``agent.recurrent.act``) that also advances its
+    key: its results and the next key, so a host actor makes one compiled call per step."""
 
-    def act_next(state, memory, obs, first, key, progress):
+    def act_next(*inputs):
+        *inputs, key, progress = inputs
         key, act_key = jax.random.split(key)
-        memory, action, info = act(state, memory, obs, first, act_key, progress)
-        return memory, action, info, key
+        return (*act(*inputs, act_key, progress), key)
 
     return act_next
 
@@ -59,7 +60,7 @@ class CarriedMemory:
 
     def __init__(self, agent: Agent, num_envs: int):
         self.agent, self.num_envs = agent, num_envs
-        self._act = jax.jit(act_with_memory_and_split(agent.recurrent.act))
+        self._act = jax.jit(act_and_split(agent.recurrent.act))
         self.restart()
 
     def restart(self) -> None:
@@ -158,7 +159,4 @@ def keep_actor(session: Session, actor: Any, *trackers: EpisodeAverage) -> None:
     envs can be saved), continued where the run resumed from."""
     if actor.memory is None or isinstance(actor.agent.experience, OffPolicy):
         return
-    kept = ActorCheckpoints(session.run, actor, [actor.returns, *trackers])
-    session.before_checkpoint = kept.before_checkpoint
-    if "checkpoint" in session.meta:
-        kept.restore(session.meta["checkpoint"])
+    session.keep(ActorCheckpoints(session.run, actor, [actor.returns, *trackers]))

@@ -158,19 +158,25 @@ def check_memory_carried(agent: Any, kind: str) -> None:
         )
 
 
+def run_agent_maker(config: dict, module: Any, cfg: Any, conv: str | None = None) -> Callable[[], Any]:
+    """:func:`agent_maker` for the run of ``config`` (a config.json): its env as its runner makes it
+    (with the host adapter's options it holds under "runner"), its encoders and its precision."""
+    runner = config.get("runner", {})
+    options = (runner.get("env_backend", "auto"), runner.get("sticky_actions", 0.25))
+    spec, _ = env_specs(kind_of(config), config["env"], *options, config.get("encoders"))
+    precision = precision_of(config)
+    if conv == "xla":  # a policy for export: XLA's products only
+        from agentax import kernels
+
+        precision = kernels.exportable(precision)
+    return agent_maker(module, spec, cfg, conv, precision)
+
+
 def reopen(config: dict[str, Any], module: Any, cfg: Any, runner: Any) -> Launch:
     """The run of ``config`` (a config.json; ``runner``: its settings, parsed), to resume."""
-    kind = kind_of(config)
-    spec, _ = env_specs(kind, config["env"], *_host_options(config), config.get("encoders"))
-    remake = agent_maker(module, spec, cfg, precision=precision_of(config))
+    remake = run_agent_maker(config, module, cfg)
     precision = {"precision": precision_of(config), **config.get("precision_choice", {})}
-    return _launch(RUNNERS[kind].load(), remake(), remake, config["env"], runner, "", precision)
-
-
-def _host_options(config: dict[str, Any]) -> tuple[str, float]:
-    """The host adapter's options a run's config.json holds under "runner"."""
-    runner = config.get("runner", {})
-    return runner.get("env_backend", "auto"), runner.get("sticky_actions", 0.25)
+    return _launch(RUNNERS[kind_of(config)].load(), remake(), remake, config["env"], runner, "", precision)
 
 
 def _launch(
@@ -188,12 +194,5 @@ def _launch(
 def restore(run_dir: Path, config: dict[str, Any], module: Any, cfg: Any, conv: str | None = None) -> Policy:
     """The greedy policy of the run's best seed, from its newest good checkpoint (its convolutions on
     ``conv``, else on :func:`agent_maker`'s choice; its products in the run's precision)."""
-    kind = kind_of(config)
-    spec, _ = env_specs(kind, config["env"], *_host_options(config), config.get("encoders"))
-    from agentax import kernels
-
-    precision = precision_of(config)
-    if conv == "xla":  # a policy for export: XLA's products only
-        precision = kernels.exportable(precision)
-    agent = agent_maker(module, spec, cfg, conv, precision)()
-    return RUNNERS[kind].load().restore(Path(run_dir), config, agent)
+    agent = run_agent_maker(config, module, cfg, conv)()
+    return RUNNERS[kind_of(config)].load().restore(Path(run_dir), config, agent)

@@ -1,4 +1,4 @@
-"""The run logger every runner writes through: rows, progress bar, checkpoints, the final evaluation.
+"""The run logger every runner writes through: rows, progress bar, checkpoints.
 
 A runner hands it a row of its own bookkeeping (``env_steps``, returns, speeds) and the agent's
 learning metrics; the logger checks that the metrics are finite, appends the row to metrics.csv
@@ -25,9 +25,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from agentax.curves import plot_curves
 from agentax.errors import TrainingDiverged, TrainingInterrupted
-from agentax.evaluate import EvalStats
 from agentax.runs import Run
 
 DIVERGED_HINT = "lower the learning rate or clip the gradients (--max-grad-norm)"
@@ -118,7 +116,7 @@ BAR_COLUMNS = ("actor_wait_fraction", "learner_wait_fraction", "policy_lag")
 
 
 class RunLogger:
-    """Writes one training's rows, checkpoints and final evaluation into ``run`` (if given).
+    """Writes one training's rows and checkpoints into ``run`` (if given).
 
     ``checkpoint_every_seconds`` spaces checkpoints out in time (a runner forces one at the end);
     ``elapsed_before`` is the wall time of the earlier part of a resumed run.
@@ -206,16 +204,3 @@ class RunLogger:
         path = self.run.save_checkpoint(step, tree, meta)
         self.last_checkpoint, self.last_checkpoint_time = path.name, now
         return True
-
-
-def finish_run(run: Run | None, returns: np.ndarray, lengths: np.ndarray, **extra: Any) -> dict[str, Any]:
-    """The final evaluation (returns ``[num_seeds, episodes]``): eval.json and curve.png if there is
-    a run folder (then closed); the statistics either way."""
-    returns, lengths = np.atleast_2d(returns), np.atleast_2d(lengths)
-    if run is None:
-        stats = vars(EvalStats.from_returns(returns.ravel(), lengths.ravel()))
-        return {**stats, "per_seed_mean": returns.mean(axis=1).tolist(), **extra}
-    evaluation = run.write_eval(returns, lengths, **extra)
-    plot_curves([run.path], run.path / "curve.png")
-    run.close()
-    return evaluation

@@ -269,8 +269,9 @@ def train(
 @dataclass
 class Loop:
     """What a learner's loop works with: the agent, the runner's settings, the actors (their fleet
-    and the threads it adds), the coordinator and the session, whose rows add the actors' figures
-    (``meter``, once the threads exist) and the replay's size (off-policy)."""
+    and the threads :meth:`start` adds), the coordinator and the session, whose rows add the actors'
+    figures (``meter``), the seconds the learner waited and the replay's size (off-policy);
+    ``drain()`` gives the returns of the episodes finished since the last row."""
 
     agent: Agent
     runner: ParallelRunnerConfig
@@ -278,30 +279,40 @@ class Loop:
     threads: list[ActorThread]
     coordinator: Coordinator
     session: Session
+    drain: Callable[[], list[float]] | None = None
     meter: Meter | None = None
     replay: Any = None
+    learner_wait: float = 0.0
 
-    def maybe_log(
-        self, state, learner_key, env_steps, collected, updates, learner_wait, returns, metrics, final
-    ):
-        """Log (and checkpoint) when due; returns True once the run has reached ``stop_at_return``.
-        ``returns()`` drains the returns of the episodes finished since the last row."""
+    def start(self, collect: Callable[[ActorThread, int], None]) -> None:
+        """Start an actor thread per actor, running ``collect(thread, index)``."""
+        for i, actor in enumerate(self.fleet.actors):
+            self.threads.append(
+                ActorThread(actor, lambda thread, i=i: collect(thread, i), self.coordinator, i)
+            )
+        self.meter = Meter(self.threads, self.fleet.figures)
+        for thread in self.threads:
+            thread.start()
+
+    def maybe_log(self, state, learner_key, env_steps, collected, updates, metrics, final) -> bool:
+        """Log (and checkpoint) when due; returns True once the run has reached ``stop_at_return``."""
         if not self.session.row_due(env_steps, final):
             return False
-        extra = self.meter.row(collected, updates, learner_wait)
+        extra = self.meter.row(collected, updates, self.learner_wait)
         if self.replay is not None:
             extra.update(replay_size=self.replay.size, replay_bytes=self.replay.nbytes)
-        args = (state, learner_key, env_steps, updates, returns(), metrics)
+        args = (state, learner_key, env_steps, updates, self.drain(), metrics)
         return self.session.log_row(*args, final=final, extra=extra, counts={"episodes": 0})
 
 
 def _on_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, done_steps: int):
     """Rollout ``k`` from every actor, collected with parameter version ``k - policy_lag``; learn."""
-    agent, runner, fleet = loop.agent, loop.runner, loop.fleet
-    threads, coordinator = loop.threads, loop.coordinator
-    experience, actors = agent.experience, fleet.actors
+    agent, runner, coordinator = loop.agent, loop.runner, loop.coordinator
+    experience, actors = agent.experience, loop.fleet.actors
     last_update = num_updates(agent)
-    channel = ParameterChannel(coordinator, updates, state, keep=runner.policy_lag + 2, share=fleet.share)
+    channel = ParameterChannel(
+        coordinator, updates, state, keep=runner.policy_lag + 2, share=loop.fleet.share
+    )
     queues = [queue.Queue(maxsize=1) for _ in actors]
     first_update = updates  # the learner's loop below moves ``updates`` on; the actors count from here
 
@@ -315,22 +326,17 @@ def _on_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, don
                 trajectory = thread.actor.rollout(params, experience.num_steps)
             thread.wait_seconds += waited + put(queues[index], (version, trajectory), coordinator)
 
-    for i, actor in enumerate(actors):
-        threads.append(ActorThread(actor, lambda thread, i=i: collect(thread, i), coordinator, i))
-    loop.meter = Meter(threads, fleet.figures)
     learn = jax.jit(agent.learn)
     returns = FinishedReturns()
     # from what was learned, so runs repeat; whole Atari games from the envs
-    drain = fleet.finished_returns if actors[0].keeps_scores else returns.drain
-
-    learner_wait, env_steps, metrics = 0.0, done_steps, {}
-    for thread in threads:
-        thread.start()
+    loop.drain = loop.fleet.finished_returns if actors[0].keeps_scores else returns.drain
+    env_steps, metrics = done_steps, {}
+    loop.start(collect)
     for k in range(updates, last_update):
         parts = []
-        for q, thread in zip(queues, threads, strict=True):
+        for q, thread in zip(queues, loop.threads, strict=True):
             (version, trajectory), waited = take(q, coordinator)
-            learner_wait += waited
+            loop.learner_wait += waited
             thread.lag_sum, thread.lag_count = thread.lag_sum + k - version, thread.lag_count + 1
             parts.append(trajectory)
         trajectory = jax.tree.map(lambda *xs: np.concatenate(xs, axis=1), *parts)
@@ -339,24 +345,20 @@ def _on_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, don
         updates = k + 1
         channel.publish(updates, state)
         env_steps += record_returns(returns, trajectory, isinstance(experience, Episodes))
-        final = updates == last_update
         collected = sum(a.steps.count for a in actors)
-        if loop.maybe_log(
-            state, learner_key, env_steps, collected, updates, learner_wait, drain, metrics, final
-        ):
+        if loop.maybe_log(state, learner_key, env_steps, collected, updates, metrics, updates == last_update):
             break
     return state, updates, env_steps
 
 
 def _off_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, done_steps: int):
     """Actors fill the shared replay as the rate limiter allows; the learner learns as it allows."""
-    agent, runner, fleet = loop.agent, loop.runner, loop.fleet
-    threads, coordinator = loop.threads, loop.coordinator
+    agent, runner, coordinator = loop.agent, loop.runner, loop.coordinator
     experience: OffPolicy = agent.experience
-    actors = fleet.actors
-    replay = replay_for(agent, actors[0].obs_shape, runner.seed)
-    loop.replay = replay
+    actors = loop.fleet.actors
+    loop.replay = replay = replay_for(agent, actors[0].obs_shape, runner.seed)
     loop.session.keep_replay(replay)
+    loop.drain = loop.fleet.finished_returns
     chunk = experience.train_frequency * (experience.num_envs // runner.actors)
     limiter = RateLimiter(
         coordinator,
@@ -364,9 +366,8 @@ def _off_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, do
         experience.learning_starts,
         slack=chunk * len(actors),
     )
-    limiter.inserted = done_steps
-    limiter.learned = updates
-    channel = ParameterChannel(coordinator, 0, state, keep=2, share=fleet.share)
+    limiter.inserted, limiter.learned = done_steps, updates
+    channel = ParameterChannel(coordinator, 0, state, keep=2, share=loop.fleet.share)
     total = agent.total_steps
 
     def collect(thread: ActorThread, index: int) -> None:
@@ -385,20 +386,15 @@ def _off_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, do
             thread.lag_count += 1
             limiter.inserted_steps(thread.actor.steps.count - before)
 
-    for i, actor in enumerate(actors):
-        threads.append(ActorThread(actor, lambda thread, i=i: collect(thread, i), coordinator, i))
-    loop.meter = Meter(threads, fleet.figures)
     learner = OffPolicyLearner(agent, replay, loop=kernel_choice.learning_loop_for(actors[0].obs_shape))
-
-    learner_wait, metrics, phases = 0.0, {}, 0
-    for thread in threads:
-        thread.start()
+    metrics, phases = {}, 0
+    loop.start(collect)
     while True:
         with limiter.condition:
             if limiter.inserted >= total and not limiter.closed:
                 limiter.closed = True
         ready, waited = limiter.await_learn()
-        learner_wait += waited
+        loop.learner_wait += waited
         if ready and replay.size:
             learner_key, learn_key = split_key(learner_key)
             state, metrics = learner.phase(state, learn_key, limiter.inserted)
@@ -411,18 +407,6 @@ def _off_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, do
         final = not ready and collection_over(agent, env_steps, 0)
         if env_steps >= total and not final:
             continue  # collected all: the last row waits for the learner to catch up
-        if loop.maybe_log(
-            state,
-            learner_key,
-            env_steps,
-            env_steps,
-            updates,
-            learner_wait,
-            fleet.finished_returns,
-            metrics,
-            final,
-        ):
-            break
-        if final:
+        if loop.maybe_log(state, learner_key, env_steps, env_steps, updates, metrics, final) or final:
             break
     return state, updates, limiter.inserted

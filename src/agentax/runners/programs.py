@@ -158,8 +158,7 @@ def make_chunk(algorithm: Program, env: Environment, updates_per_chunk: int, eva
         metrics = jax.tree.map(lambda m: (m * weight).sum() / jnp.maximum(weight.sum(), 1.0), metrics)
 
         def evaluate(state):
-            returns, lengths = episode_returns(env, algorithm.greedy_policy(state), eval_key, eval_episodes)
-            return returns, lengths
+            return episode_returns(env, algorithm.greedy_policy(state), eval_key, eval_episodes)
 
         def skip(state):
             return jnp.zeros(eval_episodes, jnp.float32), jnp.zeros(eval_episodes, jnp.int32)
@@ -220,7 +219,7 @@ def build(
 ) -> tuple[Any, Callable, Callable]:
     """``(shapes, init, chunk)``: the carry's shapes and the runner's two programs, vmapped over seeds.
 
-    Both take and give the Any as the flat list of its arrays (plain lists export, custom
+    Both take and give the carry as the flat list of its arrays (plain lists export, custom
     pytree nodes do not): ``init(seeds) -> leaves`` and ``chunk(leaves, num_active, do_eval, seeds,
     evaluation) -> (leaves, metrics, returns, lengths)``. With a ``description`` they come from
     :mod:`agentax.runners.programs`, so a repeated run neither traces nor lowers them.

@@ -1,31 +1,25 @@
 """Actors on a Ray cluster: the parallel runner with its actors in Ray actor processes, on any node.
 
-``--runner ray`` is :mod:`agentax.runners.parallel` unchanged — its learner, rate limiter, parameter
-channel, policy-lag rules, rows and checkpoints — with a different :class:`~parallel.Fleet`: each
-actor is a :class:`Collector`, a Ray actor process holding the host runner's
-:class:`~agentax.runners.host.Actor` (its own vector env, EnvPool or Gymnasium, and the jitted collect
-policy), and the parallel runner's actor thread for it drives a :class:`RemoteActor`, which calls
-it and waits. So
+``--runner ray`` is :mod:`agentax.runners.parallel` unchanged (learner, rate limiter, parameter
+channel, policy lag, rows, checkpoints) with another :class:`~parallel.Fleet`: each actor is a
+:class:`Collector`, a Ray actor process holding the host runner's :class:`~agentax.runners.host.Actor`,
+driven from the learner's process through a :class:`RemoteActor`. So
 
-- **parameters** go out through Ray's object store: one ``ray.put`` per publish of the agent state's
-  :func:`~agentax.agents.protocol.acting_view` (no optimizer state), which every actor of a node
-  reads from shared memory; a collector converts a version to JAX arrays once;
-- **experience** comes back as NumPy batches ``[T, E]`` (stacked frames with each frame sent once,
-  :class:`PackedFrames`) with the scores of the games that ended, and
-  joins the learner's rollout queue or replay buffer exactly as a thread actor's would; with the
-  same seed an on-policy run gives the thread actors' numbers;
-- **faults**: a collector process that dies (killed, out of memory, its node lost) is replaced by a
-  new one (fresh env seeds) and the call it had in flight is made again: the run loses that batch
-  and goes on; ``actor_restarts`` counts them. A lost node whose CPUs the replacements need ends the
-  run with :class:`~agentax.errors.NodeLost` (not a wait forever); the learner's own node lost, Ray
-  ends this process itself, and :func:`hint_if_ray_ends_this_process` says how to resume. An error
-  raised *inside* a collector (a bug, a broken env) ends the run with that error, and so does a
-  learner error; the actors are then killed.
+- **parameters** go out through Ray's object store, one ``ray.put`` of the agent state's
+  :func:`~agentax.agents.protocol.acting_view` per publish, read from shared memory by every actor
+  of a node;
+- **experience** comes back as NumPy batches ``[T, E]`` (stacked frames sent once each,
+  :class:`PackedFrames`) with the scores of the games that ended, and joins the learner's queue or
+  replay exactly as a thread actor's would: the same seed gives the thread actors' numbers;
+- **faults**: a collector process that dies is replaced (fresh env seeds) and its call made again;
+  ``actor_restarts`` counts them. A lost node whose CPUs the replacements need ends the run with
+  :class:`~agentax.errors.NodeLost`; the learner's own node lost, Ray ends this process itself and
+  :func:`hint_if_ray_ends_this_process` says how to resume. An error raised *inside* a collector, or
+  by the learner, ends the run with that error.
 
-Where it runs: :func:`~agentax.runners.ray_cluster.ray_session` joins the cluster at
-``ray_address``, else starts a local Ray for the run and shuts it down at the end, also after Ctrl-C
-(at the learner's next safe point) or an error. Every node needs agentax installed (the same
-version); the learner stays in this process.
+:func:`~agentax.runners.ray_cluster.ray_session` joins the cluster at ``ray_address``, else runs a
+local Ray for the run (shut down at the end, after Ctrl-C or an error too). Every node needs the
+same agentax installed; the learner stays in this process.
 """
 
 from __future__ import annotations
@@ -50,9 +44,7 @@ from agentax.runners import parallel
 from agentax.runners.coordination import POLL_SECONDS, Coordinator
 from agentax.runners.driver import EnvironmentSteps, TrajectoryObserver
 from agentax.runners.host import Actor, actor_seed, fold_actor_key
-from agentax.runners.parallel import Fleet, ParallelRunnerConfig, configure_actors
-from agentax.runners.parallel import algorithm_config as actors_algorithm_config
-from agentax.runners.parallel import train as train_parallel
+from agentax.runners.parallel import Fleet, ParallelRunnerConfig
 from agentax.runners.ray_cluster import ray_session
 from agentax.runners.session import TrainResult
 from agentax.runs import Run, checkpoints
@@ -78,23 +70,15 @@ class RayRunnerConfig(ParallelRunnerConfig):
 Config = RayRunnerConfig
 REMAKES_AGENT = True
 """its actors build the agent again in their processes: :func:`train` takes ``make_agent``"""
-algorithm_config = actors_algorithm_config
+algorithm_config = parallel.algorithm_config
 """the parallel runner's: ``--envs-per-actor`` sets the algorithm's envs"""
 restore = parallel.restore
 
 
 def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[RayRunnerConfig, str]:
     """The Ray runner's settings for a run: the parallel runner's and where its actors run."""
-    return configure_actors(
-        run_args,
-        agent,
-        preset,
-        "ray",
-        RayRunnerConfig,
-        "Ray actor",
-        ray_address=run_args.ray_address,
-        cpus_per_actor=run_args.cpus_per_actor,
-    )
+    where = {"ray_address": run_args.ray_address, "cpus_per_actor": run_args.cpus_per_actor}
+    return parallel.configure_actors(run_args, agent, preset, "ray", RayRunnerConfig, "Ray actor", **where)
 
 
 # ---------------------------------------------------------------- the wire format of stacked frames
@@ -427,7 +411,7 @@ def train(
     with hint_if_ray_ends_this_process(run), ray_session(runner.ray_address) as ray:
         fleet = ray_fleet(agent, make_agent, env_id, runner, ray)
         try:
-            return train_parallel(agent, env_id, runner, run, resume=resume, progress=progress, fleet=fleet)
+            return parallel.train(agent, env_id, runner, run, resume=resume, progress=progress, fleet=fleet)
         except NodeLost as lost:
             if run is not None and checkpoints(run.path):
                 lost.run_dir = str(run.path)  # the CLI adds: continue with agentax train --resume DIR

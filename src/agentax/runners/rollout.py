@@ -154,6 +154,14 @@ def fresh_memory(agent: Agent, num_envs: int) -> tuple[Any, jax.Array]:
     return agent.recurrent.initial(num_envs), jnp.ones(num_envs, bool)
 
 
+def on_policy_carry(agent: Agent | None, num_envs: int, *fields: Any) -> OnPolicyCarry:
+    """``OnPolicyCarry(*fields)``; for an ``agent`` with memory a :class:`RecurrentCarry`, every env's
+    memory fresh."""
+    if agent is None or agent.recurrent is None:
+        return OnPolicyCarry(*fields)
+    return RecurrentCarry(*fields, *fresh_memory(agent, num_envs))
+
+
 def starts_episode(time_step: TimeStep, env_info: dict[str, Any]) -> jax.Array:
     """Whether each env's next observation starts an episode (bool ``[num_envs]``): where the step
     ended one, the env having auto-reset; on envs with reset steps (the EnvPool pool: an ending step
@@ -187,7 +195,7 @@ def on_policy_rollout(
 
     Per step ``key, act_key, step_key = split(carry.key, 3)``. Threefry splits are prefix-stable:
     ``key`` and ``act_key`` are those of a split in two, so on envs that ignore ``step_key`` (the
-    Atari pool) the act keys are the host actor's (:func:`agentax.runners.host.act_and_split`).
+    Atari pool) the act keys are the host actor's (:func:`agentax.runners.host_memory.act_and_split`).
     """
 
     def env_step(carry: OnPolicyCarry, _) -> tuple[OnPolicyCarry, Transition]:
@@ -214,10 +222,8 @@ def on_policy_program(agent: Agent, envs: VectorEnv) -> Program:
     def init(key: jax.Array) -> OnPolicyCarry:
         key, agent_key, reset_key = jax.random.split(key, 3)
         obs, env_state = envs.reset(reset_key)
-        fields = (agent.init(agent_key), env_state, obs, key, EpisodeStats.create(envs.num_envs))
-        if agent.recurrent is None:
-            return OnPolicyCarry(*fields)
-        return RecurrentCarry(*fields, *fresh_memory(agent, envs.num_envs))
+        episodes = EpisodeStats.create(envs.num_envs)
+        return on_policy_carry(agent, envs.num_envs, agent.init(agent_key), env_state, obs, key, episodes)
 
     def update(carry: OnPolicyCarry) -> tuple[OnPolicyCarry, dict[str, jax.Array]]:
         carry, trajectory = rollout(carry)

@@ -22,10 +22,12 @@ import jax
 import numpy as np
 
 from agentax.agents.protocol import Agent
+from agentax.curves import plot_curves
 from agentax.errors import StorageFull
+from agentax.evaluate import EvalStats
 from agentax.policies import Policy
 from agentax.replay.files import restore_replay, save_replay
-from agentax.runners.logger import RunLogger, finish_run
+from agentax.runners.logger import RunLogger
 from agentax.runs import CHECKPOINT_PREFIX, REPLAY_PREFIX, Run, checkpoints, load_checkpoint, replay_beside
 
 EVAL_SEED_OFFSET = 123_457
@@ -78,15 +80,6 @@ def split_key(key: jax.Array) -> tuple[jax.Array, jax.Array]:
 def checkpoint_target(agent: Agent) -> Any:
     """The shapes of a checkpoint of these runners: ``(agent state, learner key)``."""
     return jax.eval_shape(lambda key: (agent.init(key), key), jax.random.key(0))
-
-
-def evaluated_if_stopping(row: dict[str, float], runner: Any, evaluator: Any, state: Any) -> bool:
-    """When the run may stop early, evaluate the greedy policy into ``row["eval_return"]``; whether
-    it reached ``runner.stop_at_return``."""
-    if runner.stop_at_return is None:
-        return False
-    row["eval_return"] = float(np.mean(evaluator(state)[0]))
-    return row["eval_return"] >= runner.stop_at_return
 
 
 def final_evaluation(evaluator: Any, state: Any, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -142,11 +135,17 @@ def open_logger(
 def conclude(run: Run | None, result: TrainResult, returns: Any, lengths: Any, *written: str, **extra: Any):
     """``result`` with its final evaluation (``returns``, ``lengths``: ``[seeds, episodes]``) in
     ``result.eval``: eval.json (with the counts, ``result``'s ``written`` fields and ``extra``) and
-    curve.png in ``run``, if any. Every runner's result ends here."""
+    curve.png in ``run`` (then closed), if any. Every runner's result ends here."""
+    returns, lengths = np.atleast_2d(returns), np.atleast_2d(lengths)
     fields = {name: getattr(result, name) for name in written}
-    result.eval = finish_run(
-        run, returns, lengths, env_steps=result.env_steps, updates=result.updates, **fields, **extra
-    )
+    extra = {"env_steps": result.env_steps, "updates": result.updates, **fields, **extra}
+    if run is None:
+        stats = vars(EvalStats.from_returns(returns.ravel(), lengths.ravel()))
+        result.eval = {**stats, "per_seed_mean": returns.mean(axis=1).tolist(), **extra}
+        return result
+    result.eval = run.write_eval(returns, lengths, **extra)
+    plot_curves([run.path], run.path / "curve.png")
+    run.close()
     return result
 
 
@@ -227,9 +226,15 @@ class Session:
         """Keep ``replay`` beside the checkpoints (:class:`ReplayCheckpoints`, as the runner's
         settings say), restored from the one this run resumed from."""
         runner = self.runner
-        kept = ReplayCheckpoints(
-            self.run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
+        self.keep(
+            ReplayCheckpoints(
+                self.run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
+            )
         )
+
+    def keep(self, kept: Any) -> None:
+        """Save ``kept`` before each checkpoint commits (``kept.before_checkpoint(updates, force)``),
+        restored from the checkpoint this run resumed from (``kept.restore(path)``)."""
         self.before_checkpoint = kept.before_checkpoint
         if "checkpoint" in self.meta:  # a resumed run
             kept.restore(self.meta["checkpoint"])
@@ -271,9 +276,10 @@ class Session:
         speed = (env_steps - self.steps_at_log) / max(now - self.time_at_log, 1e-9)
         finished = [float(np.mean(returns)) if returns else math.nan]
         row = {**row_of(env_steps, updates, finished, speed), **(extra or {})}
-        solved = evaluated_if_stopping(row, self.runner, self.evaluator, state) and self.confirmed(
-            state, env_steps
-        )
+        solved = False
+        if self.runner.stop_at_return is not None:  # the run may stop: evaluate, and confirm a solve
+            row["eval_return"] = float(np.mean(self.evaluator(state)[0]))
+            solved = row["eval_return"] >= self.runner.stop_at_return and self.confirmed(state, env_steps)
         self.logger.log(row, metrics)
         self.steps_at_log, self.time_at_log = env_steps, time.perf_counter()
         meta = {

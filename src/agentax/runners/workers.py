@@ -295,18 +295,11 @@ def train(run: Any, runner: Any, train_one: Callable[..., Any], *, resume: bool,
     for row in rows:
         merged.log(row)
     finals = [read_json(f / FINAL_RETURNS) for f in folders]
-    solved = [t["solved_env_steps"] for t in timings]
-    result = TrainResult(
-        state=None,
-        updates=int(rows[-1]["updates"]),
-        env_steps=float(rows[-1]["env_steps"]),
-        eval={},
-        rows=rows,
-        solved_env_steps=None if None in solved else max(solved),
-        solved_seconds=None if None in solved else max(t["solved_seconds"] for t in timings),
-        compile_seconds=max(t["compile_seconds"] for t in timings),
-        train_seconds=max(t["train_seconds"] for t in timings),
-    )
+    solved = all(t["solved_env_steps"] is not None for t in timings)  # the run, once every worker
+    latest = {
+        name: max(t[name] for t in timings) for name in (*SOLVED, *TIMINGS) if solved or name in TIMINGS
+    }
+    result = TrainResult(None, int(rows[-1]["updates"]), float(rows[-1]["env_steps"]), {}, rows, **latest)
     returns = np.concatenate([np.asarray(f["returns"]) for f in finals])
     lengths = np.concatenate([np.asarray(f["lengths"]) for f in finals])
     return conclude(merged, result, returns, lengths, *SOLVED, *TIMINGS, workers=len(parts))
