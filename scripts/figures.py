@@ -633,7 +633,7 @@ def _figures() -> dict[str, Figure]:
         )
 
     # continuous control (sac.json, mujoco.json)
-    vmapped = ("`agentax train sac --env Pendulum-v1 --seeds 8 --precision auto` process", 8)
+    vmapped = ("agentax compiled, 8 seeds vmapped (Pendulum-v1)", 8)  # sac.json: the AMD EPYC's rows
     figures["sac.vmapped.solved"] = bench("sac", *vmapped, col="final eval ≥ -200", fmt=of)
     figures["sac.process.seconds"] = bench("sac", SAC_PROCESS, 1, col="wall-clock s", fmt="{:.0f}")
     figures["sac.process.ratio"] = bench("sac", SAC_PROCESS, 1, col="wall-clock ÷ SB3's", fmt="{:.3g}")
