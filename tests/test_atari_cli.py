@@ -203,7 +203,7 @@ def test_a_long_game_keeps_at_most_the_gif_cap_of_evenly_spaced_frames(tmp_path)
     [
         (["ppo", "--seeds", "2"], "one seed per process"),
         (["ppo", "--env-backend", "ale"], "--env-backend ale cannot run there"),
-        (["dqn"], "on MuJoCo tasks, sac and td3; dqn needs --runner host"),
+        (["dqn"], "(sac, td3) on EnvPool's MuJoCo tasks only; dqn on ALE/Breakout-v5 needs --runner host"),
     ],
 )
 def test_the_compiled_runner_refuses_what_it_cannot_train_on_atari(flags, says, tmp_path, capsys):

@@ -174,10 +174,15 @@ def check(agent: Agent, env_id: str, runner: Config, num_seeds: int = 1) -> None
         )
     experience = agent.experience
     if isinstance(experience, OffPolicy):
-        if not is_envpool_mujoco_id(env_id) or experience.num_envs != 1 or experience.n_step != 1:
+        if not is_envpool_mujoco_id(env_id):
             raise UsageError(
-                f"the compiled EnvPool runner trains {agent.name} on EnvPool's MuJoCo tasks with one env "
-                "and one-step targets (the mujoco preset's); other settings need --runner host"
+                "the compiled EnvPool runner trains off-policy agents (sac, td3) on EnvPool's MuJoCo tasks "
+                f"only; {agent.name} on {env_id} needs --runner host"
+            )
+        if experience.num_envs != 1 or experience.n_step != 1:
+            raise UsageError(
+                f"the compiled EnvPool runner trains {agent.name} with one env and one-step targets (the "
+                "mujoco preset's); other settings need --runner host"
             )
     elif not isinstance(experience, OnPolicy):
         raise UsageError(
