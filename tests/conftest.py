@@ -85,6 +85,7 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
     "test_reinforce.py": ("test_reinforce_with_the_gaussian_head_learns_pendulum",),  # PPO's Gaussian head
     "test_compiled.py": ("test_looking_ahead_a_chunk_changes_no_number",),  # its resume and seed tests
     "test_ray.py": (  # the CLI's own Ray (Ctrl-C, errors), PPO recurrent (as threads) and on tic-tac-toe
+        "test_packed_masked_dict_observations_train_through_ray_actors",  # the parallel runner's, same actors
         "test_ppo_on_ray_actors_learns_and_gives_the_thread_actors_numbers",
         "test_beside_a_ray_start_cluster_a_run_has_its_own_ray_and_auto_joins_it",
         "test_dqn_on_ray_actors_learns_and_resumes_with_its_replay",
@@ -92,6 +93,16 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
         "test_a_lost_node_whose_cpus_the_run_needs_ends_it_with_the_resume_hint",
         "test_a_lost_local_ray_node_ends_the_cli_run_with_one_line_saying_what_to_do",
         "test_a_killed_actor_process_is_replaced_and_the_run_finishes",
+    ),
+    "test_spaces_learning.py": (  # PPO's; DQN's Taxi mask: test_masks_and_encoders, frames: test_cnn_agent
+        "test_taxi_with_its_mask_is_learned_and_no_illegal_action_is_taken[dqn]",
+        "test_pictures_of_ones_own_size_train_on_the_host_runner[dqn]",
+    ),
+    "test_workers.py": (  # packed masked dicts in the compiled runner's program (test_board_and_grid)
+        "test_packed_masked_dict_observations_train_over_two_worker_processes",
+    ),
+    "test_board_and_grid.py": (  # sweeps in test_sweep, the masked board game's PPO in this file
+        "test_a_sweep_on_the_masked_board_game_traces_its_settings_beside_the_seeds",
     ),
     "test_tutorial.py": tuple(  # the pages that train for most of a minute; make test runs the others
         f"test_page_runs_and_prints_what_it_shows[{page}-" for page in ("02", "03", "07", "09", "10", "11")
