@@ -402,25 +402,20 @@ def train_off_policy(
     replay = ProgramReplay(carry.replace(agent=session.state, episodes=episodes))
     session.keep_replay(replay)  # a resumed run's replay restored into the carry
     # its own buffer for each leaf (an agent's target network starts as its network's arrays): donated
-    carry, length = (
-        jax.tree.map(jnp.copy, replay.carry),
-        max(1, runner.log_every_steps // program.steps_per_update),
-    )
+    carry = jax.tree.map(jnp.copy, replay.carry)
+    length = max(1, runner.log_every_steps // program.steps_per_update)
     chunk = jax.jit(make_chunk(program, length), donate_argnums=0)
     with session.begin(f"{agent.name} {env_id} (compiled)", progress):
         try:
             while updates < program.num_updates:
-                before = jax.device_get(carry.episodes)
-                carry, metrics = chunk(carry, min(length, program.num_updates - updates))
-                updates += min(length, program.num_updates - updates)
-                replay.carry, stats = carry, jax.device_get(carry.episodes)
+                before, active = jax.device_get(carry.episodes), min(length, program.num_updates - updates)
+                carry, metrics = chunk(carry, active)
+                updates, replay.carry, stats = updates + active, carry, jax.device_get(carry.episodes)
                 env_steps, last = int(stats.env_steps), updates >= program.num_updates
                 session.row_due(env_steps, True)
-                extra = {"replay_size": int(carry.replay.size)}
+                extra, counts = {"replay_size": int(carry.replay.size)}, {"episodes": int(stats.completed)}
                 args = (carry.agent, session.learner_key, env_steps, updates, episode_means(before, stats))
-                if session.log_row(
-                    *args, metrics, final=last, extra=extra, counts={"episodes": int(stats.completed)}
-                ):
+                if session.log_row(*args, metrics, final=last, extra=extra, counts=counts):
                     break
         finally:
             env.close()
