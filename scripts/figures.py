@@ -650,6 +650,33 @@ def _figures() -> dict[str, Figure]:
             "mujoco", agent, "Stable-Baselines3 (torch, 1 thread(s))", col="agent steps/s", fmt="{:.1f}"
         )
 
+    # the same on the Xeon, with SBX, --precision auto and the compiled EnvPool runner (mujoco@intel-xeon)
+    xeon = "mujoco@intel-xeon"
+    figures["mujoco-xeon.cpu"] = cpu(xeon)
+    figures["mujoco-xeon.sac.precision"] = bench(
+        xeon, "SAC", "agentax, host runner, --precision auto", col="precision"
+    )
+    for agent in ("SAC", "TD3"):
+        key = agent.lower()
+        for runner in ("host", "parallel", "compiled"):
+            row = (agent, f"agentax, {runner} runner, --precision auto")
+            figures[f"mujoco-xeon.{key}.{runner}"] = bench(xeon, *row, col="agent steps/s", fmt="{:.0f}")
+            figures[f"mujoco-xeon.{key}.{runner}.sbx"] = bench(xeon, *row, col="÷ SBX's", fmt="{:.2f}")
+        figures[f"mujoco-xeon.{key}.f32"] = bench(
+            xeon, agent, "agentax, host runner, --precision f32", col="agent steps/s", fmt="{:.0f}"
+        )
+        figures[f"mujoco-xeon.{key}.sbx"] = bench(
+            xeon, agent, "SBX 0.28 (jax 0.10.2)", col="agent steps/s", fmt="{:.0f}"
+        )
+    xeon = "sac@intel-xeon"  # the whole 8-seed command against SB3's one seed, on the Xeon
+    seeds = ("`agentax train sac --env Pendulum-v1 --seeds 8 --precision auto` process", 8)
+    figures["sac-xeon.cpu"] = cpu(xeon)
+    figures["sac-xeon.seeds.solved"] = bench(xeon, *seeds, col="final eval ≥ -200", fmt=of)
+    figures["sac-xeon.seeds.seconds"] = bench(xeon, *seeds, col="wall-clock s", fmt="{:.0f}")
+    figures["sac-xeon.seeds.ratio"] = bench(xeon, *seeds, col="wall-clock ÷ SB3's", fmt="{:.2f}")
+    figures["sac-xeon.seeds.how"] = bench(xeon, *seeds, col="precision, processes")
+    figures["sac-xeon.sb3.seconds"] = bench(xeon, SAC_SB3, 1, col="wall-clock s", fmt="{:.0f}")
+
     # LunarLander-v3 (lunar.json): the RL Zoo's settings, and DQN's preset lunar
     for key, labels in LUNAR.items():
         figures[f"lunar.{key}.steps"] = bench("lunar", *labels, col="env steps", fmt=thousands)
