@@ -254,6 +254,7 @@ def build(
         "num_seeds": runner.num_seeds,
         "updates_per_chunk": runner.updates_per_chunk,
         "eval_episodes": runner.eval_episodes,
+        "seed_group": group,  # seeds in groups: another program
     }
     init = jit(flat_init, (seeds,), {**shaping, "name": "init"})
     init = init.lower(seeds).compile(INIT_COMPILER_OPTIONS)
