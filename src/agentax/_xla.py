@@ -20,7 +20,10 @@ pin.)
 
 The cure patches a private API, so it says when it cannot: a ``RuntimeWarning`` where jax's
 backend registry is not there (a jax upgrade), and another where :func:`let_xla_use_every_cpu`
-comes after the one-CPU client exists. (``benchmarks/_pin.py``'s ``pinned_to_one_cpu``, which pins
+comes after the one-CPU client exists. The other order has no cure: a process whose client a host
+runner made for every CPU (:func:`let_xla_use_every_cpu`) and that then trains on the compiled runner
+can hang there (seen in one test process: EnvPool's compiled Hopper, then a compiled PPO); the test
+suite makes its client on one CPU first. (``benchmarks/_pin.py``'s ``pinned_to_one_cpu``, which pins
 every thread for the length of a block, is measurement machinery built on the helpers here.)
 
 The one CPU is chosen so that two trainings or two test workers do not share one core: a
