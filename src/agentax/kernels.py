@@ -214,17 +214,17 @@ def _onednn_dense_backward(bf16, residuals, dy):
 _onednn_dense.defvjp(_onednn_dense_forward, _onednn_dense_backward)
 
 
-def dense(x: jax.Array, w: jax.Array, backend: str = "xla") -> jax.Array:
+def dense(x: jax.Array, w: jax.Array, backend: str = "xla", elsewhere: Callable = jnp.matmul) -> jax.Array:
     """``x [..., K] @ w [K, N]`` → ``[..., N]`` (float32): oneDNN on the CPU where ``backend`` says so
-    (bfloat16 inside with ``onednn-bf16``, accumulated in float32), XLA's product on every other
-    platform; differentiable."""
+    (bfloat16 inside with ``onednn-bf16``, accumulated in float32), ``elsewhere`` (XLA's product) on
+    every other platform and for other types; differentiable."""
     if w.ndim != 2:
         return jnp.matmul(x, w)
 
     def onednn(x, w, bf16):
         return _onednn_dense(x.reshape(-1, x.shape[-1]), w, bf16).reshape(*x.shape[:-1], w.shape[1])
 
-    return _on_the_cpu(onednn, jnp.matmul, x, w, backend)
+    return _on_the_cpu(onednn, elsewhere, x, w, backend)
 
 
 def dot_general(lhs, rhs, dimension_numbers, precision=None, preferred_element_type=None, *, backend="xla"):
@@ -289,12 +289,7 @@ def onednn_bf16_matmul(x: jax.Array, w: jax.Array) -> jax.Array:
     AMX). XLA's :func:`bf16_matmul` where the kernel is not built and on other platforms."""
     if w.ndim != 2 or not available():
         return bf16_matmul(x, w)
-
-    def onednn(x, w):
-        rows = x.astype(jnp.float32).reshape(-1, x.shape[-1])
-        return _onednn_dense(rows, w.astype(jnp.float32), True).reshape(*x.shape[:-1], w.shape[1])
-
-    return lax.platform_dependent(x, w, cpu=onednn, default=bf16_matmul)
+    return dense(x, w, "onednn-bf16", elsewhere=bf16_matmul)
 
 
 BF16_PRODUCTS: dict[str, Callable] = {"bf16": bf16_matmul, "bf16-onednn": onednn_bf16_matmul}
