@@ -1,28 +1,13 @@
-"""The compiled EnvPool runner: an on-policy agent's rollout *and* EnvPool's step in one program;
-on MuJoCo tasks also SAC and TD3, their acting, replay and learning in one program
-(:func:`train_off_policy`).
+"""The compiled EnvPool runner (kinds ``compiled-atari`` and ``compiled-mujoco``): EnvPool's step
+inside the program, one seed per process (a pool handle cannot be vmapped).
 
-``--runner compiled`` on an Atari id (kind ``compiled-atari``) or on EnvPool's MuJoCo v5 tasks
-(``compiled-mujoco``, :class:`~agentax.envs.envpool_xla.XlaMujoco`: raw rewards, episodes for
-games; the other runners step a MuJoCo id with Gymnasium's env). Each iteration is one jitted call,
-:func:`make_update`: the compiled runner's on-policy rollout
-(:func:`agentax.runners.rollout.on_policy_rollout`) on :class:`PoolEnvs`, EnvPool's step of the pool
-(:mod:`agentax.envs.envpool_xla`, the host adapter's preprocessing), then ``agent.learn`` — no
-Python between the env and the network (as CleanRL's ``ppo_atari_envpool_xla_jax.py``). One seed
-per process: EnvPool's pool handle cannot be vmapped.
-
-**EnvPool's reset step.** The step after an episode's end is EnvPool's reset: it ignores its action
-and returns the next episode's first observation. The rollout keeps it (fixed shapes) marked
-``info["valid"] = False``, and PPO learns nothing from it; the step before carries the episode's
-end, so GAE neither bootstraps nor carries its λ-trace across. The env steps counted (rows,
-progress bar, ``total_steps``) are the pool's, reset steps included; ``masked_fraction`` in
-metrics.csv is their share.
-
-**The rest is the host runner's** (:mod:`agentax.runners.host`), so the two compare number for
-number where they can: settings, keys (the pool seeded as the host actor's envs, an act key per
-step as the host actor's), rows (``mean_return``: the true scores of the whole games finished since
-the last row), checkpoints (a resumed run restarts its pool from a new seed) and the final
-evaluation (whole games on the host adapter, greedy with 1 % random actions).
+An on-policy agent (PPO) runs each iteration as one jitted call, :func:`make_update`: the compiled
+runner's rollout on :class:`PoolEnvs`, then ``agent.learn``; SAC and TD3 (MuJoCo only) run acting,
+replay and learning in one program (:func:`train_off_policy`). EnvPool's reset step (the step after
+an episode's end) stays in the rollout marked ``info["valid"] = False``: counted as an env step,
+learned from by nothing, its share ``masked_fraction``. Settings, keys, rows, checkpoints and the
+final evaluation are the host runner's (:mod:`agentax.runners.host`), so the two compare number
+for number.
 """
 
 from __future__ import annotations
@@ -62,29 +47,10 @@ XlaPool = XlaAtari | XlaMujoco
 
 
 @dataclass(frozen=True)
-class Config:
-    """The compiled EnvPool runner's settings; saved in config.json under "runner" (a run written
-    before ``policy_lag`` existed resumes with 0, as it ran). The fields it shares with
-    :class:`~agentax.runners.host.HostRunnerConfig` mean the same, so the two compare number for number."""
+class Config(host.HostRunnerConfig):
+    """The compiled EnvPool runner's settings: the host runner's, which mean the same here, and
+    ``policy_lag`` (a run written before it existed resumes with 0, as it ran)."""
 
-    seed: int = 0
-    """seed of the agent and of the pool"""
-    log_every_steps: int = 2_048
-    """write a metrics row every this many env steps (the pool's, reset steps included)"""
-    eval_episodes: int = 10
-    """games of the final evaluation (and of the stop-at-return checks), on the host adapter"""
-    stop_at_return: float | None = None
-    """stop once an evaluation (run at each row) reaches this mean return (None: train to the end)"""
-    checkpoint_every_seconds: float = 30.0
-    """write a checkpoint at most this often (and at the end)"""
-    env_backend: str = "auto"
-    """envpool (auto); the evaluation's host adapter follows it"""
-    sticky_actions: float = 0.25
-    """Atari: the probability that the emulator repeats the last action (Gymnasium's v5: 0.25)"""
-    checkpoint_replay: bool = True
-    """SAC and TD3: save the program's replay beside the checkpoints (PPO keeps none)"""
-    replay_checkpoint_every_seconds: float = 600.0
-    """SAC and TD3: save the replay at most this often (and with the first and last checkpoints)"""
     policy_lag: int = 0
     """parameter versions between collecting a rollout and learning from it: 0 runs rollout and
     learning one after the other in one program; 1 collects rollout k+1 in a thread beside the
@@ -125,9 +91,8 @@ class Pool:
 
 
 class PoolEnvs:
-    """``env``'s pool (Atari or MuJoCo) as a :class:`~agentax.runners.rollout.BatchedEnv` of the
-    on-policy rollout and the off-policy program; ``first``: the pool's ``(handle, obs)`` after its
-    reset on the host, what :meth:`reset` gives a program."""
+    """``env``'s pool (Atari or MuJoCo) as a :class:`~agentax.runners.rollout.BatchedEnv`; ``first``:
+    the pool's ``(handle, obs)`` after its reset on the host, what :meth:`reset` gives a program."""
 
     def __init__(self, env: XlaPool, first: tuple[jax.Array, jax.Array] | None = None):
         self.env, self.num_envs, self.first = env, env.num_envs, first
@@ -138,10 +103,9 @@ class PoolEnvs:
         return obs, Pool(handle, EpisodeTracker.create(self.num_envs))
 
     def step(self, key: jax.Array, pool: Pool, action: jax.Array) -> tuple[TimeStep, Pool, dict[str, Any]]:
-        """EnvPool's step of every env (``key`` unused) read by :func:`track`: the learning view
-        ``[num_envs]`` (Atari's rewards clipped to their sign; ``final_obs`` the step's ``obs``: on an
-        ending step EnvPool returns the last observation itself) and ``info``: ``"valid"`` (False on
-        reset steps) and ``"games"``, the :class:`Games` (MuJoCo: episodes) the step finished."""
+        """EnvPool's step (``key`` unused): the learning view ``[num_envs]`` (Atari's rewards clipped;
+        ``final_obs`` is ``obs``, EnvPool's last observation on an ending step), ``info["valid"]``
+        (False on reset steps) and ``info["games"]``, the :class:`Games` (MuJoCo: episodes) it finished."""
         handle, step = self.env.step(pool.handle, action)
         tracker, tracked = track(pool.tracker, step)
         reward = jnp.sign(step.reward) if self.env.clip_rewards else step.reward
@@ -268,10 +232,8 @@ def side_by_side(
     collect: Callable, learn: Callable, carry: OnPolicyCarry, learner_key: jax.Array, count: int
 ) -> Iterator[Iteration]:
     """Policy lag 1, ``count`` iterations: while ``learn`` runs on rollout k here, a thread runs
-    ``collect`` for rollout k+1 with the parameters that learning on rollout k starts from (one
-    version behind those it makes), so EnvPool and acting overlap learning (XLA's client for every
-    CPU runs both programs at once). The first two rollouts both use the starting parameters.
-    Closed early, it waits for the thread's rollout to end (leaving the executor does)."""
+    ``collect`` for rollout k+1 with the parameters learning on rollout k starts from (the first two
+    rollouts both use the starting ones). Closed early, it waits for the thread's rollout to end."""
 
     def collected(carry: OnPolicyCarry):
         return jax.block_until_ready(collect(carry))
@@ -287,12 +249,6 @@ def side_by_side(
             yield state, learner_key, metrics, games
 
 
-def finished_scores(games: Games) -> list[float]:
-    """The true score of each game a rollout finished, in time order (``drain_scores``'s)."""
-    finished, score = jax.device_get((games.finished, games.score))
-    return score[finished].tolist()
-
-
 def train(
     agent: Agent,
     env_id: str,
@@ -302,9 +258,8 @@ def train(
     resume: bool = False,
     progress: bool = False,
 ) -> TrainResult:
-    """Train an on-policy ``agent`` (PPO) on an Atari game or EnvPool's MuJoCo task, env and learning
-    in one program per iteration; log, checkpoint and evaluate into ``run`` as
-    :func:`agentax.runners.host.train` does (the evaluation on the host adapter: Gymnasium's MuJoCo)."""
+    """Train ``agent`` on an Atari game or EnvPool's MuJoCo task into ``run`` as
+    :func:`agentax.runners.host.train` does (the evaluation on the host adapter)."""
     check(agent, env_id, runner)
     if isinstance(agent.experience, OffPolicy):
         return train_off_policy(agent, env_id, runner, run, resume=resume, progress=progress)
@@ -327,7 +282,8 @@ def train(
                 state, learner_key, metrics, games = next(steps)
                 updates += 1
                 env_steps += experience.num_envs * experience.num_steps
-                finished = finished_scores(games)  # waits for the rollout: speeds count all of it
+                done, score = jax.device_get((games.finished, games.score))  # waits: speeds count all of it
+                finished = score[done].tolist()  # the finished games' true scores, in time order
                 games_done += len(finished)
                 scores += finished
                 last = updates >= total_updates
