@@ -1,18 +1,11 @@
-"""The compiled runner: the whole training of a JAX env under ``jit`` + ``lax.scan``, vmapped over seeds.
+"""The compiled runner: a JAX env's whole training under ``jit`` + ``lax.scan``, vmapped over seeds.
 
-One seed's :class:`~agentax.runners.rollout.Program` (:func:`program_of`, the same for every
-algorithm) becomes ``jax.jit(jax.vmap(chunk))`` (:func:`agentax.runners.programs.build`, kept on
-disk so a repeated run neither traces nor compiles it): ``chunk`` scans ``update``
-``updates_per_chunk`` times (an unbatched count discards the updates past the end in a last,
-shorter chunk: no second program) and then, when asked, evaluates the greedy policy on fresh keys.
-Seed ``k`` of a batch starting at ``seed`` uses ``jax.random.key(seed + k)``, so it gives the same
-numbers alone as inside a batch.
-
-Between chunks (:class:`ChunkSchedule`) it logs a row, checkpoints the whole carry (a resumed run
-continues exactly) and stops once every seed's evaluation mean reaches ``stop_at_return``; at the
-end it evaluates on fresh keys once more. With ``workers > 1`` the seeds are split over processes
-(:mod:`agentax.runners.workers`). ``import agentax`` has jax create its CPU client on one CPU
-(:mod:`agentax._xla`), the cure for the XLA CPU hang this program, called over and over, once met.
+One seed's :class:`~agentax.runners.rollout.Program` (:func:`program_of`) runs as chunks of
+``updates_per_chunk`` updates, each ending with the greedy policy's evaluation when asked
+(:mod:`agentax.runners.programs`). Between chunks (:class:`ChunkSchedule`) the runner logs a row,
+checkpoints the whole carry and stops once every seed's evaluation reaches ``stop_at_return``.
+Seed ``k`` of a batch starting at ``seed`` uses ``jax.random.key(seed + k)``, alone or in a batch;
+with ``workers > 1`` the seeds are split over processes (:mod:`agentax.runners.workers`).
 """
 
 from __future__ import annotations
@@ -118,10 +111,8 @@ def eval_every_chunks(runner: RunnerConfig, num_updates: int) -> int:
 
 
 def check_fits(algorithm: Program, runner: RunnerConfig) -> None:
-    """A ``UsageError`` when the seeds' training state cannot fit in memory (else a vmap over them
-    would swap or stall before its first chunk): one seed's carry times the seeds, twice (the
-    program's buffers and a checkpoint's host copy). One seed is the algorithm's to refuse, so the
-    default run pays no extra trace."""
+    """A ``UsageError`` when the agents' carry, twice (the program's buffers and a checkpoint's host
+    copy), cannot fit in memory; one agent is the algorithm's to refuse (no extra trace)."""
     agents = runner.num_seeds * runner.num_settings
     if agents == 1:
         return
@@ -189,13 +180,11 @@ def train_program(
     max_chunks: int | None = None,
     program_description: dict[str, Any] | None = None,
 ) -> TrainResult:
-    """Train ``runner.num_seeds`` agents together; log, checkpoint and evaluate into ``run`` (if given).
+    """Train the runner's agents together; log, checkpoint and evaluate into ``run`` (if given).
 
-    ``resume=True`` continues ``run`` from its newest checkpoint. ``max_chunks`` stops after that
-    many chunks of this call (as an interrupt would), leaving a resumable run.
-    ``program_description`` (JSON-able: algorithm, env, config) names the training program for
-    :mod:`agentax.runners.programs`, so a repeated run loads it instead of tracing it; leave it None
-    unless it determines the program (the CLI passes it).
+    ``resume=True`` continues ``run`` from its newest checkpoint; ``max_chunks`` stops after that
+    many chunks, leaving a resumable run. ``program_description`` (JSON-able) names the program for
+    :func:`agentax.runners.programs.build` to keep; None unless it determines the program.
     """
     start = time.perf_counter()
     seeds = seeds_of(runner)

@@ -3,19 +3,9 @@
 :func:`build` makes the two programs of a run, vmapped over seeds: ``init`` and the ``chunk`` that
 scans ``updates_per_chunk`` updates and then evaluates the greedy policy when asked (on keys of the
 evaluation-seed rule, :data:`agentax.runners.session.EVAL_KEY_OFFSET`), both taking and giving the
-carry as the flat list of its arrays.
-
-The persistent compilation cache (:mod:`agentax._xla`) lets a repeated run skip XLA's compile,
-but jax looks a compiled program up only after tracing the Python code and lowering it to
-StableHLO — about 1 s for PPO's chunk on this 2-core CPU, a third of a warm ``agentax train``.
-:func:`jit` keeps the lowered program itself (``jax.export``'s serialized StableHLO: a flatbuffer,
-never a pickle) under a fingerprint, and the next run calls the stored program without tracing.
-
-The fingerprint covers everything that shapes the program: the caller's description of it (which
-algorithm, env, config and schedule), the arguments' shapes and dtypes, jax's version and backend,
-and the source of every agentax module — edit any of them and the program is traced afresh. Only
-programs whose arguments and results are plain containers (lists, tuples, dicts) of arrays can be
-kept; anything that fails to load or to export is traced as usual, since this is only a cache.
+carry as the flat list of its arrays. :func:`jit` keeps a lowered program (``jax.export``'s
+serialized StableHLO, never a pickle) under a fingerprint of everything that shapes it, so a
+repeated run calls it without tracing; anything that fails to load or export is traced as usual.
 """
 
 from __future__ import annotations
@@ -40,20 +30,12 @@ from agentax.runners.session import EVAL_KEY_OFFSET
 
 INIT_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
 CHUNK_COMPILER_OPTIONS = {"xla_backend_optimization_level": 1}
-"""LLVM optimisation levels of the two programs (XLA's default is 3). The initialisation runs once:
-at level 0 PPO's compiles ~3x faster. The chunk runs over and over: at level 1 PPO's compiled in
-5.0 s instead of 6.3 s (8 seeds: 5.8 s instead of 7.8 s) and ran as fast (30 ms against 37 ms per
-chunk); at level 0 it ran 4x slower. Results can differ from level 3's in the last bits."""
+"""LLVM optimisation levels of the two programs (XLA's default is 3): the one-off ``init`` compiles
+fastest at 0, the chunk at 1 compiles faster than at 3 and runs as fast (docs/design.md)."""
 
 
 KEEP = 256
 """Programs kept: past this many, the least recently used go (each is ~0.1-1 MB)."""
-
-
-def program_dir() -> Path | None:
-    """Where lowered programs are kept: beside the compiled ones (None when that cache is off)."""
-    root = _xla.compilation_cache_dir()
-    return None if root is None else root / "agentax-programs"
 
 
 @functools.cache
@@ -88,14 +70,12 @@ def jit(
     description: dict[str, Any] | None,
     donate_argnums: int | tuple[int, ...] = (),
 ) -> Callable:
-    """``jax.jit(fn)``, or the stored lowering of ``fn`` at ``example_args`` when ``description`` names it.
-
-    ``example_args`` may hold ``jax.ShapeDtypeStruct`` leaves. With ``description=None`` (or the
-    cache off) this is plain ``jax.jit``.
-    """
-    directory = program_dir()
-    if description is None or directory is None:
+    """``jax.jit(fn)``, or where ``description`` names it (and the cache is on) the stored lowering of
+    ``fn`` at ``example_args`` (which may hold ``jax.ShapeDtypeStruct`` leaves)."""
+    root = _xla.compilation_cache_dir()  # None when that cache is off
+    if description is None or root is None:
         return jax.jit(fn, donate_argnums=donate_argnums)
+    directory = root / "agentax-programs"  # beside the compiled programs
     from jax import export
 
     from agentax.runs import write_atomic
@@ -119,16 +99,12 @@ def jit(
         try:
             directory.mkdir(parents=True, exist_ok=True)
             write_atomic(path, bytes(exported.serialize()))
-            _forget_oldest(directory)
+            stored = sorted(directory.glob("*.jaxexport"), key=lambda kept: kept.stat().st_mtime)
+            for oldest in stored[:-KEEP]:
+                oldest.unlink(missing_ok=True)
         except (OSError, ImportError):  # a read-only cache, or no flatbuffers: use it, unsaved
             pass
     return jax.jit(exported.call, donate_argnums=donate_argnums)
-
-
-def _forget_oldest(directory: Path) -> None:
-    stored = sorted(directory.glob("*.jaxexport"), key=lambda path: path.stat().st_mtime)
-    for path in stored[:-KEEP]:
-        path.unlink(missing_ok=True)
 
 
 def init_from_seeds(algorithm: Program) -> Callable[[jax.Array], Any]:
@@ -179,12 +155,10 @@ def agent_bytes(carry_shapes: Any) -> int:
 
 
 def seed_group(num_seeds: int, per_seed: int) -> int:
-    """How many seeds one vmapped step takes: all of them while their agents fit in a core's L2 cache
-    together, else the largest divisor of ``num_seeds`` whose agents do (at least 1).
-
-    Past the cache a vmapped product streams every seed's weights from memory at each step (64 seeds
-    of PureJaxRL's GRU agent: 49 GFLOP/s against 117-121 for 1 or 8 seeds on an Intel Xeon); the
-    chunk then runs the seeds group after group (:func:`in_groups`). ``AGENTAX_SEED_GROUP`` sets it."""
+    """How many seeds one vmapped step takes (the chunk runs the groups one after the other,
+    :func:`in_groups`): on a CPU, all of them while their agents fit in a core's L2 cache together,
+    else the largest divisor of ``num_seeds`` whose agents do (at least 1); ``AGENTAX_SEED_GROUP``
+    sets it."""
     if jax.default_backend() != "cpu":
         return num_seeds  # an accelerator wants every seed in one batch
     if os.environ.get("AGENTAX_SEED_GROUP"):
@@ -217,13 +191,10 @@ def build(
     seeds: np.ndarray,
     description: dict[str, Any] | None,
 ) -> tuple[Any, Callable, Callable]:
-    """``(shapes, init, chunk)``: the carry's shapes and the runner's two programs, vmapped over seeds.
-
-    Both take and give the carry as the flat list of its arrays (plain lists export, custom
-    pytree nodes do not): ``init(seeds) -> leaves`` and ``chunk(leaves, num_active, do_eval, seeds,
-    evaluation) -> (leaves, metrics, returns, lengths)``. With a ``description`` they come from
-    :mod:`agentax.runners.programs`, so a repeated run neither traces nor lowers them.
-    """
+    """``(shapes, init, chunk)``: the carry's shapes and the runner's two programs, vmapped over seeds,
+    the carry a flat list of arrays (plain lists export): ``init(seeds) -> leaves`` and
+    ``chunk(leaves, num_active, do_eval, seeds, evaluation) -> (leaves, metrics, returns, lengths)``;
+    kept by :func:`jit` under a ``description``."""
     traced_init = jax.jit(init_from_seeds(algorithm)).trace(seeds)
     shapes = traced_init.out_info
     state_tree = jax.tree.structure(shapes)
