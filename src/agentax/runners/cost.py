@@ -1,15 +1,6 @@
-"""What a compiled program costs, from XLA's own cost analysis: the floating-point operations of one
-seed's whole training, which decide whether its seeds are worth spreading over the cores
-(:func:`agentax.runners.workers.default_for`).
-
-XLA's ``cost_analysis()`` counts a loop's body once, whatever its trip count (a ``lax.scan`` of ten
-matrix products reports one product's flops), and a learning update is loops within loops: the
-rollout's steps, the epochs, the minibatches. :func:`flops` puts the trip counts back: each
-``scan`` of the program's jaxpr (inside calls, conditionals and custom derivatives too) adds its
-body's cost ``length − 1`` more times, the body costed the same way, so nested scans multiply. The
-body's once-counted share is XLA's cost of the body alone. Writing the loops out for XLA gives the
-same numbers (checked on PPO, SAC, PQN, DQN and REINFORCE's updates) but took 3-160 s to lower,
-against ~3-10 s here. A ``while`` loop (unknown trip count) stays counted once.
+"""What a compiled program costs: the floating-point operations of one seed's whole training from
+XLA's cost analysis, every loop's trip count put back (:func:`flops`), which decide whether its
+seeds are worth spreading over the cores (:func:`agentax.runners.workers.default_for`).
 """
 
 from __future__ import annotations
@@ -51,7 +42,8 @@ def outer_scans(jaxpr: core.Jaxpr) -> Iterator[tuple[int, core.ClosedJaxpr]]:
 
 def flops(closed: core.ClosedJaxpr) -> float:
     """The floating-point operations of ``closed`` with every scan's trip count: XLA's count, plus
-    ``length · flops(body) − xla_flops(body)`` for each outermost scan."""
+    ``length · flops(body) − xla_flops(body)`` for each outermost scan (a ``while`` loop, whose trip
+    count is unknown, stays counted once)."""
     total = xla_flops(closed)
     for length, body in outer_scans(closed.jaxpr):
         total += length * flops(body) - xla_flops(body)

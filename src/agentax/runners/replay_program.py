@@ -1,18 +1,11 @@
-"""The compiled runner's program for an off-policy agent: jittable replay, learning gates, a freeze.
+"""The compiled runner's program for an off-policy agent (DQN, SAC, TD3): :func:`off_policy_program`.
 
-:func:`off_policy_program` builds the :class:`~agentax.runners.rollout.Program` of an ``OffPolicy``
-agent (DQN, SAC, TD3): each ``update`` steps ``train_frequency`` env steps (one in the episode
-schedule) into the jittable replay through an n-step accumulator, then, where the learning gates
-open, takes a phase of ``gradient_steps`` learning steps on sampled batches, with priorities written
-back for prioritized replay (``metrics["priority"]`` ``[batch]``; ``importance_exponent`` is a traced
-scalar).
-
-The gates are the host runner's (:func:`agentax.runners.host.learning_started`), written with
-``lax.cond``: learning starts after ``learning_starts`` env steps (or episodes), runs every
-``train_frequency`` episodes in the episode schedule, and ends with ``max_episodes``. With
-:class:`Freeze` a seed stops learning once its greedy policy, played on side envs, keeps reaching a
-return (a compiled-runner option: the other runners refuse it). Keys split per step as
-``(key, act, step, monitor)``, as DQN's own loop did, so older runs' numbers and checkpoints hold.
+Each ``update`` steps ``train_frequency`` env steps (one in the episode schedule) into a jittable
+replay through an n-step accumulator; where the host runner's learning gates open
+(:func:`learning_due`) it takes ``gradient_steps`` learning steps on sampled batches, priorities
+written back for prioritized replay. :class:`Freeze` stops a seed's learning once its greedy policy
+keeps reaching a return (a compiled-runner option). Keys split per step as ``(key, act, step,
+monitor)``, as DQN's own loop did, so older runs' numbers and checkpoints hold.
 """
 
 from __future__ import annotations

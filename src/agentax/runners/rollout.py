@@ -1,26 +1,14 @@
-"""Programs from the Agent: the compiled runner's iteration, built once for every algorithm.
+"""Programs from the Agent: the compiled runner's iteration, written once for every algorithm.
 
 A :class:`Program` is ``init(key) -> carry`` and ``update(carry) -> (carry, metrics)``, pure and
-jittable, which :mod:`agentax.runners.compiled` scans, vmaps over seeds and evaluates; what the
-iteration does follows from ``agent.experience`` (:func:`agentax.runners.compiled.program_of`):
-
-=================  ==============================================================================
-``OnPolicy``       a rollout of ``num_steps`` steps from ``num_envs`` envs with ``agent.act``, then
-                   ``agent.learn`` on the trajectory ``[T, E]`` (PPO); :func:`on_policy_rollout`,
-                   over any :class:`BatchedEnv`, is also the compiled EnvPool runner's rollout; an
-                   agent with memory acts with ``agent.recurrent.act``, the carry holding each
-                   env's memory (:class:`RecurrentCarry`)
-``Episodes``       ``num_envs`` whole episodes from fresh resets, steps after an episode's end marked
-                   in ``info["valid"]``, then ``agent.learn`` (REINFORCE); an agent with memory
-                   acts with ``agent.recurrent.act`` from zeros at the episodes' start
-``OffPolicy``      collection into a jittable replay and gated learning phases (DQN, SAC, TD3):
-                   :mod:`agentax.runners.replay_program`
-=================  ==============================================================================
-
-``act``'s scalar ``info`` entries (DQN's ``epsilon``) and every scalar metric of ``learn`` become
-columns. Each program splits its keys as the algorithm's own loop did before this module (PPO
-``(key, act, step)`` per step), so a seed's numbers are the same as they were; the carries keep
-their field names, so older checkpoints load.
+jittable; ``agent.experience`` chooses the update (:func:`agentax.runners.compiled.program_of`):
+``OnPolicy``, a rollout of ``num_steps`` steps then ``agent.learn`` on it (:func:`on_policy_program`,
+PPO; :func:`on_policy_rollout` is also the compiled EnvPool runner's); ``Episodes``, ``num_envs``
+whole episodes from fresh resets (:func:`episodes_program`, REINFORCE); ``OffPolicy``, a jittable
+replay and gated learning (:mod:`agentax.runners.replay_program`). An agent with memory acts with
+``agent.recurrent.act``. ``act``'s scalar ``info`` entries and ``learn``'s scalar metrics become
+columns. Keys split as each algorithm's own loop did and carries keep their field names, so older
+numbers and checkpoints hold.
 """
 
 from __future__ import annotations
@@ -42,12 +30,9 @@ SEED_AXIS = "seeds"  # the name of the compiled runner's vmap axis over seeds
 
 
 def any_seed(flag: jax.Array) -> jax.Array:
-    """Whether ``flag`` holds for any seed of the compiled runner's batch, as one unbatched bool.
-
-    Under the runner's vmap a ``lax.cond`` on a per-seed flag becomes a select that runs both
-    branches for every seed; on ``any_seed(flag)`` it stays a branch (the branch then keeps its
-    result only where ``flag`` holds). Outside the runner (no seed axis) this is ``flag`` itself.
-    """
+    """Whether ``flag`` holds for any seed of the compiled runner's batch, as one unbatched bool
+    (``flag`` itself outside the runner's vmap): a ``lax.cond`` on it stays a branch under the vmap,
+    where one on a per-seed flag runs both branches for every seed."""
     try:
         return jax.lax.psum(flag.astype(jnp.int32), SEED_AXIS) > 0
     except NameError:  # not traced under the runner's vmap
@@ -67,13 +52,9 @@ class Program:
 
 
 class BatchedEnv(Protocol):
-    """``num_envs`` envs stepped together inside ``jit``: a :class:`VectorEnv`, or the compiled Atari
-    runner's EnvPool pool (:class:`agentax.runners.compiled_pool.PoolEnvs`).
-
-    ``step(key, state, action [num_envs]) -> (time_step, state, info)``: the :class:`TimeStep`
-    ``[num_envs]`` of the learning view, the envs' new state, and the envs' own entries for each
-    transition's ``info`` (``{}`` for a JAX env; the Atari pool's ``"valid"`` and ``"games"``).
-    """
+    """``num_envs`` envs stepped together inside ``jit``: a :class:`VectorEnv`, or the compiled EnvPool
+    runner's pool (:class:`agentax.runners.compiled_pool.PoolEnvs`). ``step`` gives the learning view's
+    :class:`TimeStep` ``[num_envs]``, the new state and the envs' own ``info`` entries (``{}`` for a JAX env)."""
 
     num_envs: int
 
@@ -162,51 +143,35 @@ def on_policy_carry(agent: Agent | None, num_envs: int, *fields: Any) -> OnPolic
     return RecurrentCarry(*fields, *fresh_memory(agent, num_envs))
 
 
-def starts_episode(time_step: TimeStep, env_info: dict[str, Any]) -> jax.Array:
-    """Whether each env's next observation starts an episode (bool ``[num_envs]``): where the step
-    ended one, the env having auto-reset; on envs with reset steps (the EnvPool pool: an ending step
-    returns the last observation, the next step resets, ``env_info["valid"]`` False on it) where the
-    step was a reset step."""
-    if "valid" in env_info:
-        return ~env_info["valid"]
-    return time_step.done
-
-
-def act_in(agent: Agent, carry: OnPolicyCarry, key: jax.Array) -> tuple[OnPolicyCarry, jax.Array, Any]:
-    """``(carry, action, info)`` of the collect policy on ``carry.obs``: ``agent.act``, or with
-    memory ``agent.recurrent.act``, whose new memory the carry takes."""
-    progress = carry.episodes.env_steps
-    if agent.recurrent is None:
-        action, info = agent.act(carry.agent, carry.obs, key, progress)
-        return carry, action, info
-    memory, action, info = agent.recurrent.act(
-        carry.agent, carry.memory, carry.obs, carry.first, key, progress
-    )
-    return carry.replace(memory=memory), action, info
-
-
 def on_policy_rollout(
     agent: Agent, envs: BatchedEnv, loop: Callable = jax.lax.scan
 ) -> Callable[[OnPolicyCarry], tuple[OnPolicyCarry, Transition]]:
-    """``rollout(carry) -> (carry, trajectory)`` (jittable): ``num_steps`` steps of ``agent.act`` on
-    ``envs``, the trajectory a :class:`Transition` ``[num_steps, num_envs]`` whose ``info`` holds
-    ``act``'s entries and the envs' own. ``loop`` (``lax.scan``'s signature) runs the steps: the
-    runner's :func:`agentax.kernels.learning_loop` where ``act`` runs a CNN on XLA's CPU backend.
+    """``rollout(carry) -> (carry, trajectory)`` (jittable): ``num_steps`` steps of the collect policy
+    on ``envs``, the trajectory a :class:`Transition` ``[num_steps, num_envs]`` whose ``info`` holds
+    ``act``'s entries and the envs' own; ``loop`` (``lax.scan``'s signature) runs the steps.
 
-    Per step ``key, act_key, step_key = split(carry.key, 3)``. Threefry splits are prefix-stable:
-    ``key`` and ``act_key`` are those of a split in two, so on envs that ignore ``step_key`` (the
-    Atari pool) the act keys are the host actor's (:func:`agentax.runners.host_memory.act_and_split`).
+    Per step ``key, act_key, step_key = split(carry.key, 3)``: threefry splits are prefix-stable, so
+    on envs that ignore ``step_key`` (the EnvPool pool) the act keys are the host actor's.
     """
 
     def env_step(carry: OnPolicyCarry, _) -> tuple[OnPolicyCarry, Transition]:
         key, act_key, step_key = jax.random.split(carry.key, 3)
-        acted, action, info = act_in(agent, carry, act_key)
+        progress = carry.episodes.env_steps
+        if agent.recurrent is None:
+            action, info = agent.act(carry.agent, carry.obs, act_key, progress)
+        else:
+            memory, action, info = agent.recurrent.act(
+                carry.agent, carry.memory, carry.obs, carry.first, act_key, progress
+            )
         time_step, env_state, env_info = envs.step(step_key, carry.env_state, agent.env_action(action))
         transition = transition_of(carry.obs, action, time_step, {**info, **env_info})
         episodes = carry.episodes.record(time_step.reward, time_step.done)
-        carry = acted.replace(env_state=env_state, obs=time_step.obs, key=key, episodes=episodes)
+        carry = carry.replace(env_state=env_state, obs=time_step.obs, key=key, episodes=episodes)
         if agent.recurrent is not None:
-            carry = carry.replace(first=starts_episode(time_step, env_info))
+            # an episode starts where the step ended one (the env auto-reset), or on envs with reset
+            # steps (EnvPool's pool: info["valid"] False) where the step was a reset step
+            first = ~env_info["valid"] if "valid" in env_info else time_step.done
+            carry = carry.replace(memory=memory, first=first)
         return carry, transition
 
     def rollout(carry: OnPolicyCarry) -> tuple[OnPolicyCarry, Transition]:

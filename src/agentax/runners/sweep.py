@@ -1,17 +1,9 @@
 """Hyperparameters as an axis of the compiled program: a sweep's settings × seeds in one vmap.
 
-The compiled runner vmaps one seed's :class:`~agentax.runners.rollout.Program` over its agents.
-:func:`sweep_program` makes a program whose agents differ in their settings too: agent ``i`` (its
-position on the runner's seed axis) reads row ``i`` of a table of values and builds its agent
-from the config with those values in place, *traced* (:func:`with_values`), so one compiled
-program trains every setting. What can be traced is what leaves the program's shapes and Python
-control flow alone: a learning rate, a discount, λ, a clip range, loss coefficients, ε's ends. A
-value that sets a shape (the env count, the rollout length, a network width, a buffer size) or a
-branch (a flag) needs a program of its own: :func:`traceable` tells which is which by tracing.
-
-The seeds repeat for each setting (``RunnerConfig.num_settings``), so setting ``s`` with seed
-``k`` starts from the keys a plain run with seed ``k`` uses: training the best setting again
-alone gives the numbers the sweep gave it.
+:func:`sweep_program` makes a program whose agent ``i`` (its position on the runner's seed axis)
+builds its agent from the config with row ``i`` of a table of values in place, *traced*
+(:func:`with_values`), so one compiled program trains every setting. A value that sets a shape or a
+branch needs a program of its own: :func:`traceable` tells which is which by tracing.
 """
 
 from __future__ import annotations
