@@ -53,8 +53,8 @@ class Program:
 
 class BatchedEnv(Protocol):
     """``num_envs`` envs stepped together inside ``jit``: a :class:`VectorEnv`, or the compiled EnvPool
-    runner's pool (:class:`agentax.runners.compiled_pool.PoolEnvs`). ``step`` gives the learning view's
-    :class:`TimeStep` ``[num_envs]``, the new state and the envs' own ``info`` entries (``{}`` for a JAX env)."""
+    runner's pool (:class:`agentax.runners.compiled_pool.PoolEnvs`). ``step`` gives the learning
+    view's :class:`TimeStep` ``[num_envs]``, the new state and the envs' own ``info`` entries."""
 
     num_envs: int
 
