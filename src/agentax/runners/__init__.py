@@ -1,14 +1,11 @@
 """Runners: where and when an algorithm's pure functions run.
 
-``compiled`` trains JAX envs inside one jitted, vmapped-over-seeds program; ``compiled_pool`` runs
-PPO with EnvPool's step inside the program (Atari, kind ``compiled-atari``, and EnvPool's MuJoCo
-tasks, ``compiled-mujoco``); ``host`` steps any env on the host with a Driver, one step after the
-other; ``parallel`` runs the host runner's actors in threads beside a learner, ``ray`` in Ray actor
-processes on any node of a cluster. :data:`RUNNERS` is the one table the API reads: a row names one
-runner module (``Config``, ``configure``, ``train``, ``restore``: :mod:`agentax.runners.launch`)
-and the envs it takes; :func:`kind_for` chooses a kind for ``--runner`` and an env id. A module is
-imported when its kind is used (:meth:`Runner.load`, the one lazy step), so :mod:`agentax.api`
-names no runner.
+``compiled`` trains JAX envs in one jitted program vmapped over seeds; ``compiled_pool`` steps
+EnvPool inside the program (kinds ``compiled-atari`` and ``compiled-mujoco``); ``host`` steps any
+env on the host with a Driver; ``parallel`` runs the host runner's actors in threads beside a
+learner, ``ray`` in Ray actor processes. :data:`RUNNERS`, the one table the API reads, names each
+kind's module (:mod:`agentax.runners.launch`) and envs; a module is imported when its kind is used
+(:meth:`Runner.load`); :func:`kind_for` chooses a kind for ``--runner`` and an env id.
 """
 
 from __future__ import annotations

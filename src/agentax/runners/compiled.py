@@ -67,11 +67,9 @@ class RunnerConfig:
     """a sweep's settings traced in this program: its ``num_settings × num_seeds`` agents run
     setting ``i // num_seeds`` with seed ``seed + i % num_seeds`` (:mod:`agentax.runners.sweep`)"""
     workers: int = 1
-    """processes the seeds are split over, one per core, each a program of its own
-    (:mod:`agentax.runners.workers`; :func:`train` runs one worker's seeds)"""
+    """processes the seeds are split over, each a program of its own (:mod:`agentax.runners.workers`)"""
     ray_address: str | None = None
-    """run the workers as Ray tasks of one CPU on this cluster (on any node; the run folder on a
-    filesystem every node shares)"""
+    """run the workers as one-CPU Ray tasks on this cluster (the run folder on a shared filesystem)"""
 
     def __post_init__(self):
         if self.num_settings < 1:
@@ -122,8 +120,7 @@ def check_fits(algorithm: Program, runner: RunnerConfig) -> None:
 
 
 def seeds_of(runner: RunnerConfig) -> np.ndarray:
-    """The seeds of the runner's agents ``[num_settings × num_seeds]``: agent k uses ``seed + k``
-    (``seed + k % num_seeds`` in a sweep), alone or in a batch."""
+    """The seeds of the runner's agents ``[num_settings × num_seeds]``: ``seed + k % num_seeds``."""
     return np.tile(
         np.arange(runner.seed, runner.seed + runner.num_seeds, dtype=np.int32), runner.num_settings
     )
@@ -353,14 +350,13 @@ def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[RunnerConfig, s
     anything is written where the program cannot run it (or more seeds than memory holds)."""
     stop, env = run_args.stop_at_return, make_jax(run_args.env)
     seed_flops = functools.partial(cost.program_flops, program_of(agent, env))  # by default, the split's
+    freeze = parse_return("--freeze-at-return", run_args.freeze_at_return, preset.freeze_at_return)
     runner = RunnerConfig(
         seed=run_args.seed,
         num_seeds=run_args.seeds,
         **schedule_of(preset),
         stop_at_return=stop,
-        freeze_at_return=parse_return(
-            "--freeze-at-return", run_args.freeze_at_return, preset.freeze_at_return
-        ),
+        freeze_at_return=freeze,
         freeze_episodes=run_args.freeze_episodes,
         workers=run_args.workers or workers.default_for(run_args.seeds, seed_flops, stop),
         ray_address=run_args.ray_address,
@@ -389,9 +385,8 @@ def train(
     resume: bool = False,
     progress: bool = False,
 ) -> TrainResult:
-    """Train ``runner.num_seeds`` seeds of ``agent`` on the JAX env ``env_id`` into ``run``: in this
-    process (:func:`train_program`; ``result.policy`` is the best seed's greedy policy by the final
-    evaluation), or split over ``runner.workers`` processes (:func:`agentax.runners.workers.train`)."""
+    """Train the runner's seeds of ``agent`` on the JAX env ``env_id`` into ``run``, in this process
+    (``result.policy``: the best seed's greedy policy) or over ``runner.workers`` processes."""
     if runner.workers > 1:
         return workers.train(run, runner, train_worker, resume=resume, progress=progress)
     env = make_jax(env_id)

@@ -1,13 +1,11 @@
 """The compiled EnvPool runner (kinds ``compiled-atari`` and ``compiled-mujoco``): EnvPool's step
 inside the program, one seed per process (a pool handle cannot be vmapped).
 
-An on-policy agent (PPO) runs each iteration as one jitted call, :func:`make_update`: the compiled
-runner's rollout on :class:`PoolEnvs`, then ``agent.learn``; SAC and TD3 (MuJoCo only) run acting,
-replay and learning in one program (:func:`train_off_policy`). EnvPool's reset step (the step after
-an episode's end) stays in the rollout marked ``info["valid"] = False``: counted as an env step,
-learned from by nothing, its share ``masked_fraction``. Settings, keys, rows, checkpoints and the
-final evaluation are the host runner's (:mod:`agentax.runners.host`), so the two compare number
-for number.
+PPO runs an iteration as one jitted call (:func:`make_update`): the rollout on :class:`PoolEnvs`,
+then ``agent.learn``; SAC and TD3 (MuJoCo) run acting, replay and learning in one program
+(:func:`train_off_policy`). EnvPool's reset steps stay in the rollout, ``info["valid"]`` False,
+counted as env steps (``masked_fraction``). The rest is the host runner's, so the two compare
+number for number.
 """
 
 from __future__ import annotations
@@ -166,9 +164,8 @@ def make_pool(env_id: str, num_envs: int, seed: int, runner: Config) -> XlaPool:
 def start(
     agent_state: Any, env: XlaPool, key: jax.Array, env_steps: int, agent: Agent | None = None
 ) -> OnPolicyCarry:
-    """New games in ``env``'s pool (a host call): the rollout's carry, the actor's key chain from
-    ``key``, ``env_steps`` the pool's steps so far (the collect policy's progress); for an ``agent``
-    with memory a :class:`RecurrentCarry`, every env's memory fresh."""
+    """The rollout's carry on new games in ``env``'s pool (a host call): the actor's key chain from
+    ``key``, ``env_steps`` the pool's steps so far; for an ``agent`` with memory a ``RecurrentCarry``."""
     handle, obs = env.reset()
     episodes = EpisodeStats.create(env.num_envs).replace(env_steps=jnp.int32(env_steps))
     pool = Pool(handle, EpisodeTracker.create(env.num_envs))
@@ -321,9 +318,8 @@ class ProgramReplay:
 
 
 def make_chunk(program: Program, length: int) -> Callable:
-    """``chunk(carry, num_active) -> (carry, metrics)`` (jittable): ``num_active`` (≤ ``length``) of
-    the program's updates, a branch, not a select, skipping the rest (the replay is never copied);
-    ``metrics`` their means."""
+    """``chunk(carry, num_active) -> (carry, metrics)`` (jittable): the first ``num_active`` of
+    ``length`` updates, the rest skipped by a branch (the replay is never copied); their mean metrics."""
 
     def chunk(carry: Any, num_active: jax.Array):
         zeros = jax.tree.map(lambda m: jnp.zeros(m.shape, m.dtype), jax.eval_shape(program.update, carry)[1])
@@ -346,9 +342,8 @@ def episode_means(before: EpisodeStats, after: EpisodeStats) -> list[float]:
 def train_off_policy(
     agent: Agent, env_id: str, runner: Config, run: Run | None, *, resume: bool, progress: bool
 ) -> TrainResult:
-    """Train SAC or TD3 on an EnvPool MuJoCo task with acting, EnvPool's step, the replay and learning
-    in one program (:func:`agentax.runners.replay_program.off_policy_program`), called once per
-    row (``log_every_steps`` env steps, scanned); the replay is saved beside the checkpoints."""
+    """Train SAC or TD3 on an EnvPool MuJoCo task, acting, replay and learning in one program called
+    once per row (``log_every_steps`` env steps); the replay is saved beside the checkpoints."""
     session = host.host_session(agent, env_id, runner, run, resume)
     updates, env_steps, experience = session.updates, session.env_steps, agent.experience
     env = make_pool(env_id, experience.num_envs, host.actor_seed(runner.seed, 0, updates), runner)

@@ -1,17 +1,13 @@
 """From a run's description to its runner, in plain calls: what the API asks of a kind of runner.
 
-Every runner module (a row of :data:`agentax.runners.RUNNERS`) exports the same four names:
-
-- ``Config``: its settings, a frozen dataclass saved in config.json under "runner";
-- ``configure(run_args, agent, preset) -> (Config, where)``: the settings a run description asks
-  for (``run_args``: :class:`agentax.runfile.RunArgs`, the only reader of the fields that are the
-  runner's own), every bad input refused with a ``UsageError`` before anything is written, and the
-  words announcing the run ("host", "4 seeds", "2 actors, policy lag 1", ...);
-- ``train(agent, env_id, runner, run=None, *, resume=False, progress=False) -> TrainResult``;
-- ``restore(run_dir, config, agent) -> Policy``: the greedy policy of a run's best seed.
-
-:func:`prepare` (a new run), :func:`reopen` (a run to resume) and :func:`restore` make the agent
-(on the env spec of the runner's env family) and call them; :mod:`agentax.api` calls these three.
+Every runner module (a row of :data:`agentax.runners.RUNNERS`) exports ``Config`` (its settings, a
+frozen dataclass saved in config.json under "runner"); ``configure(run_args, agent, preset) ->
+(Config, where)`` (the settings :class:`agentax.runfile.RunArgs` asks for, every bad input refused
+with a ``UsageError`` before anything is written, and the words announcing the run: "host",
+"4 seeds", ...); ``train(agent, env_id, runner, run=None, *, resume=False, progress=False) ->
+TrainResult``; and ``restore(run_dir, config, agent) -> Policy`` (the greedy policy of a run's best
+seed). :func:`prepare` (a new run), :func:`reopen` (a run to resume) and :func:`restore` make the
+agent and call them; :mod:`agentax.api` calls these three.
 """
 
 from __future__ import annotations
@@ -41,13 +37,13 @@ class Launch:
     runner: Any
     """the runner's config (saved in config.json under "runner")"""
     where: str
-    """how the run is trained, for the line announcing it ("host", "4 seed(s)", "2 actors", ...)"""
+    """how the run is trained, for the line announcing it"""
     train: Callable[[Run, bool, bool], TrainResult]
-    """``train(run, resume, progress) -> result`` (``result.policy``: the greedy policy of its best
-    seed, or None where the state stayed in other processes)"""
+    """``train(run, resume, progress) -> result`` (``result.policy`` None where the state stayed in
+    other processes)"""
     precision: dict[str, Any] = dataclasses.field(default_factory=lambda: {"precision": "f32"})
-    """the networks' precision and why (:func:`agentax.kernel_choice.precision_choice`; config.json
-    keeps it, so that resuming, evaluating and exporting use the same)"""
+    """the networks' precision and why (:func:`agentax.kernel_choice.precision_choice`), kept in
+    config.json for resuming, evaluating and exporting"""
 
 
 def agent_maker(
@@ -120,9 +116,8 @@ def env_specs(
 
 
 def prepare(module: Any, run_args: Any, cfg: Any, preset: Any, kind: str) -> Launch:
-    """The ``kind`` run ``run_args`` describe (``module``: the algorithm's, ``cfg`` its config); what
-    the runner or the agent cannot train is refused here, before anything is written; the networks'
-    precision is chosen here, once, before anything is traced."""
+    """The ``kind`` run ``run_args`` describe (``module``: the algorithm's, ``cfg`` its config), refused
+    before anything is written where it cannot train; the networks' precision chosen once, here."""
     from agentax import kernel_choice
 
     runner_module = RUNNERS[kind].load()

@@ -113,13 +113,10 @@ def init_from_seeds(algorithm: Program) -> Callable[[jax.Array], Any]:
 
 
 def make_chunk(algorithm: Program, env: Environment, updates_per_chunk: int, eval_episodes: int):
-    """``chunk(state, num_active, do_eval, seed_key, evaluation) -> (state, metrics, returns, lengths)``.
-
-    One seed's chunk: keeps ``num_active`` (≤ ``updates_per_chunk``) updates; ``metrics`` are their means; the
-    evaluation runs only if ``do_eval`` (else zeros), on episodes keyed by ``fold_in(seed_key,
-    EVAL_KEY_OFFSET + evaluation)``. Vmap it over seeds with ``in_axes=(0, None, None, 0, None)``
-    so the flags stay unbatched and the ``cond`` stays real.
-    """
+    """One seed's ``chunk(state, num_active, do_eval, seed_key, evaluation) -> (state, metrics, returns,
+    lengths)``: the first ``num_active`` of ``updates_per_chunk`` updates kept, ``metrics`` their means,
+    then if ``do_eval`` (else zeros) the evaluation keyed by ``fold_in(seed_key, EVAL_KEY_OFFSET +
+    evaluation)``. Vmapped with ``in_axes=(0, None, None, 0, None)``, the ``cond`` stays a branch."""
 
     def chunk(state, num_active, do_eval, seed_key, evaluation):
         eval_key = jax.random.fold_in(seed_key, EVAL_KEY_OFFSET + evaluation)

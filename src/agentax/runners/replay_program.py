@@ -1,11 +1,9 @@
 """The compiled runner's program for an off-policy agent (DQN, SAC, TD3): :func:`off_policy_program`.
 
 Each ``update`` steps ``train_frequency`` env steps (one in the episode schedule) into a jittable
-replay through an n-step accumulator; where the host runner's learning gates open
-(:func:`learning_due`) it takes ``gradient_steps`` learning steps on sampled batches, priorities
-written back for prioritized replay. :class:`Freeze` stops a seed's learning once its greedy policy
-keeps reaching a return (a compiled-runner option). Keys split per step as ``(key, act, step,
-monitor)``, as DQN's own loop did, so older runs' numbers and checkpoints hold.
+replay through an n-step accumulator, then, where the host runner's learning gates open
+(:func:`learning_due`), takes ``gradient_steps`` learning steps on sampled batches. Keys split per
+step as ``(key, act, step, monitor)``, as DQN's own loop did, so older runs' numbers hold.
 """
 
 from __future__ import annotations
@@ -27,9 +25,8 @@ from agentax.runners.rollout import Program, VectorEnv, agent_program, any_seed,
 
 @dataclass(frozen=True)
 class Freeze:
-    """Per-seed early stopping: ``episodes`` side envs play the greedy policy during training; once
-    each of their last ``episodes`` finished episodes returned at least ``at_return``, the seed
-    keeps collecting (the schedule is unchanged) but learns no more."""
+    """Per-seed early stopping: once each of the last ``episodes`` episodes of the greedy policy on
+    ``episodes`` side envs returned at least ``at_return``, the seed collects on but learns no more."""
 
     at_return: float
     episodes: int = 8
@@ -202,9 +199,8 @@ def no_learning(
 def learn_where(
     agent: Agent, replay: Replay, carry: OffPolicyCarry, due: jax.Array
 ) -> tuple[OffPolicyCarry, dict[str, jax.Array]]:
-    """:func:`learning_phase`, its result kept only where ``due``. Only what learning changes is
-    selected (the agent, the key, prioritized replay's priorities): a uniform replay buffer
-    (millions of transitions) passes through uncopied."""
+    """:func:`learning_phase`, what it changes (the agent, the key, prioritized replay's priorities)
+    kept only where ``due``: a uniform replay buffer passes through uncopied."""
     learned, metrics = learning_phase(agent, replay, carry)
     no_metrics = no_learning(agent, replay, carry)[1]
     keep = functools.partial(jax.tree.map, lambda new, old: jnp.where(due, new, old))
@@ -216,10 +212,8 @@ def learn_where(
 
 
 def off_policy_program(agent: Agent, envs: Any, freeze: Freeze | None = None) -> Program:
-    """The :class:`Program` of an off-policy ``agent`` on ``envs``: a :class:`VectorEnv`, or the
-    compiled EnvPool runner's pool of one env (:class:`agentax.runners.compiled_pool.PoolEnvs`, whose
-    ``reset`` is the pool's first observation and whose reset steps, ``info["valid"]`` False, store
-    nothing); ``freeze`` (a VectorEnv's only) stops each seed's learning at a return."""
+    """The :class:`Program` of an off-policy ``agent`` on ``envs``: a :class:`VectorEnv`, or the EnvPool
+    runner's pool of one env, whose reset steps store nothing; ``freeze`` needs a VectorEnv."""
     experience: OffPolicy = agent.experience
     replay = replay_for(experience)
     by_episode = experience.by_episode

@@ -1,14 +1,10 @@
 """Programs from the Agent: the compiled runner's iteration, written once for every algorithm.
 
 A :class:`Program` is ``init(key) -> carry`` and ``update(carry) -> (carry, metrics)``, pure and
-jittable; ``agent.experience`` chooses the update (:func:`agentax.runners.compiled.program_of`):
-``OnPolicy``, a rollout of ``num_steps`` steps then ``agent.learn`` on it (:func:`on_policy_program`,
-PPO; :func:`on_policy_rollout` is also the compiled EnvPool runner's); ``Episodes``, ``num_envs``
-whole episodes from fresh resets (:func:`episodes_program`, REINFORCE); ``OffPolicy``, a jittable
-replay and gated learning (:mod:`agentax.runners.replay_program`). An agent with memory acts with
-``agent.recurrent.act``. ``act``'s scalar ``info`` entries and ``learn``'s scalar metrics become
-columns. Keys split as each algorithm's own loop did and carries keep their field names, so older
-numbers and checkpoints hold.
+jittable, its update chosen by ``agent.experience`` (:func:`agentax.runners.compiled.program_of`):
+:func:`on_policy_program` (PPO), :func:`episodes_program` (REINFORCE) or
+:func:`agentax.runners.replay_program.off_policy_program` (DQN, SAC, TD3). ``act``'s scalar
+``info`` entries and ``learn``'s scalar metrics become columns.
 """
 
 from __future__ import annotations
@@ -30,9 +26,8 @@ SEED_AXIS = "seeds"  # the name of the compiled runner's vmap axis over seeds
 
 
 def any_seed(flag: jax.Array) -> jax.Array:
-    """Whether ``flag`` holds for any seed of the compiled runner's batch, as one unbatched bool
-    (``flag`` itself outside the runner's vmap): a ``lax.cond`` on it stays a branch under the vmap,
-    where one on a per-seed flag runs both branches for every seed."""
+    """Whether ``flag`` holds for any seed of the compiled runner's batch, one unbatched bool that a
+    ``lax.cond`` branches on under the seeds' vmap (``flag`` itself outside it)."""
     try:
         return jax.lax.psum(flag.astype(jnp.int32), SEED_AXIS) > 0
     except NameError:  # not traced under the runner's vmap
@@ -148,11 +143,7 @@ def on_policy_rollout(
 ) -> Callable[[OnPolicyCarry], tuple[OnPolicyCarry, Transition]]:
     """``rollout(carry) -> (carry, trajectory)`` (jittable): ``num_steps`` steps of the collect policy
     on ``envs``, the trajectory a :class:`Transition` ``[num_steps, num_envs]`` whose ``info`` holds
-    ``act``'s entries and the envs' own; ``loop`` (``lax.scan``'s signature) runs the steps.
-
-    Per step ``key, act_key, step_key = split(carry.key, 3)``: threefry splits are prefix-stable, so
-    on envs that ignore ``step_key`` (the EnvPool pool) the act keys are the host actor's.
-    """
+    ``act``'s entries and the envs' own; ``loop`` (``lax.scan``'s signature) runs the steps."""
 
     def env_step(carry: OnPolicyCarry, _) -> tuple[OnPolicyCarry, Transition]:
         key, act_key, step_key = jax.random.split(carry.key, 3)

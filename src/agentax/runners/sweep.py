@@ -69,7 +69,7 @@ def sweep_program(make_program: Callable[[Any], Program], cfg: Any, table: dict[
 def traceable(make_program: Callable[[Any], Program], cfg: Any, name: str) -> bool:
     """Whether ``name``, a float field of ``cfg``, can be a traced value of one program (tracing
     one update with it traced, nothing run)."""
-    if not isinstance(getattr(cfg, name), float) or isinstance(getattr(cfg, name), bool):
+    if not isinstance(getattr(cfg, name), float):
         return False
     program = sweep_program(make_program, cfg, {name: np.full(1, getattr(cfg, name), np.float32)})
     init = jax.vmap(program.init, axis_name=SEED_AXIS)
