@@ -182,11 +182,7 @@ def in_groups(chunk: Callable, group: int) -> Callable:
 
 
 def build(
-    algorithm: Program,
-    env: Environment,
-    runner: Any,
-    seeds: np.ndarray,
-    description: dict[str, Any] | None,
+    algorithm: Program, env: Environment, runner: Any, seeds: np.ndarray, description: dict[str, Any] | None
 ) -> tuple[Any, Callable, Callable]:
     """``(shapes, init, chunk)``: the carry's shapes and the runner's two programs, vmapped over seeds,
     the carry a flat list of arrays (plain lists export): ``init(seeds) -> leaves`` and
