@@ -126,14 +126,12 @@ def seeds_of(runner: RunnerConfig) -> np.ndarray:
     )
 
 
-def _episode_means(stats_before, stats_after) -> np.ndarray:
-    """Per seed: mean return of the episodes finished between two EpisodeStats (else their last returns)."""
-    completed = np.asarray(stats_after.completed) - np.asarray(stats_before.completed)
-    return_sum = np.asarray(stats_after.return_sum) - np.asarray(stats_before.return_sum)
-    last = np.asarray(stats_after.last_return).mean(axis=-1)
-    ever = np.asarray(stats_after.completed) > 0
-    fallback = np.where(ever, last, np.nan)
-    return np.where(completed > 0, return_sum / np.maximum(completed, 1), fallback)
+def _episode_means(before, after) -> np.ndarray:
+    """Per seed: mean return of the episodes finished between two host EpisodeStats (else last returns)."""
+    completed = after.completed - before.completed
+    fallback = np.where(after.completed > 0, after.last_return.mean(axis=-1), np.nan)
+    means = (after.return_sum - before.return_sum) / np.maximum(completed, 1)
+    return np.where(completed > 0, means, fallback)
 
 
 class ChunkSchedule(NamedTuple):

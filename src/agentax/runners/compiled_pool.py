@@ -166,9 +166,8 @@ def start(
 ) -> OnPolicyCarry:
     """The rollout's carry on new games in ``env``'s pool (a host call): the actor's key chain from
     ``key``, ``env_steps`` the pool's steps so far; for an ``agent`` with memory a ``RecurrentCarry``."""
-    handle, obs = env.reset()
+    obs, pool = PoolEnvs(env, env.reset()).reset(key)
     episodes = EpisodeStats.create(env.num_envs).replace(env_steps=jnp.int32(env_steps))
-    pool = Pool(handle, EpisodeTracker.create(env.num_envs))
     return on_policy_carry(agent, env.num_envs, agent_state, pool, obs, key, episodes)
 
 
