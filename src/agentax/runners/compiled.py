@@ -176,11 +176,9 @@ def train_program(
     program_description: dict[str, Any] | None = None,
 ) -> TrainResult:
     """Train the runner's agents together; log, checkpoint and evaluate into ``run`` (if given).
-
-    ``resume=True`` continues ``run`` from its newest checkpoint; ``max_chunks`` stops after that
-    many chunks, leaving a resumable run. ``program_description`` (JSON-able) names the program for
-    :func:`agentax.runners.programs.build` to keep; None unless it determines the program.
-    """
+    ``resume=True`` continues ``run`` from its newest checkpoint; ``max_chunks`` stops after that many
+    chunks, leaving a resumable run; ``program_description`` (JSON-able), where it determines the
+    program, names it for :func:`agentax.runners.programs.build` to keep."""
     start = time.perf_counter()
     seeds = seeds_of(runner)
     shapes, init_program, chunk_program = programs.build(algorithm, env, runner, seeds, program_description)
@@ -230,11 +228,9 @@ def train_program(
 
 def _chunks(call, state, stats, schedule: ChunkSchedule, runner: RunnerConfig, logger, counts: Counts, start):
     """Call the schedule's chunks, a row and, when due, a checkpoint after each; ``(state, the final
-    evaluation where the run stopped solved, else None)``.
-
-    Look-ahead: chunk k + 1 runs while chunk k's row is written, unless chunk k's state is still
-    needed (a checkpoint, a stop at this evaluation): the next chunk takes its buffers (donated).
-    The row's episode counters are copied out first."""
+    evaluation where the run stopped solved, else None)``. Chunk k + 1 runs while chunk k's row is
+    written (its episode counters copied out first: the next chunk takes the donated buffers), unless
+    chunk k's state is still needed (a checkpoint, a stop at this evaluation)."""
     final_eval, chunks, every = None, 0, runner.checkpoint_every_chunks
     chunk = schedule.after(counts.updates, 0, counts.evaluations) if counts.solved_env_steps is None else None
     in_flight = call(state, chunk) if chunk is not None else None

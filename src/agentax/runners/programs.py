@@ -220,7 +220,6 @@ def build(
         "eval_episodes": runner.eval_episodes,
         "seed_group": group,  # seeds in groups: another program
     }
-    init = jit(flat_init, (seeds,), {**shaping, "name": "init"})
-    init = init.lower(seeds).compile(INIT_COMPILER_OPTIONS)
+    init = jit(flat_init, (seeds,), {**shaping, "name": "init"}).lower(seeds).compile(INIT_COMPILER_OPTIONS)
     example = (jax.tree.leaves(shapes), 0, True, seeds, 0)
     return shapes, init, jit(flat_chunk, example, {**shaping, "name": "chunk"}, donate_argnums=0)
