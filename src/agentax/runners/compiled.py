@@ -334,9 +334,7 @@ def compiled_program(
     return program_of(agent_maker(module, spec, cfg)(), env, runner)
 
 
-# ---------------------------------------------------------------- the runner module's four names
-
-Config = RunnerConfig
+Config = RunnerConfig  # the first of a runner module's four names (agentax.runners.launch)
 
 
 def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[RunnerConfig, str]:

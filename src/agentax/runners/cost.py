@@ -13,8 +13,7 @@ from jax.extend import core
 
 
 def xla_flops(closed: core.ClosedJaxpr) -> float:
-    """XLA's count of the floating-point operations of ``closed`` (lowered, not compiled; each loop
-    body counted once)."""
+    """XLA's count of the flops of ``closed`` (lowered, not compiled; each loop body counted once)."""
     args = [jax.ShapeDtypeStruct(v.aval.shape, v.aval.dtype) for v in closed.jaxpr.invars]
     lowered = jax.jit(core.jaxpr_as_fun(closed)).lower(*args)
     return float(lowered.cost_analysis().get("flops", 0.0))

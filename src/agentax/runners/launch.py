@@ -39,9 +39,8 @@ class Launch:
     where: str
     """how the run is trained, for the line announcing it"""
     train: Callable[[Run, bool, bool], TrainResult]
-    """``train(run, resume, progress) -> result`` (``result.policy`` None where the state stayed in
-    other processes)"""
-    precision: dict[str, Any] = dataclasses.field(default_factory=lambda: {"precision": "f32"})
+    """``train(run, resume, progress) -> result`` (``result.policy`` None where the state stayed elsewhere)"""
+    precision: dict[str, Any]
     """the networks' precision and why (:func:`agentax.kernel_choice.precision_choice`), kept in
     config.json for resuming, evaluating and exporting"""
 
@@ -63,8 +62,7 @@ def agent_maker(
 
 
 def precision_of(config: dict[str, Any]) -> str:
-    """The precision a run folder's config.json records (a folder written before precisions were:
-    ``f32``, what it trained in)."""
+    """The precision a run's config.json records (``f32`` in a folder written before precisions were)."""
     return config.get("precision", "f32")
 
 
@@ -81,8 +79,7 @@ def network_width(cfg: Any) -> int:
 
 
 def parse_return(flag: str, value: str, auto: float | None) -> float | None:
-    """A return flag's value (``--stop-at-return``, ``--freeze-at-return``): a number, 'none', or
-    'auto' (then ``auto``)."""
+    """A return flag's value (``--stop-at-return``, ``--freeze-at-return``): a number, None or ``auto``."""
     if value == "none":
         return None
     if value == "auto":

@@ -131,8 +131,7 @@ def fresh_memory(agent: Agent, num_envs: int) -> tuple[Any, jax.Array]:
 
 
 def on_policy_carry(agent: Agent | None, num_envs: int, *fields: Any) -> OnPolicyCarry:
-    """``OnPolicyCarry(*fields)``; for an ``agent`` with memory a :class:`RecurrentCarry`, every env's
-    memory fresh."""
+    """``OnPolicyCarry(*fields)``, a :class:`RecurrentCarry` (fresh memory) for an agent with memory."""
     if agent is None or agent.recurrent is None:
         return OnPolicyCarry(*fields)
     return RecurrentCarry(*fields, *fresh_memory(agent, num_envs))
