@@ -3,9 +3,8 @@
 One seed's :class:`~agentax.runners.rollout.Program` (:func:`program_of`) runs as chunks of
 ``updates_per_chunk`` updates, each ending with the greedy policy's evaluation when asked
 (:mod:`agentax.runners.programs`). Between chunks (:class:`ChunkSchedule`) the runner logs a row,
-checkpoints the whole carry and stops once every seed's evaluation reaches ``stop_at_return``.
-Seed ``k`` of a batch starting at ``seed`` uses ``jax.random.key(seed + k)``, alone or in a batch;
-with ``workers > 1`` the seeds are split over processes (:mod:`agentax.runners.workers`).
+checkpoints the whole carry and stops once every seed's evaluation reaches ``stop_at_return``; with
+``workers > 1`` the seeds are split over processes (:mod:`agentax.runners.workers`).
 """
 
 from __future__ import annotations
@@ -307,8 +306,7 @@ def best_seed(run_dir: str | Path) -> int:
 
 
 def program_of(agent: Agent, env: Environment, runner: RunnerConfig | None = None) -> Program:
-    """The program of ``agent`` on the JAX env ``env`` for its kind of experience, with ``runner``'s
-    per-seed early stop if given (off-policy agents only)."""
+    """The program of ``agent`` on the JAX env ``env`` for its experience, with ``runner``'s freeze if any."""
     experience = agent.experience
     envs = VectorEnv(env, env.default_params(), experience.num_envs)
     freeze_at = None if runner is None else runner.freeze_at_return

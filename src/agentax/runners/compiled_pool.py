@@ -154,8 +154,7 @@ def check(agent: Agent, env_id: str, runner: Config, num_seeds: int = 1) -> None
 
 
 def make_pool(env_id: str, num_envs: int, seed: int, runner: Config) -> XlaPool:
-    """The pool of ``env_id`` stepped inside the program: Atari with the runner's sticky actions,
-    or a MuJoCo task with its v5 settings."""
+    """The pool of ``env_id``: Atari with the runner's sticky actions, or a MuJoCo task's v5 settings."""
     if is_atari_id(env_id):
         return XlaAtari(env_id, num_envs, seed=seed, sticky_actions=runner.sticky_actions)
     return XlaMujoco(env_id, num_envs, seed=seed)

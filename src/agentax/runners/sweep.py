@@ -84,6 +84,3 @@ def traceable(make_program: Callable[[Any], Program], cfg: Any, name: str) -> bo
 def float_fields(cfg: Any) -> list[str]:
     """The fields of ``cfg`` holding a float (the candidates for tracing)."""
     return [f.name for f in dataclasses.fields(cfg) if type(getattr(cfg, f.name)) is float]
-
-
-__all__ = ["SweepCarry", "float_fields", "sweep_program", "traceable", "with_values"]
