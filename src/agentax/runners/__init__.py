@@ -45,8 +45,7 @@ RUNNERS: dict[str, Runner] = {
     "compiled-mujoco": Runner("agentax.runners.compiled_pool", "mujoco", "compiled", carries_memory=True),
 }
 """Every kind of runner by its name in config.json's ``runner_kind``, which old run folders keep
-(``--runner compiled`` on an Atari id is ``compiled-atari``, on EnvPool's MuJoCo ids
-``compiled-mujoco``: one module, :mod:`agentax.runners.compiled_pool`, for both)."""
+(``--runner compiled`` on Atari or EnvPool's MuJoCo ids: ``compiled-atari``, ``compiled-mujoco``)."""
 CHOICES = ("compiled", "host", "parallel", "ray")
 """The kinds ``--runner`` names."""
 AUTO = ("compiled", "host")

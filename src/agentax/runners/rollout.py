@@ -101,9 +101,6 @@ def agent_program(agent: Agent, init: Callable, update: Callable, steps_per_upda
     )
 
 
-# ---------------------------------------------------------------- on-policy rollouts (PPO)
-
-
 @struct.dataclass
 class OnPolicyCarry:
     """What an on-policy rollout carries from one step (and one iteration) to the next."""
@@ -189,11 +186,10 @@ def on_policy_program(agent: Agent, envs: VectorEnv) -> Program:
     return agent_program(agent, init, update, envs.num_envs * experience.num_steps)
 
 
-# ---------------------------------------------------------------- whole episodes (REINFORCE)
-
-
 @struct.dataclass
 class EpisodesCarry:
+    """What the whole-episodes program (REINFORCE) carries from one update to the next."""
+
     agent: Any
     key: jax.Array
     episodes: EpisodeStats
