@@ -22,11 +22,13 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import export
 
 from agentax import _xla, kernel_choice, kernels
 from agentax.envs.core import Environment, episode_returns
 from agentax.runners.rollout import SEED_AXIS, Program
 from agentax.runners.session import EVAL_KEY_OFFSET
+from agentax.runs import write_atomic
 
 INIT_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
 CHUNK_COMPILER_OPTIONS = {"xla_backend_optimization_level": 1}
@@ -76,10 +78,6 @@ def jit(
     if description is None or root is None:
         return jax.jit(fn, donate_argnums=donate_argnums)
     directory = root / "agentax-programs"  # beside the compiled programs
-    from jax import export
-
-    from agentax.runs import write_atomic
-
     name = f"{description.get('name', 'program')}-{fingerprint(description, example_args)}"
     path = directory / f"{name}.jaxexport"
     exported = None
