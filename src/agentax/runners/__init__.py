@@ -11,7 +11,6 @@ kind's module (:mod:`agentax.runners.launch`) and envs; a module is imported whe
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
@@ -24,8 +23,8 @@ class Runner:
     module: str
     """the runner module (``Config``, ``configure``, ``train``, ``restore``)"""
     envs: str
-    """the env family it takes (a key of :data:`ENV_FAMILIES`): "jax" (agentax's JAX envs), "any"
-    (any Gymnasium id or Atari), "atari", "mujoco" (EnvPool's MuJoCo v5 tasks)"""
+    """the env family it takes (:func:`takes`): "jax" (agentax's JAX envs), "any" (any Gymnasium id
+    or Atari), "atari", "mujoco" (EnvPool's MuJoCo v5 tasks)"""
     chosen_as: str
     """the ``--runner`` choice (a name in :data:`CHOICES`) that picks it for an env of its family"""
     carries_memory: bool = False
@@ -54,36 +53,23 @@ UNNAMED_KIND = "compiled"
 """The kind of a run whose config.json names none (written before runners had kinds)."""
 
 
-def _is_jax_env(env_id: str) -> bool:
-    from agentax.envs import JAX_ENVS
-
-    return env_id in JAX_ENVS
-
-
-def _is_atari(env_id: str) -> bool:
-    from agentax.envs.atari import is_atari_id
-
-    return is_atari_id(env_id)
-
-
-def _is_envpool_mujoco(env_id: str) -> bool:
-    from agentax.envs.envpool_xla import is_envpool_mujoco_id
-
-    return is_envpool_mujoco_id(env_id)
-
-
-ENV_FAMILIES: dict[str, Callable[[str], bool]] = {
-    "jax": _is_jax_env,
-    "any": lambda env_id: True,
-    "atari": _is_atari,
-    "mujoco": _is_envpool_mujoco,
-}
-"""Whether an env id belongs to the family a runner's ``envs`` names."""
-
-
 def takes(kind: str, env_id: str) -> bool:
-    """Whether the ``kind`` runner trains ``env_id``."""
-    return ENV_FAMILIES[RUNNERS[kind].envs](env_id)
+    """Whether the ``kind`` runner trains ``env_id``: whether the id is of the runner's env family
+    (:attr:`Runner.envs`), the family's module imported only now."""
+    family = RUNNERS[kind].envs
+    if family == "jax":
+        from agentax.envs import JAX_ENVS
+
+        return env_id in JAX_ENVS
+    if family == "atari":
+        from agentax.envs.atari import is_atari_id
+
+        return is_atari_id(env_id)
+    if family == "mujoco":
+        from agentax.envs.envpool_xla import is_envpool_mujoco_id
+
+        return is_envpool_mujoco_id(env_id)
+    return family == "any"
 
 
 def kind_for(choice: str, env_id: str) -> str:
