@@ -522,6 +522,13 @@ def test_every_runner_row_names_a_module_that_keeps_the_contract(kind):
     assert RUNNERS[kind].chosen_as in ("compiled", "host", "parallel", "ray")
 
 
+@pytest.mark.parametrize("kind", ["compiled", "compiled-atari"])
+def test_a_compiled_runners_config_is_no_other_runners(kind):
+    """The compiled runners' settings are their own classes, not a host runner's config extended."""
+    others = {RUNNERS[k].load().Config for k in RUNNERS if RUNNERS[k].module != RUNNERS[kind].module}
+    assert not others & set(RUNNERS[kind].load().Config.__mro__[1:])
+
+
 def test_the_runner_contract_check_catches_a_module_that_breaks_it():
     import dataclasses
     import types

@@ -45,10 +45,29 @@ XlaPool = XlaAtari | XlaMujoco
 
 
 @dataclass(frozen=True)
-class Config(host.HostRunnerConfig):
-    """The compiled EnvPool runner's settings: the host runner's, which mean the same here, and
-    ``policy_lag`` (a run written before it existed resumes with 0, as it ran)."""
+class Config:
+    """The compiled EnvPool runner's settings, saved in config.json under "runner" (a run written
+    before ``policy_lag`` existed resumes with 0, as it ran). The fields the host runner's config
+    also has mean the same, so the two compare number for number; neither is the other's."""
 
+    seed: int = 0
+    """seed of the agent and of the pool"""
+    log_every_steps: int = 2_048
+    """write a metrics row every this many env steps (the pool's, reset steps included)"""
+    eval_episodes: int = 10
+    """games of the final evaluation (and of the stop-at-return checks), on the host adapter"""
+    stop_at_return: float | None = None
+    """stop once an evaluation (run at each row) reaches this mean return (None: train to the end)"""
+    checkpoint_every_seconds: float = 30.0
+    """write a checkpoint at most this often (and at the end)"""
+    env_backend: str = "auto"
+    """envpool (auto); the evaluation's host adapter follows it"""
+    sticky_actions: float = 0.25
+    """Atari: the probability that the emulator repeats the last action (Gymnasium's v5: 0.25)"""
+    checkpoint_replay: bool = True
+    """SAC and TD3: save the program's replay beside the checkpoints (PPO keeps none)"""
+    replay_checkpoint_every_seconds: float = 600.0
+    """SAC and TD3: save the replay at most this often (and with the first and last checkpoints)"""
     policy_lag: int = 0
     """parameter versions between collecting a rollout and learning from it: 0 runs rollout and
     learning one after the other in one program; 1 collects rollout k+1 in a thread beside the
