@@ -29,17 +29,16 @@ ROOT = Path(__file__).resolve().parent.parent
 KERNEL = Path("src/agentax/_onednn_conv.so")
 REPEATS = 3
 WORKLOADS = {
-    "PPO CartPole-v1, cartpole-fast, 8 seeds, compiled": [
-        "ppo", "--env", "CartPole-v1", "--preset", "cartpole-fast", "--seeds", "8",
-        "--total-steps", "102400",
-    ],  # fmt: skip
-    "DQN CartPole-v1, default, 8 seeds, compiled": [
-        "dqn", "--env", "CartPole-v1", "--preset", "default", "--seeds", "8", "--total-steps", "50000",
-    ],  # fmt: skip
-    "PQN Breakout, breakout-hour, compiled Atari runner": [
-        "pqn", "--env", "ALE/Breakout-v5", "--preset", "breakout-hour", "--runner", "compiled",
-        "--sticky-actions", "0", "--total-steps", "32768",
-    ],  # fmt: skip
+    "PPO CartPole-v1, cartpole-fast, 8 seeds, compiled": (
+        "ppo --env CartPole-v1 --preset cartpole-fast --seeds 8 --total-steps 102400"
+    ),
+    "DQN CartPole-v1, default, 8 seeds, compiled": (
+        "dqn --env CartPole-v1 --preset default --seeds 8 --total-steps 50000"
+    ),
+    "PQN Breakout, breakout-hour, compiled Atari runner": (
+        "pqn --env ALE/Breakout-v5 --preset breakout-hour --runner compiled --sticky-actions 0 "
+        "--total-steps 32768"
+    ),
 }
 
 
@@ -60,11 +59,11 @@ def steps_per_second(metrics: Path) -> float:
     return steps / (float(last["wall_seconds"]) - float(first["wall_seconds"]))
 
 
-def train(checkout: Path, args: list[str], cache: Path, folder: Path) -> float:
+def train(checkout: Path, args: str, cache: Path, folder: Path) -> float:
     """One ``agentax train`` in ``checkout`` at ``--precision f32``; its training rate."""
     out = folder / "run"
     shutil.rmtree(out, ignore_errors=True)
-    command = [sys.executable, "-m", "agentax.cli", "train", *args, "--precision", "f32"]
+    command = [sys.executable, "-m", "agentax.cli", "train", *args.split(), "--precision", "f32"]
     command += ["--stop-at-return", "none", "--out", str(out), "--no-progress"]
     env = {**os.environ, "PYTHONPATH": str(checkout / "src"), "AGENTAX_JAX_CACHE": str(cache)}
     subprocess.run(command, check=True, capture_output=True, env=env, timeout=900, cwd=checkout)
