@@ -78,12 +78,7 @@ class ParameterChannel:
     for the actors (:func:`in_memory`, or a reference into Ray's object store)."""
 
     def __init__(
-        self,
-        coordinator: Coordinator,
-        version: int,
-        state: Any,
-        keep: int,
-        share: Callable[[int, Any], Any] = in_memory,
+        self, coordinator: Coordinator, version: int, state: Any, keep: int, share: Callable[[int, Any], Any]
     ):
         self.coordinator, self.keep, self.share = coordinator, keep, share
         self.versions = {version: share(version, state)}

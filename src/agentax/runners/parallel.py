@@ -334,12 +334,8 @@ def _off_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, do
     loop.session.keep_replay(replay)
     loop.drain = loop.fleet.finished_returns
     chunk = experience.train_frequency * (experience.num_envs // runner.actors)
-    limiter = RateLimiter(
-        coordinator,
-        experience.learning_steps_per_env_step,
-        experience.learning_starts,
-        slack=chunk * len(actors),
-    )
+    ratio, slack = experience.learning_steps_per_env_step, chunk * len(actors)
+    limiter = RateLimiter(coordinator, ratio, experience.learning_starts, slack=slack)
     limiter.inserted, limiter.learned = done_steps, updates
     channel = ParameterChannel(coordinator, 0, state, keep=2, share=loop.fleet.share)
     total = agent.total_steps

@@ -22,13 +22,12 @@ import jax
 import numpy as np
 
 from agentax.agents.protocol import Agent, acting_view
-from agentax.envs import make_host_env
 from agentax.errors import NodeLost, UsageError
 from agentax.replay import Transition
 from agentax.runners import parallel
 from agentax.runners.coordination import POLL_SECONDS, Coordinator
 from agentax.runners.driver import EnvironmentSteps, TrajectoryObserver
-from agentax.runners.host import Actor, actor_seed, fold_actor_key
+from agentax.runners.host import Actor, actor_seed, env_factory, fold_actor_key
 from agentax.runners.parallel import Fleet, ParallelRunnerConfig
 from agentax.runners.ray_cluster import ray_session
 from agentax.runners.session import TrainResult
@@ -127,11 +126,8 @@ class Collector:
         from agentax import _xla
 
         _xla.enable_compilation_cache()  # a restarted collector skips compiling its policy
-        agent = make_agent()
-        env = make_host_env(
-            env_id, num_envs, training=True, backend=runner.env_backend, sticky_actions=runner.sticky_actions
-        )
-        self.actor = Actor(agent, env, seed, jax.random.wrap_key_data(key))
+        env = env_factory(env_id, runner)(num_envs, training=True)
+        self.actor = Actor(make_agent(), env, seed, jax.random.wrap_key_data(key))
         self.version: int | None = None
 
     def describe(self) -> dict[str, Any]:

@@ -55,8 +55,7 @@ class TrainResult:
 
 def agent_keys(seed: int) -> tuple[jax.Array, jax.Array, jax.Array]:
     """``(init_key, learner_key, actors_key)`` of a run (actor ``i`` folds its key from the last)."""
-    init_key, learner_key, actors_key = jax.random.split(jax.random.key(seed), 3)
-    return init_key, learner_key, actors_key
+    return tuple(jax.random.split(jax.random.key(seed), 3))
 
 
 @jax.jit
@@ -77,11 +76,7 @@ def final_evaluation(evaluator: Any, state: Any, seed: int) -> tuple[np.ndarray,
 
 
 def row_of(
-    env_steps: float,
-    updates: int,
-    per_seed_returns: Any,
-    steps_per_second: float,
-    per_seed_evals: Any = None,
+    env_steps: float, updates: int, per_seed_returns: Any, steps_per_second: float, per_seed_evals: Any = None
 ) -> dict[str, float]:
     """A runner's columns of one row: the mean return per seed of the episodes finished since the last
     row (NaN: none) and, where the row evaluated, each seed's evaluation mean."""
