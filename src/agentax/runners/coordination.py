@@ -68,14 +68,9 @@ def interrupted_at_a_safe_point(coordinator: Coordinator) -> Iterator[None]:
         signal.signal(signal.SIGINT, previous)
 
 
-def in_memory(version: int, state: Any) -> Any:
-    """How actor threads receive a published state: the state itself (they share the learner's memory)."""
-    return state
-
-
 class ParameterChannel:
     """Published agent states by version, the ``keep`` newest, as ``share(version, state)`` makes them
-    for the actors (:func:`in_memory`, or a reference into Ray's object store)."""
+    for the actors (the state itself for threads, a reference into Ray's object store)."""
 
     def __init__(
         self, coordinator: Coordinator, version: int, state: Any, keep: int, share: Callable[[int, Any], Any]

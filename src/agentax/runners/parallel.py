@@ -29,7 +29,6 @@ from agentax.runners.coordination import (
     ParameterChannel,
     RateLimiter,
     Stopped,
-    in_memory,
     interrupted_at_a_safe_point,
     put,
     take,
@@ -170,7 +169,7 @@ class Fleet:
 
     actors: list[Any]
     description: str
-    share: Callable[[int, Any], Any] = in_memory
+    share: Callable[[int, Any], Any] = lambda version, state: state  # threads share the learner's memory
     figures: Callable[[], dict[str, float]] | None = None
 
     def finished_returns(self) -> list[float]:
