@@ -38,7 +38,8 @@ def first_time_step(env: Any, seed: int | None = None) -> TimeStep:
 @dataclass
 class Driver:
     """Steps ``env`` with ``policy`` and calls each observer with every transition ``[num_envs]``;
-    ``run`` stops after ``max_steps`` env steps (summed over envs) or ``max_episodes`` episodes."""
+    ``run`` stops after ``max_steps`` env steps (summed over envs) or ``max_episodes`` episodes,
+    whichever comes first (one must be set)."""
 
     env: Any
     policy: CollectPolicy

@@ -126,8 +126,8 @@ class Collector:
         from agentax import _xla
 
         _xla.enable_compilation_cache()  # a restarted collector skips compiling its policy
-        env = env_factory(env_id, runner)(num_envs, training=True)
-        self.actor = Actor(make_agent(), env, seed, jax.random.wrap_key_data(key))
+        agent, make_env = make_agent(), env_factory(env_id, runner)
+        self.actor = Actor(agent, make_env(num_envs, training=True), seed, jax.random.wrap_key_data(key))
         self.version: int | None = None
 
     def describe(self) -> dict[str, Any]:
