@@ -24,14 +24,14 @@ from agentax.runs import Run
 DIVERGED_HINT = "lower the learning rate or clip the gradients (--max-grad-norm)"
 
 
-def check_finite(metrics: dict[str, Any], env_steps: float, last_checkpoint: str | None = None) -> None:
+def check_finite(metrics: dict[str, Any], env_steps: float, last_checkpoint: str | None) -> None:
     """Raise ``TrainingDiverged`` naming the first metric that is NaN or infinite."""
     for name, value in metrics.items():
         if not np.all(np.isfinite(np.asarray(value, np.float64))):
             raise TrainingDiverged(_diverged(f"non-finite {name}", env_steps, last_checkpoint))
 
 
-def check_finite_tree(tree: Any, env_steps: float, last_checkpoint: str | None = None) -> None:
+def check_finite_tree(tree: Any, env_steps: float, last_checkpoint: str | None) -> None:
     """Raise ``TrainingDiverged`` if any floating-point leaf of ``tree`` (parameters) is not finite."""
     for leaf in jax.tree.leaves(tree):
         if jax.dtypes.issubdtype(getattr(leaf, "dtype", None), np.floating) and not np.all(

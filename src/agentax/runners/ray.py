@@ -181,7 +181,7 @@ class RemoteActor:
         coordinator: Coordinator,
         done_steps: int,
         max_restarts: int,
-        still_held: Callable[[], None] = lambda: None,
+        still_held: Callable[[], None],
     ):
         self.spawn, self.coordinator, self.max_restarts = spawn, coordinator, max_restarts
         self.still_held = still_held  # raises NodeLost while a replacement waits for CPUs that are gone
