@@ -1,8 +1,5 @@
-"""What the parallel runner's threads share: a coordinator that stops them all, a parameter
-channel, a rate limiter, and queue calls that give up once the run stops.
-
-Every blocking wait here looks every :data:`POLL_SECONDS` whether the run is stopping (an error
-in any thread, Ctrl-C, the end), so no thread waits forever on one that has gone.
+"""What the parallel runner's threads share: a coordinator that stops them all, a parameter channel,
+a rate limiter and queue calls; every wait looks every :data:`POLL_SECONDS` whether the run stops.
 """
 
 from __future__ import annotations
@@ -53,9 +50,8 @@ class Coordinator:
 
 @contextmanager
 def interrupted_at_a_safe_point(coordinator: Coordinator) -> Iterator[None]:
-    """Ctrl-C ends the run where the learner next checks the coordinator (between learning steps,
-    with no call to XLA or Ray cut in half: a Ray call interrupted inside left ``ray.shutdown``
-    hanging); a second Ctrl-C interrupts at once. In the main thread only (where signals land)."""
+    """Ctrl-C ends the run where the learner next checks the coordinator (a Ray call interrupted
+    inside left ``ray.shutdown`` hanging); a second Ctrl-C interrupts at once. Main thread only."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -72,24 +68,12 @@ def interrupted_at_a_safe_point(coordinator: Coordinator) -> Iterator[None]:
         signal.signal(signal.SIGINT, previous)
 
 
-def in_memory(version: int, state: Any) -> Any:
-    """How actor threads receive a published state: the state itself (they share the learner's memory)."""
-    return state
-
-
 class ParameterChannel:
-    """Published agent states by version; keeps the ``keep`` newest so an actor can ask for one exactly.
-
-    ``share(version, state)`` is what is kept for the actors: the state itself for threads
-    (:func:`in_memory`), a reference into Ray's object store for actor processes (``train.ray``)."""
+    """Published agent states by version, the ``keep`` newest, as ``share(version, state)`` makes them
+    for the actors (the state itself for threads, a reference into Ray's object store)."""
 
     def __init__(
-        self,
-        coordinator: Coordinator,
-        version: int,
-        state: Any,
-        keep: int,
-        share: Callable[[int, Any], Any] = in_memory,
+        self, coordinator: Coordinator, version: int, state: Any, keep: int, share: Callable[[int, Any], Any]
     ):
         self.coordinator, self.keep, self.share = coordinator, keep, share
         self.versions = {version: share(version, state)}
@@ -116,12 +100,8 @@ class ParameterChannel:
 
 
 class RateLimiter:
-    """Keeps ``learned ≈ ratio × (inserted − min_inserts)`` (Reverb's SampleToInsertRatio).
-
-    The learner may start a phase of ``phase`` learning steps while ``learned ≤ ratio × (inserted −
-    min_inserts)`` (a sequential loop learns right after each collected chunk); actors may insert while
-    they are less than ``slack`` env steps ahead of what the learner has caught up with.
-    """
+    """Keeps ``learned ≈ ratio × (inserted − min_inserts)`` (Reverb's SampleToInsertRatio): the learner
+    starts a phase while ``learned ≤`` that, actors insert while less than ``slack`` steps ahead."""
 
     def __init__(self, coordinator: Coordinator, ratio: float, min_inserts: int, slack: int):
         self.coordinator, self.ratio, self.min_inserts, self.slack = coordinator, ratio, min_inserts, slack

@@ -1,20 +1,11 @@
 """A TF-Agents-style Driver for host environments and its observers.
 
-The vocabulary is TF-Agents' (see the lecture's last part): a **Driver** steps an environment with
-a **collect policy** and hands every transition to its **observers** — plain callables such as the
-replay buffer's add and the metrics ``EnvironmentSteps``, ``NumberOfEpisodes``, ``AverageReturn``,
-``AverageEpisodeLength``. The driver knows nothing of learning; collection state goes in and out::
+A **Driver** steps an env (``agentax.envs.gym.GymnasiumEnv`` or the like: ``step`` returns a
+``TimeStep`` of arrays ``[num_envs, ...]``) with a **collect policy** ``policy(obs, policy_state) ->
+(action, policy_state[, info])`` and hands every transition to its **observers**, plain callables::
 
     driver = Driver(env, policy, observers=[replay_observer, returns, steps], max_steps=4)
     time_step, policy_state = driver.run(time_step, policy_state)
-
-``env`` is an ``agentax.envs.gym.GymnasiumEnv`` (any Gymnasium env or vector env; its ``step`` returns
-agentax's ``TimeStep`` with NumPy arrays ``[num_envs, ...]``) or anything with the same ``reset`` /
-``step``. ``policy(obs, policy_state) -> (action, policy_state)`` acts on the batch of observations;
-a policy may also return ``(action, policy_state, info)``, TF-Agents' policy info (PPO's
-log-probabilities and values), which reaches the observers as ``transition.info``.
-
-The runners (``agentax.runners.host``, ``agentax.runners.parallel``) build their loops from these.
 """
 
 from __future__ import annotations
@@ -46,11 +37,9 @@ def first_time_step(env: Any, seed: int | None = None) -> TimeStep:
 
 @dataclass
 class Driver:
-    """Steps ``env`` with ``policy`` and calls each observer with every transition ``[num_envs]``.
-
-    ``run`` stops after ``max_steps`` env steps (summed over envs) or ``max_episodes`` finished
-    episodes, whichever comes first (at least one must be set), as TF-Agents' step and episode drivers.
-    """
+    """Steps ``env`` with ``policy`` and calls each observer with every transition ``[num_envs]``;
+    ``run`` stops after ``max_steps`` env steps (summed over envs) or ``max_episodes`` episodes,
+    whichever comes first (one must be set)."""
 
     env: Any
     policy: CollectPolicy
@@ -58,8 +47,7 @@ class Driver:
     max_steps: int | None = None
     max_episodes: int | None = None
     action_to_env: Callable[[np.ndarray], np.ndarray] | None = None
-    """what the env receives for the policy's action (PPO clips continuous actions); the
-    transition keeps the action itself"""
+    """what the env receives for an action (PPO clips continuous ones); the transition keeps the action"""
 
     def __post_init__(self):
         if self.max_steps is None and self.max_episodes is None:
@@ -126,8 +114,7 @@ class NumberOfEpisodes:
 
 @dataclass
 class EpisodeAverage:
-    """The mean of a per-episode sum of ``quantity(transition)`` over the last ``buffer_size``
-    finished episodes (NaN before the first)."""
+    """The mean per-episode sum of ``quantity(transition)`` over the last ``buffer_size`` episodes."""
 
     quantity: Callable[[Transition], np.ndarray]
     buffer_size: int | None = 10  # None: every episode
@@ -165,15 +152,10 @@ class AverageEpisodeLength(EpisodeAverage):
 
 
 class ReplayObserver:
-    """Adds each transition ``[num_envs]`` to a host replay buffer (``buffer.add_batch``, as
-    :class:`agentax.replay.host.ReplayBuffer`), through the n-step accumulator when ``n_step > 1``
-    (:class:`agentax.replay.host.NStepAccumulator`, the NumPy twin of the compiled runner's) unless
-    the buffer builds n-step transitions itself (``handles_n_step``, as
-    :class:`agentax.replay.frames.FrameReplayBuffer`): it is then given one-step transitions.
-
-    ``envs`` (an int array or a slice; None: all) names the buffer's env streams this observer's
-    envs are, in order: an actor that steps a share of the envs of a shared buffer passes its share
-    (``add_batch(transition, envs=envs)``; a buffer of whole transitions ignores it)."""
+    """Adds each transition ``[num_envs]`` to a host replay buffer (``buffer.add_batch``), through an
+    n-step accumulator where ``n_step > 1`` and the buffer does not build them itself
+    (``handles_n_step``). ``envs`` (indices or a slice; None: all) are the buffer's env streams this
+    observer's envs are: an actor's share of a shared buffer."""
 
     def __init__(self, buffer: Any, n_step: int = 1, discount_factor: float = 0.99, envs: Any = None):
         self.buffer = buffer
@@ -218,7 +200,7 @@ class FinishedReturns(EpisodeAverage):
 
 
 def non_finite_action(obs: np.ndarray) -> str:
-    """The line for a policy that gave a NaN or infinite continuous action, saying where it came from."""
+    """Why a policy gave a NaN or infinite continuous action, in one line."""
     if not np.isfinite(np.asarray(obs, np.float64)).all():
         return "non-finite action from a non-finite observation: the env gave NaN or infinity"
     return "non-finite action from finite observations: lower the learning rate or clip the gradients"

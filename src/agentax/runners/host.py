@@ -1,16 +1,9 @@
 """The host runner: any agent of :mod:`agentax.agents.protocol` on any env id, stepped on the host.
 
-TF-Agents' training loop, one step after the other: an :class:`Actor` drives its vector env with
-the collect policy (``agent.act``, jitted for the batch of envs) through a
-:class:`~agentax.runners.driver.Driver` whose observers count steps, keep returns and feed the
-experience the agent asked for (a rollout, whole episodes, or a replay buffer that ``as_dataset``
-draws batches from ahead); then ``agent.learn`` (jitted) trains on it. With the keys of
-:func:`fold_actor_key` and :func:`actor_seed` the host runner is the parallel runner's
-policy-lag-0 run with one actor, number for number.
-
-Checkpoints hold ``(agent state, learner key)`` and beside them the replay buffer or a recurrent
-agent's actor (:mod:`agentax.runners.host_memory`); a resumed run restarts envs whose state cannot
-be saved (a Gymnasium env's) from seeds that depend on how far the run had come.
+TF-Agents' loop, one step after the other: an :class:`Actor` collects a rollout, whole episodes or
+replay through a :class:`~agentax.runners.driver.Driver`, then ``agent.learn`` (jitted) trains on
+it. Checkpoints hold ``(agent state, learner key)``, the replay buffer or a recurrent agent's actor
+beside them (design.md, "The host runners, module by module").
 """
 
 from __future__ import annotations
@@ -76,9 +69,8 @@ Config = HostRunnerConfig
 
 
 def one_seed_settings(run_args: Any, preset: Any, kind: str) -> dict[str, Any]:
-    """The settings of ``run_args`` that every runner training one seed per process reads (a
-    ``stop_at_return`` already resolved, :func:`agentax.runners.launch.prepare`); the compiled
-    runner's own flags refused for the ``kind`` runner."""
+    """The settings of ``run_args`` every one-seed-per-process runner reads; the compiled runner's
+    own flags refused for the ``kind`` runner."""
     if (run_args.workers or 1) > 1:
         raise UsageError(
             f"--workers splits the compiled runner's seeds over processes; the {kind} runner trains one "
@@ -129,17 +121,15 @@ def actor_seed(seed: int, index: int, updates: int) -> int:
     return seed + 1000 * index + 7919 * updates
 
 
-class _Ends(NamedTuple):
-    """What a returns tracker reads of one step ``[E]``."""
-
+class _Ends(NamedTuple):  # what a returns tracker reads of one step [E]
     reward: np.ndarray
     terminated: np.ndarray
     truncated: np.ndarray
 
 
 def record_returns(returns: FinishedReturns, trajectory: Transition, episodes: bool) -> int:
-    """Feed a trajectory ``[T, E]`` to a returns tracker; returns the env steps it holds. With
-    ``episodes`` only each env's first episode counts (``info["valid"]``), ended by the step limit."""
+    """Feed a trajectory ``[T, E]`` to ``returns``; the env steps it holds. With ``episodes`` only
+    each env's first episode counts (``info["valid"]``), ended by the step limit."""
     reward, terminated, truncated = trajectory.reward, trajectory.terminated, trajectory.truncated
     if episodes:
         valid = trajectory.info["valid"]
@@ -152,16 +142,12 @@ def record_returns(returns: FinishedReturns, trajectory: Transition, episodes: b
 
 class Actor:
     """One actor: its own vector env, the collect policy on the parameters it is given, a Driver.
-
-    ``progress()`` is what the collect policy's schedules (DQN's ε) read: the env steps (or episodes)
-    of the whole run, which a parallel runner sums over its actors.
-    """
+    ``progress()`` is what the policy's schedules (DQN's ε) read: the run's env steps (or episodes)."""
 
     def __init__(self, agent: Agent, env: Any, seed: int, key: jax.Array, done_steps: int = 0):
         self.agent, self.env, self.num_envs = agent, env, env.num_envs
         self.obs_shape = tuple(env.observation_space().shape)
-        self.keeps_scores = hasattr(env, "drain_scores")
-        """whether the env keeps the true scores of whole games (Atari), which the rows then report"""
+        self.keeps_scores = hasattr(env, "drain_scores")  # true scores of whole games (Atari)
         self.seed, self.key = seed, key
         self.memory = CarriedMemory(agent, self.num_envs) if agent.recurrent is not None else None
         self.act = self.memory.act if self.memory is not None else jax.jit(act_and_split(agent.act))
@@ -174,8 +160,7 @@ class Actor:
         self.time_step = first_time_step(self.env, seed)
 
     def finished_returns(self) -> list[float]:
-        """The returns of the episodes finished since the last call: whole games' true scores where
-        the env keeps them (Atari), else the episodes' summed rewards."""
+        """The returns of the episodes (or whole Atari games) finished since the last call."""
         if self.keeps_scores:
             return [score for score, _ in self.env.drain_scores()]
         return self.returns.drain()
@@ -199,8 +184,8 @@ class Actor:
         return trajectory.trajectory()
 
     def episodes_from_reset(self, state: Any, max_steps: int) -> Transition:
-        """One episode per env from a fresh reset (at most ``max_steps`` steps): a trajectory
-        ``[max_steps, E]`` whose ``info["valid"]`` marks the steps inside each first episode."""
+        """One episode per env from a fresh reset: a trajectory ``[max_steps, E]`` whose
+        ``info["valid"]`` marks the steps inside each first episode."""
         self.state, trajectory = state, TrajectoryObserver()
         self.seed += self.env.num_envs
         self.time_step = first_time_step(self.env, self.seed)
@@ -232,9 +217,8 @@ class Actor:
 
 
 def replay_for(agent: Agent, obs_shape: tuple[int, ...], seed: int) -> Any:
-    """An empty host replay buffer for ``agent``'s transitions of observations ``obs_shape``: for
-    stacked frames the frame-deduplicated one (each frame stored once, n-step returns at sampling),
-    else a plain one."""
+    """An empty host replay buffer for ``agent`` on observations ``obs_shape``: frame-deduplicated
+    for stacked frames, else a plain one."""
     experience = agent.experience
     sampling = {
         "prioritized": experience.prioritized,
@@ -259,10 +243,8 @@ def replay_for(agent: Agent, obs_shape: tuple[int, ...], seed: int) -> Any:
 
 
 class OffPolicyLearner:
-    """Learning phases on a replay buffer: ``gradient_steps`` learning steps, one compiled call for
-    uniform replay (a ``lax.scan`` over batches drawn ahead by ``as_dataset`` while XLA learns), step
-    by step for prioritized replay (each batch depends on the priorities the last one set); the means
-    of every scalar metric of ``learn``, whatever the agent names them."""
+    """Learning phases of ``gradient_steps`` steps on a replay buffer: one compiled call on batches
+    drawn ahead (uniform replay), step by step (prioritized); each returns the scalar metrics' means."""
 
     def __init__(self, agent: Agent, replay: Any, loop: Loop = jax.lax.scan):
         self.experience: OffPolicy = agent.experience
@@ -322,13 +304,12 @@ def collection_over(agent: Agent, env_steps: int, episodes: int, updates: int = 
     return env_steps >= agent.total_steps or bool(max_episodes and episodes >= max_episodes)
 
 
-ATARI_EVAL_EPSILON = 0.01
-"""Atari games are evaluated with 1 % random actions (``policies.with_random_actions``)."""
+ATARI_EVAL_EPSILON = 0.01  # Atari games are evaluated with 1 % random actions
 
 
 class Evaluator:
-    """The greedy policy's returns on a side env (for stop-at-return and the final evaluation);
-    whole games with ``ATARI_EVAL_EPSILON`` random actions on Atari."""
+    """The greedy policy's returns and lengths on a side env (whole games with
+    ``ATARI_EVAL_EPSILON`` random actions on Atari)."""
 
     def __init__(self, agent: Agent, make_env: Callable[..., Any], episodes: int):
         self.agent, self.episodes = agent, episodes
@@ -349,8 +330,7 @@ class Evaluator:
 
 
 def host_session(agent: Agent, env_id: str, runner: Any, run: Run | None, resume: bool) -> Session:
-    """The :class:`Session` of a run on host envs, evaluated by an :class:`Evaluator` (an off-policy
-    replay restored with its checkpoint where kept), with XLA on every CPU for actors and learner."""
+    """The :class:`Session` of a run on host envs (XLA on every CPU for actors and learner)."""
     _xla.let_xla_use_every_cpu()
     evaluator = Evaluator(agent, env_factory(env_id, runner), runner.eval_episodes)
     replayed = isinstance(agent.experience, OffPolicy) and runner.checkpoint_replay
@@ -386,8 +366,7 @@ def train(
         learner = OffPolicyLearner(agent, replay, loop=kernel_choice.learning_loop_for(actor.obs_shape))
         session.keep_replay(replay)
     metrics: dict[str, Any] = {}
-    # the returns of each row: from what was learned (on-policy, so a parallel run with lag 0 logs
-    # the same), else from the actor (off-policy, or whole Atari games, which only the env knows)
+    # rows' returns: from what was learned (on-policy, as a parallel run logs them), else the actor's
     learned_returns = FinishedReturns()
     keep_actor(session, actor, learned_returns)
     from_actor = replayed or actor.keeps_scores
@@ -424,7 +403,6 @@ def train(
 
 
 def restore(run_dir: Path, config: dict[str, Any], agent: Agent) -> Policy:
-    """The greedy policy of the newest loadable checkpoint of a run of the runners that checkpoint
-    ``(agent state, learner key)`` (host, parallel, Ray, compiled EnvPool)."""
+    """The greedy policy of the newest loadable ``(agent state, learner key)`` checkpoint."""
     (state, _), _, _ = load_checkpoint(run_dir, checkpoint_target(agent))
     return agent.greedy_policy(state)

@@ -1,21 +1,7 @@
-"""A host actor's memory of its envs, carried across rollouts, and the actor kept with checkpoints.
-
-A recurrent agent (``Agent.recurrent``) acts with each env's memory. A host actor
-(:class:`agentax.runners.host.Actor`) carries it as the compiled runner's
-:class:`~agentax.runners.rollout.RecurrentCarry` does: every env starts at
-:func:`~agentax.runners.rollout.fresh_memory` (``first`` all true); each step's memory goes on to
-the next step and from one rollout to the next; ``first`` marks the envs whose last step ended an
-episode (the env auto-reset, so the observation starts the next one). ``agent.recurrent.act`` keeps
-the memory it received and ``first`` in each step's ``info``, so the learner replays the rollout's
-sequences from the memory that collected them (under a policy lag too: the actor's memory is the one
-its own, older, parameters computed).
-
-:class:`ActorCheckpoints`: the host runner saves its actor beside each checkpoint, where its envs
-can give their state (agentax's JAX envs behind Gymnasium, :meth:`agentax.envs.GymnasiumEnv.snapshot`):
-the envs' states and random generators, the observations, each env's memory and ``first``, the
-actor's key. A resumed run then continues the very episodes it was playing, number for number. A
-Gymnasium env's state cannot be saved in general (nor an Atari emulator's here): such a run restarts
-its envs on resume (from seeds that depend on how far it had come) and their memory with them.
+"""A host actor's memory of its envs, carried across rollouts (:class:`CarriedMemory`, as the
+compiled runner's :class:`~agentax.runners.rollout.RecurrentCarry`), and the actor saved beside each
+checkpoint where its envs can be saved (:class:`ActorCheckpoints`), so a resumed run continues
+its episodes (design.md, "The host runners, module by module").
 """
 
 from __future__ import annotations
@@ -42,8 +28,7 @@ ACTORS_PREFIX = "actors-"
 
 
 def act_and_split(act):
-    """``act(..., key, progress)`` (``agent.act``, or ``agent.recurrent.act``) that also advances its
-    key: its results and the next key, so a host actor makes one compiled call per step."""
+    """``act(..., key, progress)`` that also returns the next key: one compiled call a step."""
 
     def act_next(*inputs):
         *inputs, key, progress = inputs
@@ -54,9 +39,8 @@ def act_and_split(act):
 
 
 class CarriedMemory:
-    """Each env's memory of a host actor of a recurrent agent: ``act`` has the signature of the
-    actor's feed-forward act (``(action, info, key)``) and moves the memory on; as an observer of
-    every transition it marks ``first`` where the step ended an episode; ``restart()`` after a reset."""
+    """Each env's memory of a recurrent agent's host actor: ``act`` (the feed-forward act's signature)
+    moves it on; as an observer it marks ``first`` where a step ended an episode."""
 
     def __init__(self, agent: Agent, num_envs: int):
         self.agent, self.num_envs = agent, num_envs
@@ -83,9 +67,8 @@ def actors_beside(checkpoint: Path) -> Path:
 
 
 def actor_snapshot(actor: Any, trackers: Sequence[EpisodeAverage] = ()) -> tuple[dict, dict] | None:
-    """``(arrays, meta)`` of where ``actor`` is: its envs' states, observations, memory and key and
-    the sums of the episodes under way of the returns ``trackers`` (the arrays), its envs' random
-    generators and seed (JSON); None where its envs cannot be saved."""
+    """``(arrays, meta)`` of where ``actor`` and its returns ``trackers`` are; None where its envs
+    cannot be saved."""
     envs = actor.env.snapshot() if hasattr(actor.env, "snapshot") else None
     if envs is None or actor.memory is None:
         return None
@@ -117,10 +100,8 @@ def continue_actor(
 
 
 class ActorCheckpoints:
-    """The host runner's actor saved with the agent's checkpoints (where its envs can be saved):
-    ``checkpoints/actors-<updates>.msgpack`` written before its checkpoint, which commits the pair
-    (as :class:`~agentax.runners.session.ReplayCheckpoints`); those of checkpoints no longer kept
-    are removed."""
+    """The actor saved as ``checkpoints/actors-<updates>.msgpack`` before its checkpoint, which commits
+    the pair (as :class:`~agentax.runners.session.ReplayCheckpoints`)."""
 
     def __init__(self, run: Run | None, actor: Any, trackers: Sequence[EpisodeAverage] = ()):
         self.run, self.actor, self.trackers = run, actor, trackers
@@ -138,8 +119,7 @@ class ActorCheckpoints:
                 old.unlink(missing_ok=True)
 
     def restore(self, checkpoint: Path) -> bool:
-        """Continue the actor saved with ``checkpoint``, if it was (a file that does not load: a
-        note on stderr, and the envs restart); whether it did."""
+        """Continue the actor saved with ``checkpoint`` (one that does not load: a note); whether it did."""
         path, snapshot = actors_beside(checkpoint), actor_snapshot(self.actor, self.trackers)
         if snapshot is None or not path.is_file():
             return False
@@ -154,9 +134,8 @@ class ActorCheckpoints:
 
 
 def keep_actor(session: Session, actor: Any, *trackers: EpisodeAverage) -> None:
-    """Keep the host runner's ``actor`` of a recurrent agent (and the returns ``trackers`` of its
-    episodes beside its own) with ``session``'s checkpoints (:class:`ActorCheckpoints`, where its
-    envs can be saved), continued where the run resumed from."""
+    """Keep a recurrent on-policy agent's ``actor`` (and returns ``trackers``) with ``session``'s
+    checkpoints, continued where the run resumed from."""
     if actor.memory is None or isinstance(actor.agent.experience, OffPolicy):
         return
     session.keep(ActorCheckpoints(session.run, actor, [actor.returns, *trackers]))

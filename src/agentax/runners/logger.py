@@ -1,16 +1,9 @@
 """The run logger every runner writes through: rows, progress bar, checkpoints.
 
-A runner hands it a row of its own bookkeeping (``env_steps``, returns, speeds) and the agent's
-learning metrics; the logger checks that the metrics are finite, appends the row to metrics.csv
-and TensorBoard (``agentax.runs.Run``), moves the progress bar, and writes checkpoints (only of
-finite parameters, so the newest checkpoint is always one to continue from). Used as a context
-manager it turns Ctrl-C into :class:`~agentax.errors.TrainingInterrupted`, which carries the run
-folder so the CLI can say how to continue. Without a run folder (``run=None``) it only keeps the
-rows and checks, as for training from Python.
-
-A non-finite loss or parameter stops the run with :class:`~agentax.errors.TrainingDiverged`::
-
-    non-finite policy_loss at env step 1,024: lower the learning rate or clip the gradients ...
+It checks the agent's metrics and the checkpointed parameters are finite (else
+:class:`~agentax.errors.TrainingDiverged`), writes rows to metrics.csv and TensorBoard, and as a
+context manager turns Ctrl-C into :class:`~agentax.errors.TrainingInterrupted`. With ``run=None``
+it only keeps the rows and checks.
 """
 
 from __future__ import annotations
@@ -31,14 +24,14 @@ from agentax.runs import Run
 DIVERGED_HINT = "lower the learning rate or clip the gradients (--max-grad-norm)"
 
 
-def check_finite(metrics: dict[str, Any], env_steps: float, last_checkpoint: str | None = None) -> None:
+def check_finite(metrics: dict[str, Any], env_steps: float, last_checkpoint: str | None) -> None:
     """Raise ``TrainingDiverged`` naming the first metric that is NaN or infinite."""
     for name, value in metrics.items():
         if not np.all(np.isfinite(np.asarray(value, np.float64))):
             raise TrainingDiverged(_diverged(f"non-finite {name}", env_steps, last_checkpoint))
 
 
-def check_finite_tree(tree: Any, env_steps: float, last_checkpoint: str | None = None) -> None:
+def check_finite_tree(tree: Any, env_steps: float, last_checkpoint: str | None) -> None:
     """Raise ``TrainingDiverged`` if any floating-point leaf of ``tree`` (parameters) is not finite."""
     for leaf in jax.tree.leaves(tree):
         if jax.dtypes.issubdtype(getattr(leaf, "dtype", None), np.floating) and not np.all(
@@ -55,9 +48,8 @@ def _diverged(what: str, env_steps: float, last_checkpoint: str | None) -> str:
 def time_left(
     total_steps: float, done_steps: float, steps_per_second: float, now: float | None = None
 ) -> str:
-    """``"left 19:30:05, ends 17:42"``: the time the rest of a run takes at ``steps_per_second`` and
-    the wall-clock time it ends (with its date when that is not today), or ``""`` before a speed is
-    known. Every long run shows it on its progress bar."""
+    """``"left 19:30:05, ends 17:42"`` (the end's date where it is not today) at ``steps_per_second``;
+    ``""`` before a speed is known."""
     remaining = max(total_steps - done_steps, 0.0)
     if not steps_per_second > 0 or not math.isfinite(steps_per_second):
         return ""
@@ -111,16 +103,12 @@ class Progress:
             self.bar.stop()
 
 
-BAR_COLUMNS = ("actor_wait_fraction", "learner_wait_fraction", "policy_lag")
-"""The parallel runner's figures shown on the progress bar too."""
+BAR_COLUMNS = ("actor_wait_fraction", "learner_wait_fraction", "policy_lag")  # on the bar too
 
 
 class RunLogger:
-    """Writes one training's rows and checkpoints into ``run`` (if given).
-
-    ``checkpoint_every_seconds`` spaces checkpoints out in time (a runner forces one at the end);
-    ``elapsed_before`` is the wall time of the earlier part of a resumed run.
-    """
+    """Writes one training's rows and checkpoints into ``run`` (if given); ``elapsed_before`` is the
+    wall time of the earlier part of a resumed run."""
 
     def __init__(
         self,
@@ -175,8 +163,7 @@ class RunLogger:
         return row
 
     def checkpoint_due(self) -> bool:
-        """Whether :meth:`checkpoint` would save now unforced: a run folder's first row, or
-        ``checkpoint_every_seconds`` since the last checkpoint."""
+        """Whether :meth:`checkpoint` would save now unforced."""
         return self.run is not None and (
             self.last_checkpoint is None
             or time.perf_counter() - self.last_checkpoint_time >= self.checkpoint_every_seconds
@@ -191,10 +178,8 @@ class RunLogger:
         force: bool = False,
         before: Callable[[int, bool], Any] | None = None,
     ) -> bool:
-        """Save ``tree`` at the first row, then once ``checkpoint_every_seconds`` passed since the
-        last (or ``force``), so a run stopped early can always resume; only finite parameters are
-        saved (else ``TrainingDiverged``). ``before(step, force)`` runs first when it saves: what must be on
-        disk before the checkpoint commits (the replay buffer). Returns whether it saved."""
+        """Save ``tree`` (finite only) at the first row, then every ``checkpoint_every_seconds`` or when
+        ``force``d, ``before(step, force)`` first (what must be on disk first); whether it saved."""
         if self.run is None or not (force or self.checkpoint_due()):
             return False
         now = time.perf_counter()

@@ -1,23 +1,10 @@
 """Collection and training in parallel: actor threads, one learner, a rate limiter, a parameter channel.
 
-The lecture's "two parts running in parallel", built as Cleanba and Acme build it: each actor
-thread steps its own vector env with the collect policy (the host runner's :class:`Actor`); the
-learner (the calling thread, so Ctrl-C lands there) runs ``agent.learn``; between them
-
-- on-policy (PPO, REINFORCE): a queue of size one per actor. Rollout ``k`` is collected with
-  parameter version ``k - policy_lag`` exactly (a :class:`ParameterChannel` keeps the few newest
-  versions), so with lag 1 the actors collect rollout ``k + 1`` while the learner learns from
-  rollout ``k``, and the same seed gives the same numbers; ``policy_lag=0`` is the sequential
-  algorithm, number for number the host runner's (with one actor).
-- off-policy (DQN): the shared, locked :class:`~agentax.replay.host.ReplayBuffer` and a
-  :class:`RateLimiter` (Reverb's sample-to-insert ratio) that blocks whichever side runs ahead, so a
-  parallel run makes the same learning steps per env step as a sequential one. The actors act with
-  the newest published parameters (published every ``publish_every`` learning phases).
-
-JAX releases the GIL while a compiled call runs, so a learner's update and the actors' Python
-env steps overlap on different cores. An exception in any thread stops every thread and is raised
-from :func:`train`, never a hang. Rows add the actors' and the learner's speeds and wait fractions
-and the policy lag (:class:`Meter`).
+Each actor thread steps its own vector env (the host runner's :class:`Actor`); the learner, the
+calling thread, runs ``agent.learn``. On-policy, rollout ``k`` is collected with parameter version
+``k - policy_lag`` exactly (lag 0: the host runner's numbers); off-policy, the actors fill one locked
+replay buffer as a :class:`RateLimiter` allows. An exception in any thread is raised from
+:func:`train` (design.md, "Collection and learning in parallel").
 """
 
 from __future__ import annotations
@@ -42,7 +29,6 @@ from agentax.runners.coordination import (
     ParameterChannel,
     RateLimiter,
     Stopped,
-    in_memory,
     interrupted_at_a_safe_point,
     put,
     take,
@@ -69,8 +55,7 @@ from agentax.runs import Run
 
 @dataclass(frozen=True)
 class ParallelRunnerConfig(HostRunnerConfig):
-    """How the parallel runner schedules one training (the host runner's settings and these);
-    saved in config.json under "runner"."""
+    """The host runner's settings and the actors'; saved in config.json under "runner"."""
 
     actors: int = 2
     """actor threads; the agent's envs are split evenly between them"""
@@ -93,16 +78,12 @@ class ParallelRunnerConfig(HostRunnerConfig):
 
 
 Config = ParallelRunnerConfig
-restore = host.restore
-"""the host runner's: its checkpoints hold ``(agent state, learner key)`` too"""
-
-DEFAULT_ACTORS = 2
-"""Actors of the parallel and Ray runners when ``--actors`` is not given (and the envs split in two)."""
+restore = host.restore  # the checkpoints hold (agent state, learner key) too
+DEFAULT_ACTORS = 2  # without --actors, where the envs split in two
 
 
 def algorithm_config(cfg: Any, run_args: Any) -> Any:
-    """The algorithm's ``cfg`` with ``--actors × --envs-per-actor`` envs (episodes per update, for
-    an episodic agent) where ``--envs-per-actor`` is given (read before the agent is made)."""
+    """The algorithm's ``cfg`` with ``--actors × --envs-per-actor`` envs (or episodes per update)."""
     if run_args.envs_per_actor is None:
         return cfg
     envs = "num_envs" if hasattr(cfg, "num_envs") else "episodes_per_update"
@@ -118,9 +99,8 @@ def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[ParallelRunnerC
 def configure_actors(
     run_args: Any, agent: Agent, preset: Any, kind: str, config_type: type, actor: str, **settings: Any
 ) -> tuple[Any, str]:
-    """The settings of a runner with actors: the one-seed ones, ``--actors``, ``--policy-lag`` and
-    the ``kind`` runner's further ``settings``, checked against the agent; and the announcement's
-    "2 actors, policy lag 1"."""
+    """The ``kind`` runner's settings (the one-seed ones, ``--actors``, ``--policy-lag`` and
+    ``settings``), checked against the agent, and its announcement: "2 actors, policy lag 1"."""
     refuse_seeds(run_args, kind)
     num_envs = agent.experience.num_envs
     actors = run_args.actors or (DEFAULT_ACTORS if num_envs % DEFAULT_ACTORS == 0 else 1)
@@ -152,8 +132,7 @@ class ActorThread(threading.Thread):
 
 
 class Meter:
-    """Speeds, wait fractions and the mean policy lag (parameter versions between acting and learning,
-    over the rollouts) between two rows."""
+    """A row's speeds, wait fractions and mean policy lag since the row before."""
 
     def __init__(self, threads: list[ActorThread], extra: Callable[[], dict[str, float]] | None = None):
         self.threads, self.extra = threads, extra
@@ -185,15 +164,12 @@ class Meter:
 
 @dataclass
 class Fleet:
-    """A parallel training's actors and how they are reached.
-
-    ``actors`` have the host runner's :class:`Actor` interface (``rollout``, ``collect``, ...);
-    ``share`` turns a published state into what the actors receive (:class:`ParameterChannel`);
-    ``figures()`` adds columns to each row; ``close()`` ends the actors."""
+    """A parallel training's actors (with the host :class:`Actor`'s interface); ``share`` turns a
+    published state into what they receive, ``figures()`` adds columns to each row."""
 
     actors: list[Any]
     description: str
-    share: Callable[[int, Any], Any] = in_memory
+    share: Callable[[int, Any], Any] = lambda version, state: state  # threads share the learner's memory
     figures: Callable[[], dict[str, float]] | None = None
 
     def finished_returns(self) -> list[float]:
@@ -211,7 +187,7 @@ after ``updates`` learning steps and ``done_steps`` env steps."""
 
 
 def thread_fleet(agent: Agent, env_id: str, runner: ParallelRunnerConfig) -> MakeFleet:
-    """Actors in this process, each with its own vector env, run by actor threads."""
+    """Actors in this process, run by actor threads."""
     make_env = env_factory(env_id, runner)
     envs_per_actor = agent.experience.num_envs // runner.actors
 
@@ -241,8 +217,8 @@ def train(
     progress: bool = False,
     fleet: MakeFleet | None = None,
 ) -> TrainResult:
-    """Train ``agent`` on ``env_id`` with ``runner.actors`` actors and a learner; the actors are
-    threads of this process (:func:`thread_fleet`) unless ``fleet`` makes them elsewhere."""
+    """Train ``agent`` on ``env_id`` with ``runner.actors`` actors (threads, unless ``fleet`` makes
+    them elsewhere) and a learner."""
     runner.check(agent)
     session = host_session(agent, env_id, runner, run, resume)
     state, updates, done_steps = session.state, session.updates, session.env_steps
@@ -268,10 +244,7 @@ def train(
 
 @dataclass
 class Loop:
-    """What a learner's loop works with: the agent, the runner's settings, the actors (their fleet
-    and the threads :meth:`start` adds), the coordinator and the session, whose rows add the actors'
-    figures (``meter``), the seconds the learner waited and the replay's size (off-policy);
-    ``drain()`` gives the returns of the episodes finished since the last row."""
+    """What a learner's loop works with; ``drain()`` gives the returns finished since the last row."""
 
     agent: Agent
     runner: ParallelRunnerConfig
@@ -306,7 +279,7 @@ class Loop:
 
 
 def _on_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, done_steps: int):
-    """Rollout ``k`` from every actor, collected with parameter version ``k - policy_lag``; learn."""
+    """Learn from rollout ``k`` of every actor, collected with parameter version ``k - policy_lag``."""
     agent, runner, coordinator = loop.agent, loop.runner, loop.coordinator
     experience, actors = agent.experience, loop.fleet.actors
     last_update = num_updates(agent)
@@ -360,12 +333,8 @@ def _off_policy(loop: Loop, state: Any, learner_key: jax.Array, updates: int, do
     loop.session.keep_replay(replay)
     loop.drain = loop.fleet.finished_returns
     chunk = experience.train_frequency * (experience.num_envs // runner.actors)
-    limiter = RateLimiter(
-        coordinator,
-        experience.learning_steps_per_env_step,
-        experience.learning_starts,
-        slack=chunk * len(actors),
-    )
+    ratio, slack = experience.learning_steps_per_env_step, chunk * len(actors)
+    limiter = RateLimiter(coordinator, ratio, experience.learning_starts, slack=slack)
     limiter.inserted, limiter.learned = done_steps, updates
     channel = ParameterChannel(coordinator, 0, state, keep=2, share=loop.fleet.share)
     total = agent.total_steps

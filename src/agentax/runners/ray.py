@@ -1,25 +1,10 @@
 """Actors on a Ray cluster: the parallel runner with its actors in Ray actor processes, on any node.
 
-``--runner ray`` is :mod:`agentax.runners.parallel` unchanged (learner, rate limiter, parameter
-channel, policy lag, rows, checkpoints) with another :class:`~parallel.Fleet`: each actor is a
-:class:`Collector`, a Ray actor process holding the host runner's :class:`~agentax.runners.host.Actor`,
-driven from the learner's process through a :class:`RemoteActor`. So
-
-- **parameters** go out through Ray's object store, one ``ray.put`` of the agent state's
-  :func:`~agentax.agents.protocol.acting_view` per publish, read from shared memory by every actor
-  of a node;
-- **experience** comes back as NumPy batches ``[T, E]`` (stacked frames sent once each,
-  :class:`PackedFrames`) with the scores of the games that ended, and joins the learner's queue or
-  replay exactly as a thread actor's would: the same seed gives the thread actors' numbers;
-- **faults**: a collector process that dies is replaced (fresh env seeds) and its call made again;
-  ``actor_restarts`` counts them. A lost node whose CPUs the replacements need ends the run with
-  :class:`~agentax.errors.NodeLost`; the learner's own node lost, Ray ends this process itself and
-  :func:`hint_if_ray_ends_this_process` says how to resume. An error raised *inside* a collector, or
-  by the learner, ends the run with that error.
-
-:func:`~agentax.runners.ray_cluster.ray_session` joins the cluster at ``ray_address``, else runs a
-local Ray for the run (shut down at the end, after Ctrl-C or an error too). Every node needs the
-same agentax installed; the learner stays in this process.
+``--runner ray`` is :mod:`agentax.runners.parallel` with another :class:`~parallel.Fleet`: each
+actor is a :class:`Collector` process holding a host :class:`~agentax.runners.host.Actor`, driven
+through a :class:`RemoteActor`. Parameters go out through Ray's object store, experience comes back
+as NumPy batches (:class:`PackedFrames`), and a collector that dies is replaced
+(docs/howto/ray-cluster.md, "What happens inside").
 """
 
 from __future__ import annotations
@@ -37,22 +22,19 @@ import jax
 import numpy as np
 
 from agentax.agents.protocol import Agent, acting_view
-from agentax.envs import make_host_env
 from agentax.errors import NodeLost, UsageError
 from agentax.replay import Transition
 from agentax.runners import parallel
 from agentax.runners.coordination import POLL_SECONDS, Coordinator
 from agentax.runners.driver import EnvironmentSteps, TrajectoryObserver
-from agentax.runners.host import Actor, actor_seed, fold_actor_key
+from agentax.runners.host import Actor, actor_seed, env_factory, fold_actor_key
 from agentax.runners.parallel import Fleet, ParallelRunnerConfig
 from agentax.runners.ray_cluster import ray_session
 from agentax.runners.session import TrainResult
 from agentax.runs import Run, checkpoints
 
-CHECK_SECONDS = 1.0
-"""how often a replacement collector that waits to start checks that the cluster still holds the run"""
-RESTART_SEED_STRIDE = 104_729
-"""a restarted collector's envs are seeded ``actor_seed + stride × restarts``"""
+CHECK_SECONDS = 1.0  # how often a waiting replacement collector checks that its CPUs still exist
+RESTART_SEED_STRIDE = 104_729  # a restarted collector's envs: actor_seed + stride × restarts
 
 
 @dataclass(frozen=True)
@@ -68,10 +50,8 @@ class RayRunnerConfig(ParallelRunnerConfig):
 
 
 Config = RayRunnerConfig
-REMAKES_AGENT = True
-"""its actors build the agent again in their processes: :func:`train` takes ``make_agent``"""
+REMAKES_AGENT = True  # its actors build the agent again in their processes: train takes make_agent
 algorithm_config = parallel.algorithm_config
-"""the parallel runner's: ``--envs-per-actor`` sets the algorithm's envs"""
 restore = parallel.restore
 
 
@@ -88,12 +68,9 @@ def configure(run_args: Any, agent: Agent, preset: Any) -> tuple[RayRunnerConfig
 class PackedFrames:
     """A trajectory ``[T, E]`` of stacked frames ``[C, H, W]`` with each frame sent once.
 
-    ``obs[t]`` is ``obs[t - 1]`` shifted by one frame plus ``new_frames[t]``, except where that
-    does not hold (``t = 0``, a new episode's first stack), whose whole stacks are in
-    ``fresh_stacks`` at ``fresh``; ``next_obs[t]`` is ``obs[t + 1]``, except at ``ends`` (the last
-    step, an episode's final observation) whose stacks are in ``end_stacks``. Both are found by
-    comparing the frames, so packing is exact whatever the env does. A rollout shrinks up to 8x
-    (4 frames a stack, in obs and next_obs); each episode end costs two whole stacks."""
+    ``obs[t]`` is ``obs[t - 1]`` shifted by one frame plus ``new_frames[t]``, except at ``fresh``
+    (``t = 0``, a new episode) whose stacks are in ``fresh_stacks``; ``next_obs[t]`` is ``obs[t + 1]``,
+    except at ``ends`` whose stacks are in ``end_stacks``. Both are found by comparing frames: exact."""
 
     new_frames: np.ndarray  # [T, E, H, W]
     fresh: np.ndarray  # bool [T, E]
@@ -142,19 +119,15 @@ def unpack_frames(packed: Transition | PackedFrames) -> Transition:
 
 class Collector:
     """One actor in its own process (a Ray actor): a host :class:`Actor` and the newest parameters.
-
-    Each call gets the published ``(version, ref)`` inside a list, so Ray hands over the reference
-    and the collector fetches and converts the state only when the version is new."""
+    Each call gets the published ``(version, ref)`` inside a list, so Ray passes the reference on
+    and the collector fetches a version only when it is new."""
 
     def __init__(self, make_agent: Callable[[], Agent], env_id: str, runner: Any, num_envs: int, seed, key):
         from agentax import _xla
 
         _xla.enable_compilation_cache()  # a restarted collector skips compiling its policy
-        agent = make_agent()
-        env = make_host_env(
-            env_id, num_envs, training=True, backend=runner.env_backend, sticky_actions=runner.sticky_actions
-        )
-        self.actor = Actor(agent, env, seed, jax.random.wrap_key_data(key))
+        agent, make_env = make_agent(), env_factory(env_id, runner)
+        self.actor = Actor(agent, make_env(num_envs, training=True), seed, jax.random.wrap_key_data(key))
         self.version: int | None = None
 
     def describe(self) -> dict[str, Any]:
@@ -177,7 +150,7 @@ class Collector:
         return self.state
 
     def _result(self, trajectory: Transition, steps_before: int):
-        """What goes back: the trajectory (each frame once), finished games' scores, env steps taken."""
+        """The trajectory (each frame once), finished games' scores and the env steps taken."""
         return pack_frames(trajectory), self.actor.finished_returns(), self.actor.steps.count - steps_before
 
     def rollout(self, published: list, num_steps: int):
@@ -199,9 +172,8 @@ class Collector:
 
 
 class RemoteActor:
-    """The learner process's handle on one :class:`Collector`, with the host Actor's interface (for
-    the parallel runner's actor threads): each call goes to the collector process and waits for its
-    batch, checking for the run's end; a collector that died is replaced and the call made again."""
+    """The learner's handle on one :class:`Collector`, with the host Actor's interface: each call
+    waits for the collector's batch while the run goes on; a collector that died is replaced."""
 
     def __init__(
         self,
@@ -209,7 +181,7 @@ class RemoteActor:
         coordinator: Coordinator,
         done_steps: int,
         max_restarts: int,
-        still_held: Callable[[], None] = lambda: None,
+        still_held: Callable[[], None],
     ):
         self.spawn, self.coordinator, self.max_restarts = spawn, coordinator, max_restarts
         self.still_held = still_held  # raises NodeLost while a replacement waits for CPUs that are gone
@@ -226,8 +198,7 @@ class RemoteActor:
         self.keeps_scores = info["keeps_scores"]
 
     def wait(self, ref: Any, check: Callable[[], None] | None = None) -> Any:
-        """The value of ``ref``, waiting for it while the run goes on (and ``check()`` passes, asked
-        every ``CHECK_SECONDS``)."""
+        """The value of ``ref``, once ready, while the run goes on and ``check()`` passes."""
         import ray
 
         polls = 0
@@ -284,8 +255,8 @@ class RemoteActor:
 
 
 def ray_fleet(agent: Agent, make_agent: Callable[[], Agent], env_id: str, runner: RayRunnerConfig, ray: Any):
-    """A :data:`~agentax.runners.parallel.MakeFleet` of :class:`Collector` processes, spread over the
-    cluster's nodes, each with the thread actor's env share, seeds and key."""
+    """A :data:`~agentax.runners.parallel.MakeFleet` of :class:`Collector` processes spread over the
+    cluster, each with a thread actor's envs, seeds and key."""
     envs_per_actor = agent.experience.num_envs // runner.actors
     collector = ray.remote(Collector)
 
@@ -338,9 +309,8 @@ def ray_fleet(agent: Agent, make_agent: Callable[[], Agent], env_id: str, runner
 
 
 def check_cpus(ray: Any, runner: RayRunnerConfig, started: bool = False) -> None:
-    """A ``UsageError`` when the cluster has fewer CPUs than the actors reserve (they would wait
-    forever); once ``started``, a :class:`~agentax.errors.NodeLost`: a node was lost, and a
-    replacement collector would wait for it forever."""
+    """A ``UsageError`` (``NodeLost`` once ``started``) where the cluster has fewer CPUs than the
+    actors reserve: they would wait forever."""
     cpus = ray.cluster_resources().get("CPU", 0)
     wanted = runner.actors * runner.cpus_per_actor
     if wanted <= cpus:
@@ -356,6 +326,7 @@ def check_cpus(ray: Any, runner: RayRunnerConfig, started: bool = False) -> None
     )
 
 
+# the watcher: reads until this process ends; without a "done" first, it says what to do
 RESUME_HINT_CODE = """import os, shlex, sys
 if sys.stdin.buffer.read() != b"done":
     run = sys.argv[1]
@@ -367,15 +338,12 @@ if sys.stdin.buffer.read() != b"done":
     lost = "the Ray node of its learner was lost (or the process was killed)"
     sys.stderr.write(f"agentax train: error: Ray ended the run in {run}: {lost}; {then}\\n")
 """
-"""the watcher: reads until this process ends; without a "done" first, it says what to do"""
 
 
 @contextmanager
 def hint_if_ray_ends_this_process(run: Run | None) -> Iterator[None]:
-    """When the Ray node of this process is lost (its raylet or runtime env agent killed), Ray ends
-    the process itself, from its C++ core (``_Exit(1)`` once the object store is gone): no Python runs,
-    no exception to catch. A small watcher process outlives it and then says, in one line, what was
-    lost and how to continue; it ends quietly when the block ends any other way."""
+    """A watcher process (:data:`RESUME_HINT_CODE`) that says how to continue where Ray ends this
+    process itself (``_Exit(1)``: its node lost), and ends quietly when the block ends any other way."""
     if run is None:
         yield
         return
@@ -405,9 +373,8 @@ def train(
     resume: bool = False,
     progress: bool = False,
 ) -> TrainResult:
-    """Train ``agent`` on ``env_id`` with ``runner.actors`` Ray actors and a learner in this process.
-    ``make_agent()`` builds the same agent in each actor process (a picklable callable, such as
-    ``functools.partial(ppo.make_agent, spec, cfg)``)."""
+    """Train ``agent`` on ``env_id`` with ``runner.actors`` Ray actors and a learner in this process;
+    ``make_agent()`` (picklable) builds the same agent in each actor process."""
     with hint_if_ray_ends_this_process(run), ray_session(runner.ray_address) as ray:
         fleet = ray_fleet(agent, make_agent, env_id, runner, ray)
         try:

@@ -1,11 +1,5 @@
-"""Joining or starting a Ray cluster: the one module that touches Ray's private ``ray._raylet``.
-
-:func:`ray_session` connects for the length of a block, to the cluster at an address or to a local
-Ray started for the run and shut down after it; the Ray runner's actors (:mod:`agentax.runners.ray`)
-and the compiled runner's workers on a cluster (:func:`agentax.runners.workers.map_ray`) both run
-inside one. Joining ``HOST:PORT`` sends this machine's token as ``ray.init("auto")`` would
-(:func:`token_auth_to_join`), and a refused token is one line at once
-(:func:`refuse_if_token_refused`), not a 20 s retry that ends in "Failed to connect".
+"""Joining or starting a Ray cluster (:func:`ray_session`): the one module that touches Ray's private
+``ray._raylet``, to send this machine's token to ``HOST:PORT`` and refuse a wrong one at once.
 """
 
 from __future__ import annotations
@@ -20,19 +14,14 @@ from typing import Any
 from agentax.errors import UsageError
 
 
-def import_ray() -> Any:
-    try:
-        import ray
-    except ImportError:
-        raise UsageError("--runner ray needs Ray: pip install 'agentax[ray]'") from None
-    return ray
-
-
 @contextmanager
 def ray_session(address: str | None) -> Iterator[Any]:
     """Connected to Ray for the length of the block: the cluster at ``address``, else a local Ray
     started here and shut down after (its processes end with it). A connection made before is kept."""
-    ray = import_ray()
+    try:
+        import ray
+    except ImportError:
+        raise UsageError("--runner ray needs Ray: pip install 'agentax[ray]'") from None
     if ray.is_initialized():
         yield ray
         return
@@ -58,24 +47,19 @@ def ray_session(address: str | None) -> Iterator[Any]:
 
 AUTH_MODE = "RAY_AUTH_MODE"
 """Ray's switch (2.52+): ``token`` sends and checks the cluster's token; unset, Ray 2.60 turns it on
-for a new local Ray, for ``ray start --head`` and ``ray.init("auto")`` when a token is found, but never
-for ``ray.init("HOST:PORT")`` nor ``ray start --address``"""
-
-
-def _token_loader() -> Any:
-    """Ray's token loader (``RAY_AUTH_TOKEN``, else the file at ``RAY_AUTH_TOKEN_PATH``, else
-    ``~/.ray/auth_token``); None in a Ray without token authentication."""
-    try:
-        from ray._raylet import AuthenticationTokenLoader
-    except ImportError:
-        return None
-    return AuthenticationTokenLoader.instance()
+for a new local Ray, ``ray start --head`` and ``ray.init("auto")`` with a token at hand, never for
+``ray.init("HOST:PORT")`` nor ``ray start --address``"""
 
 
 def has_token() -> bool:
-    loader = _token_loader()
+    """Whether Ray finds a token here (``RAY_AUTH_TOKEN``, ``RAY_AUTH_TOKEN_PATH``, ``~/.ray/auth_token``)."""
     try:
-        return loader is not None and loader.has_token(ignore_auth_mode=True)
+        from ray._raylet import AuthenticationTokenLoader
+    except ImportError:  # a Ray without token authentication
+        return False
+    loader = AuthenticationTokenLoader.instance()
+    try:
+        return loader.has_token(ignore_auth_mode=True)
     except Exception:  # an unreadable RAY_AUTH_TOKEN_PATH: ray.init says so
         return False
 
@@ -83,8 +67,7 @@ def has_token() -> bool:
 @contextmanager
 def token_auth_to_join(address: str | None) -> Iterator[None]:
     """Joining ``HOST:PORT`` sends this machine's token, as ``ray.init("auto")`` does: with
-    ``RAY_AUTH_MODE`` unset and a token at hand, token authentication is on for the block (a cluster
-    without authentication ignores the token). An explicit ``RAY_AUTH_MODE`` is left as it is."""
+    ``RAY_AUTH_MODE`` unset and a token at hand, token authentication is on for the block."""
     if not is_host_port(address) or AUTH_MODE in os.environ or not has_token():
         yield
         return
@@ -105,8 +88,7 @@ def is_host_port(address: str | None) -> bool:
 
 def refuse_if_token_refused(address: str) -> None:
     """A ``UsageError`` at once when the cluster at ``HOST:PORT`` refuses this machine's token (or its
-    lack of one): asked once, where ``ray.init`` would retry for 20 s and then say only "Failed to
-    connect". Nothing when it accepts, or cannot be asked (nothing answers there: ``ray.init`` says so)."""
+    lack of one), where ``ray.init`` would retry for 20 s and say "Failed to connect"."""
     if not is_host_port(address):
         return
     host, _, port = address.rpartition(":")

@@ -1,13 +1,7 @@
-"""One training's shell, written once for every runner.
-
-The runners differ in how they collect and learn; what is around that is the same and lives here:
-the keys of a run (:func:`agent_keys`), a fresh agent or the state of the newest usable checkpoint,
-the run logger (:func:`open_logger`: rows, TensorBoard, the progress bar), the rows
-(:func:`row_of`, per seed), the stop-at-return check, checkpoints by time (with the replay buffer
-committed by them), one evaluation-seed rule, and the final evaluation into one
-:class:`TrainResult` (:func:`conclude`). :class:`Session` holds them for the runners that step
-their envs outside one program; the compiled runner's chunk loop and the workers' merge call the
-same pieces.
+"""One training's shell, written once for every runner: keys, a fresh or restored state, the run
+logger, rows, the stop-at-return check, checkpoints (with the replay beside them) and the final
+evaluation (:func:`conclude`). :class:`Session` holds them for the runners that step their envs
+outside one program; the compiled runner and the workers call the pieces.
 """
 
 from __future__ import annotations
@@ -32,21 +26,17 @@ from agentax.runs import CHECKPOINT_PREFIX, REPLAY_PREFIX, Run, checkpoints, loa
 
 EVAL_SEED_OFFSET = 123_457
 EVAL_KEY_OFFSET = 1_000_003
-"""The evaluation-seed rule, one for every runner: evaluation episodes never repeat training ones.
-On the host (Gymnasium's seeds) the final evaluation of a run with seed ``s`` plays from seed
-``s + EVAL_SEED_OFFSET``, far from the seeds of its own envs (``s + 1000 i``); inside the compiled
-program (JAX keys) evaluation ``i`` of a seed plays from ``fold_in(key(seed), EVAL_KEY_OFFSET + i)``,
-the same separation in the key space."""
-SOLVED = ("solved_env_steps", "solved_seconds")
-"""What a run that stopped at ``stop_at_return`` records of it (eval.json, :class:`TrainResult`)."""
-TIMINGS = ("compile_seconds", "train_seconds")
-"""The compiled runner's timings, in its eval.json too."""
+"""Evaluation never repeats training episodes: the final evaluation of a host run of seed ``s`` plays
+from seed ``s + EVAL_SEED_OFFSET``; the compiled program's evaluation ``i`` of a seed from
+``fold_in(key(seed), EVAL_KEY_OFFSET + i)``."""
+SOLVED = ("solved_env_steps", "solved_seconds")  # a run stopped at stop_at_return (eval.json)
+TIMINGS = ("compile_seconds", "train_seconds")  # the compiled runner's timings (eval.json)
 
 
 @dataclass
 class TrainResult:
-    """What a training did: the final state (with a leading seed axis on the compiled runner), its
-    counts, the rows it logged, the final evaluation and, for the compiled runner, its timings."""
+    """What a training did: the final state (a leading seed axis on the compiled runner), its
+    counts, rows, final evaluation and timings."""
 
     state: Any
     updates: int
@@ -65,14 +55,12 @@ class TrainResult:
 
 def agent_keys(seed: int) -> tuple[jax.Array, jax.Array, jax.Array]:
     """``(init_key, learner_key, actors_key)`` of a run (actor ``i`` folds its key from the last)."""
-    init_key, learner_key, actors_key = jax.random.split(jax.random.key(seed), 3)
-    return init_key, learner_key, actors_key
+    return tuple(jax.random.split(jax.random.key(seed), 3))
 
 
 @jax.jit
 def split_key(key: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """``jax.random.split(key)`` as a pair, in one compiled call (on the host, splitting and unpacking
-    op by op is three: ~0.1 ms of an off-policy runner's step)."""
+    """``jax.random.split(key)`` as a pair, in one compiled call (op by op: three, ~0.1 ms a step)."""
     new, sub = jax.random.split(key)
     return new, sub
 
@@ -88,15 +76,10 @@ def final_evaluation(evaluator: Any, state: Any, seed: int) -> tuple[np.ndarray,
 
 
 def row_of(
-    env_steps: float,
-    updates: int,
-    per_seed_returns: Any,
-    steps_per_second: float,
-    per_seed_evals: Any = None,
+    env_steps: float, updates: int, per_seed_returns: Any, steps_per_second: float, per_seed_evals: Any = None
 ) -> dict[str, float]:
-    """A runner's bookkeeping for one metrics row (the agent's metrics join it in the logger): the
-    mean return of the episodes finished since the last row per seed (NaN: none) and, where the row
-    evaluated (compiled runner), each seed's evaluation mean."""
+    """A runner's columns of one row: the mean return per seed of the episodes finished since the last
+    row (NaN: none) and, where the row evaluated, each seed's evaluation mean."""
     per_seed = np.asarray(per_seed_returns, dtype=np.float64)
     row = {
         "env_steps": env_steps,
@@ -134,8 +117,7 @@ def open_logger(
 
 def conclude(run: Run | None, result: TrainResult, returns: Any, lengths: Any, *written: str, **extra: Any):
     """``result`` with its final evaluation (``returns``, ``lengths``: ``[seeds, episodes]``) in
-    ``result.eval``: eval.json (with the counts, ``result``'s ``written`` fields and ``extra``) and
-    curve.png in ``run`` (then closed), if any. Every runner's result ends here."""
+    ``result.eval``; with a ``run``, eval.json (the counts, ``written`` fields, ``extra``), curve.png."""
     returns, lengths = np.atleast_2d(returns), np.atleast_2d(lengths)
     fields = {name: getattr(result, name) for name in written}
     extra = {"env_steps": result.env_steps, "updates": result.updates, **fields, **extra}
@@ -150,13 +132,9 @@ def conclude(run: Run | None, result: TrainResult, returns: Any, lengths: Any, *
 
 
 class ReplayCheckpoints:
-    """The replay buffer saved with the agent's checkpoints: ``checkpoints/replay-<updates>.npz``
-    beside ``ckpt-<updates>.msgpack``, compressed and written atomically (no pickle), with the first
-    checkpoint, then at most every ``every_seconds``, and whenever the run ends. It is written
-    *before* its checkpoint, which commits the pair (:func:`agentax.runs.replay_beside`); a resumed
-    run starts from the newest checkpoint that has its replay and loads exactly that one, never an
-    older or a missing replay in silence (users of SB3, RLlib and TF-Agents report learning
-    collapsing after a restore without the buffer). The two newest pairs are kept."""
+    """The replay buffer saved as ``checkpoints/replay-<updates>.npz`` before its checkpoint, which
+    commits the pair: with the first checkpoint, then at most every ``every_seconds``, and at the
+    end; the two newest pairs are kept."""
 
     KEEP = 2
 
@@ -168,9 +146,8 @@ class ReplayCheckpoints:
     def before_checkpoint(self, updates: int, force: bool) -> None:
         """Save the replay of checkpoint ``updates`` when due (``force``: now); its checkpoint follows."""
         first = self.saved_at is None  # the first checkpoint has its replay too (small then)
-        if not self.enabled or not (
-            force or first or time.perf_counter() - self.saved_at >= self.every_seconds
-        ):
+        due = force or first or time.perf_counter() - self.saved_at >= self.every_seconds
+        if not (self.enabled and due):
             return
         checkpoint = self.run.path / "checkpoints" / f"{CHECKPOINT_PREFIX}{updates}.msgpack"
         try:
@@ -190,10 +167,8 @@ class ReplayCheckpoints:
 
 
 class Session:
-    """The shell of one training (see the module docstring). After construction ``state``,
-    ``learner_key``, ``updates`` and ``env_steps`` are where the run starts (fresh or restored),
-    ``meta`` is what its checkpoint said, and ``actors_key`` seeds its actors; :meth:`begin` opens
-    the run logger once the runner can name what it runs."""
+    """The shell of one training: ``state``, ``learner_key``, ``updates`` and ``env_steps`` are where
+    the run starts (fresh or restored), ``meta`` what its checkpoint said, ``actors_key`` its actors'."""
 
     def __init__(
         self,
@@ -223,25 +198,19 @@ class Session:
         """once the run stopped solved: its env steps, seconds and final evaluation"""
 
     def keep_replay(self, replay: Any) -> None:
-        """Keep ``replay`` beside the checkpoints (:class:`ReplayCheckpoints`, as the runner's
-        settings say), restored from the one this run resumed from."""
-        runner = self.runner
-        self.keep(
-            ReplayCheckpoints(
-                self.run, replay, runner.checkpoint_replay, runner.replay_checkpoint_every_seconds
-            )
-        )
+        """Keep ``replay`` beside the checkpoints (:class:`ReplayCheckpoints`), restored on resume."""
+        every = self.runner.replay_checkpoint_every_seconds
+        self.keep(ReplayCheckpoints(self.run, replay, self.runner.checkpoint_replay, every))
 
     def keep(self, kept: Any) -> None:
-        """Save ``kept`` before each checkpoint commits (``kept.before_checkpoint(updates, force)``),
-        restored from the checkpoint this run resumed from (``kept.restore(path)``)."""
+        """Save ``kept`` before each checkpoint (``kept.before_checkpoint(updates, force)``), restored
+        from the checkpoint this run resumed from (``kept.restore(path)``)."""
         self.before_checkpoint = kept.before_checkpoint
         if "checkpoint" in self.meta:  # a resumed run
             kept.restore(self.meta["checkpoint"])
 
     def begin(self, description: str, progress: bool = False) -> RunLogger:
-        """The run logger (a context manager: Ctrl-C becomes ``TrainingInterrupted``), its progress
-        bar named ``description``; the first row's speed counts from here."""
+        """The run logger (a context manager), its progress bar named ``description``."""
         elapsed = float(self.meta["elapsed"])
         self.logger = open_logger(
             self.run, self.agent.total_steps, self.env_steps, self.runner, elapsed, progress, description
@@ -269,8 +238,8 @@ class Session:
         extra: dict[str, float] | None = None,
         counts: dict[str, int] | None = None,
     ) -> bool:
-        """Write the row that :meth:`row_due` booked and checkpoint when due (``counts`` join the
-        checkpoint's meta); whether the run reached ``stop_at_return``."""
+        """Write the row :meth:`row_due` booked, checkpoint when due (``counts`` join the checkpoint's
+        meta); whether the run reached ``stop_at_return``."""
         metrics = jax.device_get(metrics)  # waits for the last learning step: speeds count it
         now = time.perf_counter()
         speed = (env_steps - self.steps_at_log) / max(now - self.time_at_log, 1e-9)
@@ -294,8 +263,8 @@ class Session:
         return solved
 
     def confirmed(self, state: Any, env_steps: int) -> bool:
-        """Whether the final evaluation reaches ``stop_at_return`` too, as the row's did: only then is
-        the run solved (and stops), with that evaluation as its final one; else it trains on."""
+        """Whether the final evaluation reaches ``stop_at_return`` too: then the run is solved, with
+        that evaluation as its final one."""
         returns, lengths = final_evaluation(self.evaluator, state, self.runner.seed)
         if np.mean(returns) < self.runner.stop_at_return:
             return False
@@ -303,8 +272,7 @@ class Session:
         return True
 
     def finish(self, state: Any, env_steps: int, updates: int) -> TrainResult:
-        """The final evaluation on fresh episodes (eval.json, curve.png) and the result;
-        ``train_seconds`` is the training loop's, to its last row and checkpoint."""
+        """The final evaluation on fresh episodes (eval.json, curve.png) and the result."""
         train_seconds = time.perf_counter() - self.logger.start
         solved: dict[str, float] = {}
         if self.solved is None:

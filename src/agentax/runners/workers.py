@@ -1,20 +1,9 @@
 """The compiled runner on every core: a run's seeds split over worker processes, one per core.
 
-The compiled runner's XLA client runs on one CPU, the cure for the hang of programs vmapped over
-seeds (:mod:`agentax._xla`). Several CPU devices in one process are no way round it: a program
-sharded over two (``--xla_force_host_platform_device_count=2``, by ``jit`` shardings or ``pmap``)
-hung on its first call, pinned or not (see the design page). Processes are: a run with
-``RunnerConfig.workers > 1`` spawns that many, and worker ``w`` trains a contiguous slice of the
-seeds (:func:`split`) as an ordinary compiled run in ``<run>/worker-<w>/`` (its own metrics,
-checkpoints and resume). The run folder gets their rows merged (:func:`merge_rows`: seed columns
-renumbered, means weighted by seeds), eval.json over every seed, and curve.png.
-
-Seed ``k`` starts from the keys it has in one process and runs the same chunks. Its numbers match
-one process's at first, not for good: XLA's program for a slice of 1 or 2 seeds rounds differently
-from the one for all of them, and over a few hundred updates a seed's episodes part (seen with 3
-seeds as 2 + 1 over 300 PPO updates). The same split gives the same numbers, interrupted and
-resumed or not (tested). And ``stop_at_return`` stops each worker once its own
-seeds all reach the return, not once every seed of the run does.
+Worker ``w`` trains a contiguous slice of the seeds (:func:`split`) as an ordinary compiled run in
+``<run>/worker-<w>/``, in a process with its own one-CPU XLA client (:mod:`agentax._xla`); the run
+gets their rows merged (:func:`merge_rows`), eval.json over every seed and curve.png. Each worker
+stops at ``stop_at_return`` on its own seeds (design.md, "The host runners, module by module").
 """
 
 from __future__ import annotations
@@ -40,24 +29,15 @@ from agentax.runners.session import SOLVED, TIMINGS, TrainResult, conclude
 from agentax.runs import Run, checkpoints, read_config, read_json, read_metrics, write_json
 
 FINAL_RETURNS = "final-returns.json"
-"""What a finished worker leaves beside its eval.json: the final evaluation's returns and lengths
-``[seeds, episodes]``, from which the run's pooled eval.json is written."""
-
+"""A finished worker's final returns and lengths ``[seeds, episodes]`` (and timings)."""
 
 BREAK_EVEN_AGENT_STEPS = 4_000_000
-"""PPO CartPole agent steps (summed over seeds) from which a run split over the cores finished
-sooner than one process: below it, the workers' own start-up (each spawns, imports jax and loads
-its program, ~7-9 s on 2 cores) costs more than the split saves (``benchmarks/bench_break_even.py``,
-AMD EPYC, 2 cores: 4.1M agent steps over 2 workers 1.35× faster than one process, 1M 0.78× and
-0.55×). The split itself goes by the programs' cost, :data:`BREAK_EVEN_FLOPS`."""
+"""PPO CartPole agent steps from which a run split over the cores finished sooner than one process
+(``benchmarks/bench_break_even.py``; design.md)."""
 PPO_CARTPOLE_FLOPS_PER_STEP = 2.49e5
-"""XLA's count of floating-point operations per agent step of that measured program (PPO's
-``default`` preset on CartPole-v1; :func:`agentax.runners.cost.program_flops` ÷ its steps)."""
+"""XLA's floating-point operations per agent step of that program (PPO ``default``, CartPole-v1)."""
 BREAK_EVEN_FLOPS = BREAK_EVEN_AGENT_STEPS * PPO_CARTPOLE_FLOPS_PER_STEP
-"""The floating-point operations (XLA's count, summed over seeds and a sweep's settings) from which
-the cores are worth their workers' start-up: the break-even measured in PPO CartPole's steps, in
-their cost (~1e12). An agent whose step costs more (wider networks, SAC's update every step, a
-convolution) splits after fewer steps, one that costs less after more."""
+"""XLA's operations (summed over seeds and a sweep's settings) from which workers pay (~1e12)."""
 
 
 def usable_cores() -> int:
@@ -66,10 +46,9 @@ def usable_cores() -> int:
 
 
 def default_count(jobs: int, flops: float | Callable[[], float]) -> int:
-    """The ``--workers`` of a run that does not give it: one per usable core (never more than
-    ``jobs``, its seeds or a sweep's settings) once its programs' ``flops`` (summed over the jobs;
-    a callable is asked only where there are several cores and jobs) reach :data:`BREAK_EVEN_FLOPS`,
-    else 1."""
+    """The default ``--workers``: one per usable core (at most ``jobs``) once ``flops`` (summed over
+    the jobs; a callable is asked only where there are several cores and jobs) reach
+    :data:`BREAK_EVEN_FLOPS`, else 1."""
     cores = max(1, min(usable_cores(), jobs))
     if cores == 1:
         return 1
@@ -77,10 +56,8 @@ def default_count(jobs: int, flops: float | Callable[[], float]) -> int:
 
 
 def default_for(seeds: int, seed_flops: Callable[[], float], stop_at_return: float | None) -> int:
-    """Without ``--workers``: every core for a run of all its steps costly enough to gain
-    (``seed_flops()``: one seed's whole training, :func:`agentax.runners.cost.program_flops`); one
-    process for a run that stops at a return (how long it runs is not known, and a split would
-    stop each worker on its own seeds' return)."""
+    """The default ``--workers`` of a run (``seed_flops()``: one seed's whole training); 1 for a run
+    that stops at a return (its length is not known, and each worker would stop on its own seeds)."""
     return 1 if stop_at_return is not None else default_count(seeds, lambda: seeds * seed_flops())
 
 
@@ -95,8 +72,8 @@ def announced(runner: Any, chosen: bool) -> str:
 
 
 def split(runner: Any) -> list[Any]:
-    """The runner config of each worker: ``runner.workers`` contiguous slices of the seeds (as even
-    as they divide; never more workers than seeds), each with ``workers=1``."""
+    """Each worker's runner config: ``runner.workers`` contiguous, even slices of the seeds (at most
+    one worker a seed), each with ``workers=1``."""
     count = min(runner.workers, runner.num_seeds)
     sizes = [len(part) for part in np.array_split(np.arange(runner.num_seeds), count)]
     starts = np.cumsum([0, *sizes[:-1]])
@@ -111,16 +88,12 @@ def worker_dir(run_dir: str | Path, w: int) -> Path:
 
 
 def map_processes(fn: Callable[..., Any], jobs: Sequence[tuple], ray_address: str | None = None) -> list[Any]:
-    """``[fn(*job) for job in jobs]``, each job in a spawned process of its own (each creates its
-    own one-CPU XLA client) when there are several; ``fn`` must be importable by name.
+    """``[fn(*job) for job in jobs]``, each job in a spawned process of its own when there are several
+    (``fn`` importable by name), or a Ray task on the cluster at ``ray_address`` (:func:`map_ray`).
 
-    The workers leave the terminal's process group, so Ctrl-C (or SIGTERM, which the CLI turns into
-    it) reaches this process only, which passes it on once to every worker still running and waits
-    for them to stop at their safe point (a checkpoint to resume from) before it raises. A worker's
-    error stops the others the same way and is raised here.
-
-    With ``ray_address`` the jobs are Ray tasks of one CPU each on that cluster instead
-    (:func:`map_ray`)."""
+    Ctrl-C (or SIGTERM) reaches this process only, which passes it on once to every worker and waits
+    for them to stop at a checkpoint before it raises; a worker's error stops the others the same way
+    and is raised here."""
     if ray_address is not None:
         return map_ray(fn, jobs, ray_address)
     if len(jobs) == 1:
@@ -151,8 +124,8 @@ def map_processes(fn: Callable[..., Any], jobs: Sequence[tuple], ray_address: st
 
 
 def _collect(queue: Any, processes: Sequence[Any], results: dict, *, stop_on_error: bool) -> None:
-    """Wait for the workers' results (a worker that dies without one ends the wait); on the first
-    error, with ``stop_on_error``, interrupt the others and wait for them too."""
+    """Wait for the workers' results (or their deaths); with ``stop_on_error`` the first error
+    interrupts the others."""
     while len(results) < len(processes):
         try:
             i, ok, value = queue.get(timeout=0.5)
@@ -182,10 +155,9 @@ def _interrupt(processes: Sequence[Any]) -> None:
 
 
 def map_ray(fn: Callable[..., Any], jobs: Sequence[tuple], address: str) -> list[Any]:
-    """``[fn(*job) for job in jobs]`` as Ray tasks of one CPU each, on any node of the cluster at
-    ``address`` (joined as the Ray runner joins it). Each job's first element is the folder it
-    writes in, so every node must see that folder (one machine, or a shared filesystem): a task
-    that cannot says so. Ctrl-C cancels the tasks (each stops at its safe point) and raises."""
+    """``[fn(*job) for job in jobs]`` as Ray tasks of one CPU each on the cluster at ``address``;
+    each job's first element is the folder it writes in, which every node must see. Ctrl-C cancels
+    the tasks (each stops at its safe point) and raises."""
     with ray_session(address) as ray:
         task = ray.remote(num_cpus=1, max_retries=0)(_ray_job)
         refs = [task.remote(fn, job) for job in jobs]
@@ -219,15 +191,13 @@ def _ray_job(fn: Callable[..., Any], job: tuple) -> Any:
     return fn(*job)
 
 
-SEED_COLUMNS = ("return_seed", "eval_seed")
-"""The per-seed columns of a row (``return_seed<k>``, ``eval_seed<k>``)."""
+SEED_COLUMNS = ("return_seed", "eval_seed")  # the per-seed columns: return_seed<k>, eval_seed<k>
 
 
 def merge_rows(tables: Sequence[Sequence[dict[str, float]]], seeds: Sequence[int]) -> list[dict[str, float]]:
-    """One run's rows from its workers' (row ``i`` of each, as far as each got), columns in the first
-    worker's order: per-seed columns renumbered across the run, ``mean_return`` and ``eval_return``
-    over every seed present, ``wall_seconds`` the latest, the other metrics the mean over workers
-    weighted by their ``seeds``."""
+    """One run's rows from its workers' (row ``i`` of each, as far as each got): per-seed columns
+    renumbered, ``mean_return`` and ``eval_return`` over every seed, ``wall_seconds`` the latest, the
+    other metrics the mean weighted by the workers' ``seeds``."""
     offsets = np.cumsum([0, *seeds[:-1]])
     merged = []
     for i in range(max(map(len, tables))):
@@ -268,11 +238,8 @@ def worker_of(runner: Any, seed_index: int) -> tuple[int, int]:
 
 
 def train(run: Any, runner: Any, train_one: Callable[..., Any], *, resume: bool, progress: bool) -> Any:
-    """Train the seeds of ``runner`` split over ``runner.workers`` processes, each in
-    ``worker-<w>/`` (resumed, or read back where it finished) by ``train_one`` (importable by name:
-    :func:`train_worker` says what it is called with), then write the run's merged metrics,
-    eval.json and curve.png; the run's :class:`~agentax.runners.session.TrainResult`
-    (``state=None``: the agents stayed in the workers)."""
+    """Train ``runner``'s seeds split over ``runner.workers`` processes (:func:`train_worker`), then
+    write the run's merged metrics, eval.json and curve.png; a ``TrainResult`` with ``state=None``."""
     parts = split(runner)
     jobs = [
         (str(run.path.resolve()), w, part, resume, progress and w == 0, train_one)
@@ -308,10 +275,9 @@ def train(run: Any, runner: Any, train_one: Callable[..., Any], *, resume: bool,
 def train_worker(
     run_dir: str, w: int, runner: Any, resume: bool, progress: bool, train_one: Callable[..., Any]
 ) -> dict[str, Any]:
-    """Worker ``w`` of a run (in a process of its own): its seeds (``runner``) as a run in
-    ``worker-<w>/``, resumed from its checkpoint if there is one, trained by ``train_one(config, run,
-    runner, resume=, progress=) -> TrainResult`` (``config``: the run's config.json); its timings. A
-    worker that had finished is only read back."""
+    """Worker ``w``'s seeds (``runner``) as a run in ``worker-<w>/``, resumed where it can be, trained
+    by ``train_one(config, run, runner, resume=, progress=) -> TrainResult``; its timings (a finished
+    worker's read back)."""
     folder = worker_dir(run_dir, w)
     done = folder / FINAL_RETURNS
     if done.is_file():
@@ -327,8 +293,8 @@ def train_worker(
 
 
 def resume_or_restart(folder: Path, config: dict[str, Any], resume: bool = True) -> tuple[Any, bool]:
-    """``(run, resumed)``: the run in ``folder`` to resume from its checkpoint (``resume`` and it has
-    one), else a new run of ``config`` there (a folder made but never checkpointed starts again)."""
+    """``(run, resumed)``: the run in ``folder`` where ``resume`` and it has a checkpoint, else a new
+    run of ``config`` there."""
     if resume and (folder / "config.json").is_file() and bool(checkpoints(folder)):
         return Run.open(folder), True
     if folder.exists():
