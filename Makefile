@@ -10,9 +10,11 @@ GYMNAX := gymnax==1.0.1
 # conversion: installed without its declared dependencies too; what it imports is in the lock (extra export).
 JAX2ONNX := jax2onnx==0.17.1
 # The lock installs with uv (fetching in parallel: about 10 s from an empty cache, pip takes a minute);
-# uv is itself one wheel that pip installs into the venv.
+# uv is itself one wheel that pip installs into the venv. --compile-bytecode writes every module's .pyc
+# now, as pip does by default and uv does not: else, where PYTHONDONTWRITEBYTECODE is set (CI machines),
+# every process (each test's CLI run, each worker and Ray actor) compiles jax & co. from source again.
 UV := uv==0.13.8
-INSTALL := $(VENV)/bin/uv pip install --quiet --python $(PY)
+INSTALL := $(VENV)/bin/uv pip install --quiet --compile-bytecode --python $(PY)
 
 .PHONY: kernel kernel-where-buildable demo test test-quick test-long bench figures lint docs lock clean
 
