@@ -19,11 +19,12 @@ if REPO_ROOT not in sys.path:
 
 
 LONG_CASES: dict[str, tuple[str, ...]] = {
-    # the golden cases make test runs: ppo_compiled, dqn_host, ppo_parallel, pqn_host, sac_compiled
+    # the golden cases make test runs: ppo_compiled, dqn_host, pqn_host; ppo_parallel's policy lag:
+    # test_atari_compiled's lag 1, test_parallel's lag 0; SAC compiled: test_actor_critic's learning
     "test_golden.py": tuple(
         f"test_metrics_rows_match_the_golden_file[{case}]"
-        for case in ("dqn_compiled", "reinforce_compiled", "ppo_host", "pqn_compiled")
-        + ("sac_host", "td3_compiled", "td3_host")
+        for case in ("dqn_compiled", "reinforce_compiled", "ppo_host", "pqn_compiled", "ppo_parallel")
+        + ("sac_compiled", "sac_host", "td3_compiled", "td3_host")
     ),
     "test_formats.py": (  # format 1's folders act, evaluate and resume (through every migration)
         "test_a_fixture_acts_and_evaluates_as_it_did_when_written[2-",
@@ -32,8 +33,9 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
         "test_a_fixture_resumes_in_todays_format[1-pqn-compiled]",
         "test_a_fixture_resumes_in_todays_format[1-reinforce-compiled]",
     ),
-    "test_export.py": (  # sac-pendulum's Gaussian head, the CLI's export
-        "test_both_formats_act_as_the_agentax_policy[ppo-pendulum]",
+    "test_export.py": (  # sac-pendulum's Gaussian head, dqn-cartpole's both formats, test_export_memory's
+        "test_both_formats_act_as_the_agentax_policy[ppo-pendulum]",  # PPO; the CLI's export
+        "test_both_formats_act_as_the_agentax_policy[ppo-cartpole]",
         "test_evaluate_policy_file_gives_the_runs_evaluation",
     ),
     "test_export_memory.py": (  # the LSTM's
@@ -53,7 +55,8 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
         "test_a_diverging_run_stops_with_one_line_and_exit_code_3[ppo-compiled-",
         "test_a_diverging_run_stops_with_one_line_and_exit_code_3[dqn-parallel-",
     ),
-    "test_dqn_cli.py": (  # [checkpoint_half_written]
+    "test_dqn_cli.py": (  # [checkpoint_half_written]; a restart from the config: test_formats' deleted one
+        "test_resume_of_a_run_killed_before_its_first_checkpoint_starts_it_from_its_config[",
         "test_a_kill_at_each_stage_of_a_checkpoint_resumes_with_the_replay_of_its_checkpoint[first_committed]",
         "test_a_kill_at_each_stage_of_a_checkpoint_resumes_with_the_replay_of_its_checkpoint[replay_written]",
     ),
@@ -83,8 +86,13 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
         "test_a_slow_learner_shows_as_actors_waiting",
     ),
     "test_reinforce.py": ("test_reinforce_with_the_gaussian_head_learns_pendulum",),  # PPO's Gaussian head
-    "test_compiled.py": ("test_looking_ahead_a_chunk_changes_no_number",),  # its resume and seed tests
+    "test_compiled.py": (  # its seed tests; the compiled resume: test_formats', a torn one: test_logger's
+        "test_looking_ahead_a_chunk_changes_no_number",
+        "test_interrupted_run_resumes_to_the_same_end_and_a_torn_checkpoint_is_a_clear_error",
+    ),
     "test_ray.py": (  # the CLI's own Ray (Ctrl-C, errors), PPO recurrent (as threads) and on tic-tac-toe
+        "test_a_learner_error_ends_the_run_and_its_actor_processes",  # test_parallel's, the CLI's Ray ended
+        "test_a_recurrent_ppo_on_ray_actors_gives_the_thread_actors_numbers",  # test_memory_runners' threads
         "test_packed_masked_dict_observations_train_through_ray_actors",  # the parallel runner's, same actors
         "test_ppo_on_ray_actors_learns_and_gives_the_thread_actors_numbers",
         "test_beside_a_ray_start_cluster_a_run_has_its_own_ray_and_auto_joins_it",
@@ -95,6 +103,8 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
         "test_a_killed_actor_process_is_replaced_and_the_run_finishes",
     ),
     "test_spaces_learning.py": (  # PPO's; DQN's Taxi mask: test_masks_and_encoders, frames: test_cnn_agent
+        "test_blackjack_ppo_plays_near_the_basic_strategy",  # Blackjack's tuple: test_host_spaces
+        "test_ppo_learns_multi_entry_actions_to_the_optimum[Match-MultiBinary-v0]",  # [...MultiDiscrete-v0]
         "test_taxi_with_its_mask_is_learned_and_no_illegal_action_is_taken[dqn]",
         "test_pictures_of_ones_own_size_train_on_the_host_runner[dqn]",
     ),
@@ -103,6 +113,17 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
     ),
     "test_board_and_grid.py": (  # sweeps in test_sweep, the masked board game's PPO in this file
         "test_a_sweep_on_the_masked_board_game_traces_its_settings_beside_the_seeds",
+    ),
+    "test_atari_compiled.py": (  # the pool's games: its short run, its policy lag 1
+        "test_in_program_pool_plays_the_host_adapters_games",
+    ),
+    "test_cli.py": ("test_a_trained_run_folder_is_a_policy",),  # test_api's train-then-load evaluates one
+    "test_encoders_override.py": (  # encoders: test_masks_and_encoders; a folder's settings: test_formats
+        "test_a_run_trained_with_overrides_evaluates_resumes_and_repeats_from_its_folder",
+    ),
+    "test_sweep.py": ("test_optuna_asks_batches_and_a_rerun_asks_the_same",),  # the grid's: the others
+    "test_atari_cli.py": (  # play's video: test_cli's demo GIF, test_api's video
+        "test_play_a_run_writes_an_mp4_of_one_frame_per_step_with_the_runs_env_settings",
     ),
     "test_tutorial.py": tuple(  # the pages that train for most of a minute; make test runs the others
         f"test_page_runs_and_prints_what_it_shows[{page}-" for page in ("02", "03", "07", "09", "10", "11")
@@ -135,9 +156,14 @@ def is_long_case(nodeid: str) -> bool:
     )
 
 
+COLLECTED: list[str] = []
+"""Every test id this session collected (before ``-m`` deselects any), for tests/test_tiers.py."""
+
+
 def pytest_collection_modifyitems(items):
     import pytest
 
+    COLLECTED[:] = [item.nodeid for item in items]
     for item in items:
         if is_long_case(item.nodeid):
             item.add_marker(pytest.mark.long)
