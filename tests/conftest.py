@@ -64,13 +64,17 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
     "test_observation_spaces.py": (  # [FrozenLake-v1]
         "test_discrete_observations_train_ppo_from_the_command_line[CliffWalking-v1]",
     ),
-    "test_search.py": (  # test_search_cli's CEM and vacuum runs, the sphere's CEM
+    "test_search_cli.py": ("test_cartpole_cem_run_folder",),  # a search's folder: the vacuum grid's
+    "test_search.py": (  # CEM: the sphere's; the vacuum's searches: test_search_cli's grid run
         "test_improves_cartpole_and_solves_v0[",
         "test_vacuum_random_search_is_reproducible",
         "test_finds_the_optimum_of_a_shifted_sphere[ga]",
         "test_vacuum_grid_search_heatmap_marks_the_best",
     ),
-    "test_runfile.py": ("test_a_sweeps_best_toml_trains_the_best_setting",),  # run files and sweeps apart
+    "test_runfile.py": (  # run files and sweeps apart; a file's fields: run.toml's repeat, the overrides
+        "test_a_sweeps_best_toml_trains_the_best_setting",
+        "test_a_preset_file_trains_as_the_flags_do",
+    ),
     "test_normalize.py": (  # the compiled runner's normalised PPO, restored from its checkpoint
         "test_host_checkpoint_saves_and_restores_the_stats",
         "test_compiled_mujoco_picks_the_preset_and_leaves_envpools_reset_steps_out_of_the_stats",
@@ -88,9 +92,11 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
     "test_reinforce.py": ("test_reinforce_with_the_gaussian_head_learns_pendulum",),  # PPO's Gaussian head
     "test_compiled.py": (  # its seed tests; the compiled resume: test_formats', a torn one: test_logger's
         "test_looking_ahead_a_chunk_changes_no_number",
+        "test_seeds_run_in_groups_give_each_seed_the_numbers_of_one_vmapped_batch",  # (the rule: a unit test)
         "test_interrupted_run_resumes_to_the_same_end_and_a_torn_checkpoint_is_a_clear_error",
     ),
-    "test_ray.py": (  # the CLI's own Ray (Ctrl-C, errors), PPO recurrent (as threads) and on tic-tac-toe
+    "test_ray.py": (  # the CLI's own Ray (errors), PPO recurrent (as threads) and on tic-tac-toe
+        "test_ctrl_c_ends_the_clis_own_ray_and_says_how_to_resume",  # test_train_cli's SIGTERM, the own Ray
         "test_a_learner_error_ends_the_run_and_its_actor_processes",  # test_parallel's, the CLI's Ray ended
         "test_a_recurrent_ppo_on_ray_actors_gives_the_thread_actors_numbers",  # test_memory_runners' threads
         "test_packed_masked_dict_observations_train_through_ray_actors",  # the parallel runner's, same actors
@@ -104,7 +110,7 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
     ),
     "test_spaces_learning.py": (  # PPO's; DQN's Taxi mask: test_masks_and_encoders, frames: test_cnn_agent
         "test_blackjack_ppo_plays_near_the_basic_strategy",  # Blackjack's tuple: test_host_spaces
-        "test_ppo_learns_multi_entry_actions_to_the_optimum[Match-MultiBinary-v0]",  # [...MultiDiscrete-v0]
+        "test_ppo_learns_multi_entry_actions_to_the_optimum[Match-MultiBinary-v0]",  # test_host_spaces' run
         "test_taxi_with_its_mask_is_learned_and_no_illegal_action_is_taken[dqn]",
         "test_pictures_of_ones_own_size_train_on_the_host_runner[dqn]",
     ),
@@ -114,8 +120,9 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
     "test_board_and_grid.py": (  # sweeps in test_sweep, the masked board game's PPO in this file
         "test_a_sweep_on_the_masked_board_game_traces_its_settings_beside_the_seeds",
     ),
-    "test_atari_compiled.py": (  # the pool's games: its short run, its policy lag 1
+    "test_atari_compiled.py": (  # the pool's games: its policy lag 1; a pool run's folder: test_mujoco's
         "test_in_program_pool_plays_the_host_adapters_games",
+        "test_short_run_writes_the_run_folder_loads_and_resumes",
     ),
     "test_cli.py": ("test_a_trained_run_folder_is_a_policy",),  # test_api's train-then-load evaluates one
     "test_encoders_override.py": (  # encoders: test_masks_and_encoders; a folder's settings: test_formats

@@ -501,11 +501,13 @@ def agentax_env(marker: str) -> dict[str, str]:
     return {**os.environ, "RAY_TMPDIR": marker, "PYTHONUNBUFFERED": "1"}
 
 
+RAY_CLI_TRAIN = [*AGENTAX, "train", "ppo", "--env", "CartPole-v1", "--runner", "ray", "--no-progress"]
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(180)
-def test_the_cli_starts_and_stops_its_own_ray_also_on_ctrl_c_and_on_errors(own_ray_tmpdir, tmp_path):
-    env = agentax_env(own_ray_tmpdir)
-    train = [*AGENTAX, "train", "ppo", "--env", "CartPole-v1", "--runner", "ray", "--no-progress"]
+def test_the_cli_starts_and_stops_its_own_ray_also_on_errors(own_ray_tmpdir, tmp_path):
+    env, train = agentax_env(own_ray_tmpdir), RAY_CLI_TRAIN
     done = subprocess.run(
         [*train, "--total-steps", "4096", "--out", str(tmp_path / "done")],
         env=env,
@@ -528,6 +530,11 @@ def test_the_cli_starts_and_stops_its_own_ray_also_on_ctrl_c_and_on_errors(own_r
     assert refused.returncode == 2 and "64 actors" in refused.stderr, refused.stderr
     assert_none_left(own_ray_tmpdir)
 
+
+@pytest.mark.slow
+@pytest.mark.timeout(180)
+def test_ctrl_c_ends_the_clis_own_ray_and_says_how_to_resume(own_ray_tmpdir, tmp_path):
+    env, train = agentax_env(own_ray_tmpdir), RAY_CLI_TRAIN
     interrupted = subprocess.Popen(
         [*train, "--total-steps", "500000", "--stop-at-return", "none", "--out", str(tmp_path / "ctrl-c")],
         env=env,
