@@ -86,7 +86,8 @@ def run() -> dict:
                 rates: dict[str, list[float]] = {name: [] for name in checkouts}
                 for _ in range(REPEATS):
                     for name, checkout in checkouts.items():
-                        rates[name].append(train(checkout, args, Path(folder) / f"cache-{name}", Path(folder)))
+                        cache = Path(folder) / f"cache-{name}"
+                        rates[name].append(train(checkout, args, cache, Path(folder)))
                 old, new = (statistics.median(rates[name]) for name in checkouts)
                 rows.append([label, round(old), round(new), round(new / old, 3)])
         finally:
