@@ -160,6 +160,57 @@ def learning_due(experience: OffPolicy, episodes_before: jax.Array, episodes: Ep
     return due
 
 
+def learning_phase(
+    agent: Agent, replay: Replay, carry: OffPolicyCarry
+) -> tuple[OffPolicyCarry, dict[str, jax.Array]]:
+    """``gradient_steps`` learning steps on batches sampled from ``carry.replay`` (priorities written
+    back for prioritized replay); the mean of each scalar metric."""
+    experience: OffPolicy = agent.experience
+    beta = experience.importance_exponent(carry.episodes.env_steps)
+
+    def one(inner, _):
+        agent_state, replay_state, key = inner
+        # (threefry splits are prefix-stable: key and sample_key are those of a split in two)
+        key, sample_key, learn_key = jax.random.split(key, 3)
+        sample = replay.sample(replay_state, sample_key, experience.batch_size, beta)
+        agent_state, metrics = agent.learn(agent_state, sample, learn_key)
+        if experience.prioritized:
+            replay_state = prioritized.update_priorities(replay_state, sample.indices, metrics[PRIORITY])
+        return (agent_state, replay_state, key), scalars(metrics)
+
+    key, learn_key = jax.random.split(carry.key)
+    inner, steps = (carry.agent, carry.replay, learn_key), experience.gradient_steps
+    if isinstance(steps, int):
+        (agent_state, replay_state, _), metrics = jax.lax.scan(one, inner, length=steps)
+        metrics = jax.tree.map(jnp.mean, metrics)
+    else:  # a traced count (a sweep over SAC's utd): a loop as long, its metrics averaged
+        (agent_state, replay_state, _), metrics = traced_count_loop(one, inner, steps)
+    return carry.replace(agent=agent_state, replay=replay_state, key=key), metrics
+
+
+def no_learning(
+    agent: Agent, replay: Replay, carry: OffPolicyCarry
+) -> tuple[OffPolicyCarry, dict[str, jax.Array]]:
+    """``carry`` as it is, and zeros for :func:`learning_phase`'s metrics."""
+    shapes = jax.eval_shape(functools.partial(learning_phase, agent, replay), carry)[1]
+    return carry, jax.tree.map(lambda m: jnp.zeros(m.shape, m.dtype), shapes)
+
+
+def learn_where(
+    agent: Agent, replay: Replay, carry: OffPolicyCarry, due: jax.Array
+) -> tuple[OffPolicyCarry, dict[str, jax.Array]]:
+    """:func:`learning_phase`, what it changes (the agent, the key, prioritized replay's priorities)
+    kept only where ``due``: a uniform replay buffer passes through uncopied."""
+    learned, metrics = learning_phase(agent, replay, carry)
+    no_metrics = no_learning(agent, replay, carry)[1]
+    keep = functools.partial(jax.tree.map, lambda new, old: jnp.where(due, new, old))
+    kept_replay = keep(learned.replay, carry.replay) if agent.experience.prioritized else carry.replay
+    learned = carry.replace(
+        agent=keep(learned.agent, carry.agent), replay=kept_replay, key=keep(learned.key, carry.key)
+    )
+    return learned, keep(metrics, no_metrics)
+
+
 def off_policy_program(agent: Agent, envs: Any, freeze: Freeze | None = None) -> Program:
     """The :class:`Program` of an off-policy ``agent`` on ``envs``: a :class:`VectorEnv`, or the EnvPool
     runner's pool of one env, whose reset steps store nothing; ``freeze`` needs a VectorEnv."""
@@ -218,46 +269,6 @@ def off_policy_program(agent: Agent, envs: Any, freeze: Freeze | None = None) ->
             carry = carry.replace(greedy=greedy)
         return carry, scalars(info)
 
-    def learning_phase(carry: OffPolicyCarry) -> tuple[OffPolicyCarry, dict[str, jax.Array]]:
-        """``gradient_steps`` learning steps on batches sampled from ``carry.replay`` (priorities
-        written back for prioritized replay); the mean of each scalar metric."""
-        beta = experience.importance_exponent(carry.episodes.env_steps)
-
-        def one(inner, _):
-            agent_state, replay_state, key = inner
-            # (threefry splits are prefix-stable: key and sample_key are those of a split in two)
-            key, sample_key, learn_key = jax.random.split(key, 3)
-            sample = replay.sample(replay_state, sample_key, experience.batch_size, beta)
-            agent_state, metrics = agent.learn(agent_state, sample, learn_key)
-            if experience.prioritized:
-                replay_state = prioritized.update_priorities(replay_state, sample.indices, metrics[PRIORITY])
-            return (agent_state, replay_state, key), scalars(metrics)
-
-        key, learn_key = jax.random.split(carry.key)
-        inner, steps = (carry.agent, carry.replay, learn_key), experience.gradient_steps
-        if isinstance(steps, int):
-            (agent_state, replay_state, _), metrics = jax.lax.scan(one, inner, length=steps)
-            metrics = jax.tree.map(jnp.mean, metrics)
-        else:  # a traced count (a sweep over SAC's utd): a loop as long, its metrics averaged
-            (agent_state, replay_state, _), metrics = traced_count_loop(one, inner, steps)
-        return carry.replace(agent=agent_state, replay=replay_state, key=key), metrics
-
-    def no_learning(carry: OffPolicyCarry) -> tuple[OffPolicyCarry, dict[str, jax.Array]]:
-        """``carry`` as it is, and zeros for ``learning_phase``'s metrics."""
-        shapes = jax.eval_shape(learning_phase, carry)[1]
-        return carry, jax.tree.map(lambda m: jnp.zeros(m.shape, m.dtype), shapes)
-
-    def learn_where(carry: OffPolicyCarry, due: jax.Array) -> tuple[OffPolicyCarry, dict[str, jax.Array]]:
-        """``learning_phase``, what it changes (the agent, the key, prioritized replay's priorities)
-        kept only where ``due``: a uniform replay buffer passes through uncopied."""
-        learned, metrics = learning_phase(carry)
-        keep = functools.partial(jax.tree.map, lambda new, old: jnp.where(due, new, old))
-        kept_replay = keep(learned.replay, carry.replay) if experience.prioritized else carry.replay
-        learned = carry.replace(
-            agent=keep(learned.agent, carry.agent), replay=kept_replay, key=keep(learned.key, carry.key)
-        )
-        return learned, keep(metrics, no_learning(carry)[1])
-
     def update(carry: OffPolicyCarry) -> tuple[OffPolicyCarry, dict[str, jax.Array]]:
         episodes_before = carry.episodes.completed
         carry, act_info = jax.lax.scan(collect_step, carry, length=length)
@@ -266,7 +277,12 @@ def off_policy_program(agent: Agent, envs: Any, freeze: Freeze | None = None) ->
         if freeze is not None:
             due = due & ~carry.greedy.frozen
             extra = {"frozen": carry.greedy.frozen.astype(jnp.float32)}
-        carry, metrics = jax.lax.cond(any_seed(due), lambda c: learn_where(c, due), no_learning, carry)
+        carry, metrics = jax.lax.cond(
+            any_seed(due),
+            lambda c: learn_where(agent, replay, c, due),
+            lambda c: no_learning(agent, replay, c),
+            carry,
+        )
         if agent.learning_steps is not None:
             extra["learning_steps"] = agent.learning_steps(carry.agent).astype(jnp.float32)
         last_act = jax.tree.map(lambda x: x[-1], act_info)
