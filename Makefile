@@ -10,11 +10,13 @@ GYMNAX := gymnax==1.0.1
 # conversion: installed without its declared dependencies too; what it imports is in the lock (extra export).
 JAX2ONNX := jax2onnx==0.17.1
 # The lock installs with uv (fetching in parallel: about 10 s from an empty cache, pip takes a minute);
-# uv is itself one wheel that pip installs into the venv. --compile-bytecode writes every module's .pyc
-# now, as pip does by default and uv does not: else, where PYTHONDONTWRITEBYTECODE is set (CI machines),
-# every process (each test's CLI run, each worker and Ray actor) compiles jax & co. from source again.
+# uv is itself one wheel that pip installs into the venv. uv, unlike pip, compiles no bytecode at install.
 UV := uv==0.13.8
-INSTALL := $(VENV)/bin/uv pip install --quiet --compile-bytecode --python $(PY)
+INSTALL := $(VENV)/bin/uv pip install --quiet --python $(PY)
+# The test runs write the bytecode of what they import, once, even where PYTHONDONTWRITEBYTECODE is set
+# (CI machines): else every process of the suite (each xdist worker, each CLI run a test starts, each
+# Ray actor) compiles jax and its kin from source again.
+PYTEST := PYTHONDONTWRITEBYTECODE= $(PY) -m pytest -q -n 2 --dist loadgroup
 
 .PHONY: kernel kernel-where-buildable demo test test-quick test-long bench figures lint docs lock clean
 
@@ -55,16 +57,16 @@ demo: $(STAMP)
 	$(VENV)/bin/agentax demo
 
 test: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadgroup -m "not long"
+	$(PYTEST) -m "not long"
 
 # The edit-test loop: make test without the slow tests (those that train an agent, compile a whole
 # training program, start a process or build the docs site).
 test-quick: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadgroup -m "not slow and not long"
+	$(PYTEST) -m "not slow and not long"
 
 # The checks too long for make test (the 100-game backend comparison, the ale-py training smoke run, ...).
 test-long: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadgroup -m long
+	$(PYTEST) -m long
 
 bench: $(STAMP)
 	$(PY) benchmarks/run.py

@@ -46,7 +46,8 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
         "test_the_cores_written_out_gradient_is_autodiffs[lstm]",
         "test_reinforce_with_a_core_learns_through_whole_episodes_and_its_greedy_policy_carries_memory",
     ),
-    "test_memory_runners.py": (  # CartPoleNoVel's resume; PQN's core in test_memory_core
+    "test_memory_runners.py": (  # CartPoleNoVel's resume; PQN's core: test_memory_core; the CLI: [reinforce]
+        "test_ppo_with_a_core_trains_on_the_host_runner_from_the_command_line",
         "test_a_resumed_host_run_continues_its_episodes_with_their_memory[CartPole-v1-False]",
         "test_pqn_and_reinforce_with_a_core_train_on_the_host_runner[pqn]",
     ),
@@ -129,6 +130,10 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
         "test_a_run_trained_with_overrides_evaluates_resumes_and_repeats_from_its_folder",
     ),
     "test_sweep.py": ("test_optuna_asks_batches_and_a_rerun_asks_the_same",),  # the grid's: the others
+    "test_rainbow.py": ("test_rainbow_on_the_compiled_runner",),  # its parts' tests; test_dqn_cli's flags
+    "test_dqn.py": (  # the same learning step on both runners: its next test; DQN's schedule: the golden rows
+        "test_one_agent_keeps_the_same_schedule_on_the_compiled_and_the_host_runner[",
+    ),
     "test_atari_cli.py": (  # play's video: test_cli's demo GIF, test_api's video
         "test_play_a_run_writes_an_mp4_of_one_frame_per_step_with_the_runs_env_settings",
     ),
