@@ -19,11 +19,11 @@ if REPO_ROOT not in sys.path:
 
 
 LONG_CASES: dict[str, tuple[str, ...]] = {
-    # the golden cases make test runs: ppo_compiled, dqn_host, pqn_host; ppo_parallel's policy lag:
-    # test_atari_compiled's lag 1, test_parallel's lag 0; SAC compiled: test_actor_critic's learning
+    # the golden cases make test runs: ppo_compiled, dqn_host, ppo_parallel, pqn_host; SAC compiled:
+    # test_actor_critic's learning
     "test_golden.py": tuple(
         f"test_metrics_rows_match_the_golden_file[{case}]"
-        for case in ("dqn_compiled", "reinforce_compiled", "ppo_host", "pqn_compiled", "ppo_parallel")
+        for case in ("dqn_compiled", "reinforce_compiled", "ppo_host", "pqn_compiled")
         + ("sac_compiled", "sac_host", "td3_compiled", "td3_host")
     ),
     "test_formats.py": (  # format 1's folders act, evaluate and resume (through every migration)
