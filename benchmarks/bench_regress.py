@@ -102,8 +102,7 @@ def run() -> dict:
             f"command in a worktree of {rev} and in this checkout, from the same Python, alternating, "
             f"{REPEATS} times each (the median); agent steps per second of training "
             "from the first metrics row to the last (compilation and the first row outside). "
-            "PPO: `--preset cartpole-fast --seeds 8 --total-steps 102400`; DQN: `--preset default "
-            "--seeds 8 --total-steps 20000`; PQN: `ALE/Breakout-v5 --preset breakout-hour --runner "
-            "compiled --sticky-actions 0 --total-steps 16384`. A ratio under 0.95 is a slowdown."
+            + "; ".join(f"{label}: `agentax train {args}`" for label, args in WORKLOADS.items())
+            + ". A ratio under 0.95 is a slowdown."
         ),
     }
