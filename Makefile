@@ -10,12 +10,13 @@ GYMNAX := gymnax==1.0.1
 # conversion: installed without its declared dependencies too; what it imports is in the lock (extra export).
 JAX2ONNX := jax2onnx==0.17.1
 # The lock installs with uv (fetching in parallel: about 10 s from an empty cache, pip takes a minute);
-# uv is itself one wheel that pip installs into the venv. uv, unlike pip, compiles no bytecode at install.
+# uv is itself one wheel that pip installs into the venv. --compile-bytecode writes every installed
+# module's .pyc, as pip does: where PYTHONDONTWRITEBYTECODE is set (CI machines) nothing else would, and
+# every process of the suite (each xdist worker, each CLI run a test starts, each Ray actor) would
+# compile jax and its kin from source again. The test runs also write the bytecode of agentax and the
+# tests themselves (not installed, so not compiled at install).
 UV := uv==0.13.8
-INSTALL := $(VENV)/bin/uv pip install --quiet --python $(PY)
-# The test runs write the bytecode of what they import, once, even where PYTHONDONTWRITEBYTECODE is set
-# (CI machines): else every process of the suite (each xdist worker, each CLI run a test starts, each
-# Ray actor) compiles jax and its kin from source again.
+INSTALL := $(VENV)/bin/uv pip install --quiet --compile-bytecode --python $(PY)
 PYTEST := PYTHONDONTWRITEBYTECODE= $(PY) -m pytest -q -n 2 --dist loadgroup
 
 .PHONY: kernel kernel-where-buildable demo test test-quick test-long bench figures lint docs lock clean
