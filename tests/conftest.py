@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("AGENTAX_KERNELS_MEASURE", "0")  # AGENTAX_CONV=auto times nothing in tests
@@ -172,9 +174,8 @@ COLLECTED: list[str] = []
 """Every test id this session collected (before ``-m`` deselects any), for tests/test_tiers.py."""
 
 
+@pytest.hookimpl(tryfirst=True)  # before --dist loadgroup appends "@group" to the ids of grouped tests
 def pytest_collection_modifyitems(items):
-    import pytest
-
     COLLECTED[:] = [item.nodeid for item in items]
     for item in items:
         if is_long_case(item.nodeid):

@@ -69,3 +69,13 @@ def test_an_entry_is_a_whole_id_or_a_prefix_ending_a_case():
     )
     assert not is_long_case("tests/test_golden.py::test_metrics_rows_match_the_golden_file")
     assert not is_long_case("tests/test_other.py::test_metrics_rows_match_the_golden_file[td3_host]")
+
+
+@pytest.mark.xdist_group("tiers")
+def test_make_tests_loadgroup_sends_a_group_to_one_worker(request):
+    """``--dist loadgroup`` keeps an ``xdist_group`` on one worker (a module's shared runs trained
+    once, Ray's clusters one at a time) by appending ``@group`` to the test's id. pytest 9.2 with
+    pytest-xdist 3.8 stopped doing so without a word: every group was spread over both workers."""
+    if not request.config.getoption("loadgroup", default=False):  # pytest-xdist sets it on each worker
+        pytest.skip("run without --dist loadgroup (make test's)")
+    assert request.node.nodeid.endswith("@tiers")
