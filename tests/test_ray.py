@@ -407,6 +407,23 @@ def test_a_learner_error_ends_the_run_and_its_actor_processes(cluster, tmp_path)
     assert wait_for_no_collectors(cluster), collector_pids(cluster)
 
 
+def test_actors_that_need_more_cpus_than_the_cluster_has_are_refused_and_once_started_lost():
+    """The rule alone, on a cluster of 2 CPUs as Ray reports them: 2 actors fit, 8 are refused
+    before the run starts, and a node lost under a running run is ``NodeLost``."""
+    from agentax.errors import NodeLost, UsageError
+
+    class TwoCpus:
+        @staticmethod
+        def cluster_resources():
+            return {"CPU": 2.0, "memory": 1e9}
+
+    ray_runner.check_cpus(TwoCpus, RayRunnerConfig(actors=2))
+    with pytest.raises(UsageError, match=r"8 actors × 1 CPU need 8 CPUs, the Ray cluster has 2: .*0\.25"):
+        ray_runner.check_cpus(TwoCpus, RayRunnerConfig(actors=8))
+    with pytest.raises(NodeLost, match=r"8 actors × 1 CPU, 2 CPUs left"):
+        ray_runner.check_cpus(TwoCpus, RayRunnerConfig(actors=8), started=True)
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(60)
 def test_more_actors_than_the_cluster_has_cpus_is_refused(cluster):

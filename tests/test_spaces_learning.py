@@ -173,7 +173,7 @@ def test_ppo_learns_multi_entry_actions_to_the_optimum(env_id):
 # --- image observations ------------------------------------------------------------------------------
 
 PICTURE_FEW_UPDATES = {
-    "ppo": ["--num-steps", "64"],  # 4 envs × 64 steps: 4 updates in 1,024 steps
+    "ppo": ["--num-steps", "64", "--update-epochs", "1"],  # 4 envs × 64 steps: 4 updates in 1,024 steps
     "dqn": [
         "--learning-starts",
         "256",
