@@ -110,6 +110,7 @@ def test_a_trained_run_folder_is_a_policy(tmp_path, capsys):
 
 BAD_INPUTS = [
     (["evaluate", "--env", "CartPol-v1"], "unknown env 'CartPol-v1'; did you mean CartPole-v1"),
+    (["train", "ppo", "--env", "no_such_module:Thing-v0"], "cannot import 'no_such_module' for no_such"),
     (
         ["evaluate", "--env", "CartPole-v1", "--policy", "smart"],
         "unknown policy 'smart'; choose from basic, random",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import difflib
+import importlib
 from collections.abc import Callable
 from typing import Any
 
@@ -105,7 +106,17 @@ def host_env_id(env_id: str) -> str:
     """The Gymnasium id to step ``env_id`` on the host: Gymnasium's own where it has one (CartPole,
     step-for-step equal to agentax's), else agentax's JAX env registered as ``agentax/ID`` where
     agentax registers that id; a ``UsageError`` (:func:`unknown_env`) for any other id."""
-    if env_id in gymnasium.registry or ":" in env_id:
+    if env_id in gymnasium.registry:
+        return env_id
+    if ":" in env_id:  # "module:Env-v0": Gymnasium imports the module, whose import registers the env
+        module = env_id.partition(":")[0]
+        try:
+            importlib.import_module(module)
+        except ImportError as error:
+            raise UsageError(
+                f"cannot import {module!r} for {env_id} ({error}): run from the folder that holds it, "
+                "or put that folder on PYTHONPATH"
+            ) from None
         return env_id
     if f"{NAMESPACE}/{env_id}" in gymnasium.registry:
         return f"{NAMESPACE}/{env_id}"
