@@ -717,6 +717,11 @@ def _figures() -> dict[str, Figure]:
         if key != "agentax":
             figures[f"rejax.{key}.ratio"] = derived("rejax", lambda r, i=i: r["rows"][i][4], "{:.2f}")
 
+    figures["regress.cpu"] = cpu("regress")  # this checkout against an earlier commit, --precision f32
+    figures["regress.against"] = derived("regress", lambda r: r["headers"][1].split()[0])
+    for i, key in enumerate(("ppo", "dqn", "pqn")):  # its rows: PPO, DQN CartPole; PQN Breakout
+        figures[f"regress.{key}.ratio"] = derived("regress", lambda r, i=i: r["rows"][i][3], "{:.3f}")
+
     # trained scores, each from its evidence folder: NAME.mean, .std, .episodes, .steps, .wall, .cpu
     for name in TRAINED:
         figures[f"{name}.mean"] = evidence(name, "eval.json", "mean_return", "{:,.1f}")
