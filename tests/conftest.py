@@ -123,6 +123,15 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
         "test_taxi_with_its_mask_is_learned_and_no_illegal_action_is_taken[",
         "test_pictures_of_ones_own_size_train_on_the_host_runner[dqn]",
     ),
+    "test_host_spaces.py": (  # Blackjack's Tuple: its layout test; MultiDiscrete's run: MultiBinary's (the
+        # same multi-entry actions) and test_spaces_learning's MultiDiscrete learning
+        "test_ppo_trains_evaluates_and_plays_on_packed_host_observations[Blackjack-v1-host]",
+        "test_ppo_trains_evaluates_and_plays_on_packed_host_observations[scripts.own_envs:Match-MultiDiscrete-v0-host]",
+    ),
+    "test_masks_and_encoders.py": (  # one-hot observations learned: PPO's FrozenLake, DQN's Taxi
+        "test_dqn_reaches_the_goal_of_frozen_lake",
+    ),
+    "test_gymnax.py": ("test_the_adapter_steps_as_gymnax_steps[Asterix-MinAtar]",),  # Breakout's, Catch's
     "test_workers.py": (  # packed masked dicts in the compiled runner's program (test_board_and_grid)
         "test_packed_masked_dict_observations_train_over_two_worker_processes",
     ),
