@@ -105,7 +105,8 @@ def gymnasium_says(env_id: str) -> str:
 def host_env_id(env_id: str) -> str:
     """The Gymnasium id to step ``env_id`` on the host: Gymnasium's own where it has one (CartPole,
     step-for-step equal to agentax's), else agentax's JAX env registered as ``agentax/ID`` where
-    agentax registers that id; a ``UsageError`` (:func:`unknown_env`) for any other id."""
+    agentax registers that id; a ``module:Env`` id as it is, once its module imports (a
+    ``UsageError`` where it does not); a ``UsageError`` (:func:`unknown_env`) for any other id."""
     if env_id in gymnasium.registry:
         return env_id
     if ":" in env_id:  # "module:Env-v0": Gymnasium imports the module, whose import registers the env
