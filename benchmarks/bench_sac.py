@@ -37,6 +37,7 @@ import json, sys, time
 start = time.perf_counter()
 import gymnasium as gym, numpy as np, torch
 from stable_baselines3 import SAC, TD3
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.noise import NormalActionNoise
 algo, env_id, steps, learning_starts = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
@@ -49,14 +50,21 @@ if algo == "sac":  # RL Zoo: Pendulum-v1 lr 1e-3; MuJoCo SB3's defaults, learnin
 else:  # RL Zoo MuJoCo: SB3's defaults, Gaussian exploration noise 0.1
     noise = NormalActionNoise(np.zeros(env.action_space.shape), 0.1 * np.ones(env.action_space.shape))
     model = TD3("MlpPolicy", env, learning_starts=learning_starts, action_noise=noise, seed=0, verbose=0)
+class Mark(BaseCallback):  # the time at env step argv[6] (0: none), for the rate of the steps after it
+    at, seen = int(sys.argv[6]) if len(sys.argv) > 6 else 0, None
+    def _on_step(self):
+        if self.num_timesteps == self.at:
+            self.seen = time.perf_counter()
+        return True
+mark = Mark()
 train_start = time.perf_counter()
-model.learn(total_timesteps=steps)
-train_seconds = time.perf_counter() - train_start
+model.learn(total_timesteps=steps, callback=mark)
+end = time.perf_counter()
 mean = float("nan")
 if env_id == "Pendulum-v1":
     mean, _ = evaluate_policy(model, gym.make(env_id), n_eval_episodes=10)
-print(json.dumps({"train_seconds": train_seconds, "total_seconds": time.perf_counter() - start,
-                  "mean_return": float(mean)}))
+print(json.dumps({"train_seconds": end - train_start, "total_seconds": time.perf_counter() - start,
+                  "mean_return": float(mean), "after_mark_seconds": end - mark.seen if mark.seen else None}))
 """
 
 
@@ -117,17 +125,19 @@ def sb3_threads() -> int | None:
     every core: on a busy machine one thread can be several times faster), from 300 learning steps
     on Pendulum each; None where ``.bench-venv`` has no stable-baselines3 with mujoco."""
     python = BENCH_VENV / "bin" / "python"
-    probe = [str(python), "-c", "import stable_baselines3, torch, mujoco"]
+    probe = [str(python), "-c", "import stable_baselines3, torch, gymnasium.envs.mujoco"]  # its imageio too
     if not python.exists() or subprocess.run(probe, capture_output=True).returncode != 0:
         return None
     seconds = {n: sb3("sac", "Pendulum-v1", 400, 100, n)["train_seconds"] for n in (1, 0)}
     return min(seconds, key=seconds.get)
 
 
-def sb3(algo: str, env_id: str, steps: int, learning_starts: int, threads: int) -> dict | None:
-    """SB3's run (``SB3_SCRIPT``) in ``.bench-venv``; ``threads`` 0: torch's default."""
+def sb3(algo: str, env_id: str, steps: int, learning_starts: int, threads: int, mark: int = 0) -> dict | None:
+    """SB3's run (``SB3_SCRIPT``) in ``.bench-venv``; ``threads`` 0: torch's default; ``mark``: the env
+    step from which ``after_mark_seconds`` times the rest of the run."""
     python = BENCH_VENV / "bin" / "python"
     command = [str(python), "-c", SB3_SCRIPT, algo, env_id, str(steps), str(learning_starts), str(threads)]
+    command.append(str(mark))
     done = subprocess.run(command, capture_output=True, text=True, timeout=3600)
     if done.returncode != 0:
         print(done.stderr[-2000:], file=sys.stderr)

@@ -108,6 +108,11 @@ def derived(name: str, read: Callable[[dict], float], fmt: str | Callable = "{}"
     return Figure(f"benchmarks/results/{name}.json", read, fmt)
 
 
+def sb3_row(result: dict, agent: str) -> list:
+    """The Stable-Baselines3 row of ``agent`` in a bench result (its label names torch's threads)."""
+    return next(row for row in result["rows"] if row[0] == agent and row[1].startswith("Stable-Baselines3"))
+
+
 def cpu(name: str) -> Figure:
     """The CPU ``benchmarks/results/NAME.json`` was measured on, as ``run.cpu_label`` names it."""
     return Figure(f"benchmarks/results/{name}.json", lambda r: HARNESS.cpu_label(r["machine"]))
@@ -662,12 +667,19 @@ def _figures() -> dict[str, Figure]:
             row = (agent, f"agentax, {runner} runner, --precision auto")
             figures[f"mujoco-xeon.{key}.{runner}"] = bench(xeon, *row, col="agent steps/s", fmt="{:.0f}")
             figures[f"mujoco-xeon.{key}.{runner}.sbx"] = bench(xeon, *row, col="÷ SBX's", fmt="{:.2f}")
-        figures[f"mujoco-xeon.{key}.f32"] = bench(
-            xeon, agent, "agentax, host runner, --precision f32", col="agent steps/s", fmt="{:.0f}"
-        )
-        figures[f"mujoco-xeon.{key}.sbx"] = bench(
-            xeon, agent, "SBX 0.28 (jax 0.10.2)", col="agent steps/s", fmt="{:.0f}"
-        )
+            learning = f"mujoco-xeon.{key}.{runner}.learning"  # steps 2,048-4,000, compilation outside
+            figures[learning] = bench(xeon, *row, col="learning steps/s", fmt="{:.0f}")
+            figures[f"{learning}.sbx"] = bench(xeon, *row, col="learning ÷ SBX's", fmt="{:.2f}")
+            figures[f"{learning}.sb3"] = bench(xeon, *row, col="learning ÷ SB3's", fmt="{:.2f}")
+        peers = {"f32": "agentax, host runner, --precision f32", "sbx": "SBX 0.28 (jax 0.10.2)"}
+        for peer, label in peers.items():
+            for column, name in (("agent steps/s", peer), ("learning steps/s", f"{peer}.learning")):
+                figures[f"mujoco-xeon.{key}.{name}"] = bench(xeon, agent, label, col=column, fmt="{:.0f}")
+        for column, name in (("agent steps/s", "sb3"), ("learning steps/s", "sb3.learning")):
+            figures[f"mujoco-xeon.{key}.{name}"] = derived(  # its label names torch's thread count
+                xeon, lambda r, a=agent, c=column: sb3_row(r, a)[r["headers"].index(c)], "{:.0f}"
+            )
+    figures["mujoco-xeon.sb3.threads"] = derived(xeon, lambda r: sb3_row(r, "SAC")[1].split(", ")[1][:-1])
     xeon = "sac@intel-xeon"  # the whole 8-seed command against SB3's one seed, on the Xeon
     seeds = ("`agentax train sac --env Pendulum-v1 --seeds 8 --precision auto` process", 8)
     figures["sac-xeon.cpu"] = cpu(xeon)
