@@ -1,5 +1,6 @@
 """The test tiers: ``conftest.LONG_CASES`` names tests that exist, and only those become ``long``."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -71,11 +72,31 @@ def test_an_entry_is_a_whole_id_or_a_prefix_ending_a_case():
     assert not is_long_case("tests/test_other.py::test_metrics_rows_match_the_golden_file[td3_host]")
 
 
-@pytest.mark.xdist_group("tiers")
-def test_make_tests_loadgroup_sends_a_group_to_one_worker(request):
-    """``--dist loadgroup`` keeps an ``xdist_group`` on one worker (a module's shared runs trained
-    once, Ray's clusters one at a time) by appending ``@group`` to the test's id. pytest 9.2 with
-    pytest-xdist 3.8 stopped doing so without a word: every group was spread over both workers."""
-    if not request.config.getoption("loadgroup", default=False):  # pytest-xdist sets it on each worker
-        pytest.skip("run without --dist loadgroup (make test's)")
-    assert request.node.nodeid.endswith("@tiers")
+GROUPED = """
+import os, pytest
+
+@pytest.mark.xdist_group("g")
+@pytest.mark.parametrize("case", range(4))
+def test_grouped(case):
+    with open(os.path.join(os.environ["RAN"], f"ran-{case}"), "w") as file:
+        file.write(os.environ["PYTEST_XDIST_WORKER"])
+
+@pytest.mark.parametrize("case", range(4))
+def test_free(case):
+    pass
+"""
+
+
+@pytest.mark.timeout(120)
+def test_make_tests_loadgroup_sends_a_group_to_one_worker(tmp_path):
+    """``--dist loadgroup`` (make test's) keeps an ``xdist_group`` on one worker (a module's shared
+    runs trained once, Ray's clusters one at a time) by appending ``@group`` to the test's id. pytest
+    9.2 with pytest-xdist 3.8 stopped doing so without a word: every group was spread over both workers."""
+    (tmp_path / "test_grouped.py").write_text(GROUPED)
+    command = [sys.executable, "-m", "pytest", "-q", "-n", "2", "--dist", "loadgroup", "-p"]
+    command += ["no:cacheprovider", "test_grouped.py"]
+    env = {**os.environ, "RAN": str(tmp_path)}
+    done = subprocess.run(command, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=110)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    workers = {(tmp_path / f"ran-{case}").read_text() for case in range(4)}
+    assert len(workers) == 1, workers
