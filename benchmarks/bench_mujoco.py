@@ -21,7 +21,7 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from bench_sac import ROOT, sb3, sb3_threads  # benchmarks/ is on sys.path (run.py)
+from bench_sac import MARK_CALLBACK, ROOT, sb3, sb3_threads  # benchmarks/ is on sys.path (run.py)
 
 RANDOM, STEPS = 1_000, 4_000
 MARK = 2_048
@@ -32,30 +32,28 @@ SBX_VENV = ROOT / ".sbx-venv"
 SBX_REQUIREMENTS = ["sbx-rl==0.28.0", "jax==0.10.2", "jaxlib==0.10.2", "mujoco==4.0.0", "gymnasium==1.4.0"]
 SBX_REQUIREMENTS += ["imageio", "packaging"]  # what sbx imports without declaring it
 
-SBX_SCRIPT = """
+SBX_SCRIPT = (
+    """
 import json, sys, time
 import gymnasium as gym, numpy as np
 from sbx import SAC, TD3
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import NormalActionNoise
 algo, steps, learning_starts, mark = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
-class Mark(BaseCallback):  # the time at env step mark
-    seen = None
-    def _on_step(self):
-        if self.num_timesteps == mark:
-            self.seen = time.perf_counter()
-        return True
+"""
+    + MARK_CALLBACK
+    + """
 env = gym.make("HalfCheetah-v5")
 if algo == "sac":  # the RL Zoo's MuJoCo settings: SB3's defaults, learning_starts as agentax's run
     model = SAC("MlpPolicy", env, learning_starts=learning_starts, seed=0, verbose=0)
 else:
     noise = NormalActionNoise(np.zeros(env.action_space.shape), 0.1 * np.ones(env.action_space.shape))
     model = TD3("MlpPolicy", env, learning_starts=learning_starts, action_noise=noise, seed=0, verbose=0)
-callback, start = Mark(), time.perf_counter()
+callback, start = Mark(mark), time.perf_counter()
 model.learn(total_timesteps=steps, callback=callback)
 end = time.perf_counter()
 print(json.dumps({"train_seconds": end - start, "after_mark_seconds": end - callback.seen}))
 """
+)
 
 
 def steps_per_second(algo: str, runner: str, precision: str) -> tuple[float, float, str]:

@@ -32,12 +32,25 @@ PENDULUM_STEPS = 20_000
 SOLVED = -200.0
 SEEDS = 8
 
-SB3_SCRIPT = """
+MARK_CALLBACK = """
+from stable_baselines3.common.callbacks import BaseCallback
+class Mark(BaseCallback):  # the time at env step `at` (0: none), for the rate of the steps after it
+    def __init__(self, at):
+        super().__init__()
+        self.at, self.seen = at, None
+    def _on_step(self):
+        if self.num_timesteps == self.at:
+            self.seen = time.perf_counter()
+        return True
+"""
+"""An SB3 callback (for SB3 and SBX alike; the script imports ``time``): ``Mark(at).seen``."""
+
+SB3_SCRIPT = (
+    """
 import json, sys, time
 start = time.perf_counter()
 import gymnasium as gym, numpy as np, torch
 from stable_baselines3 import SAC, TD3
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.noise import NormalActionNoise
 algo, env_id, steps, learning_starts = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
@@ -50,13 +63,10 @@ if algo == "sac":  # RL Zoo: Pendulum-v1 lr 1e-3; MuJoCo SB3's defaults, learnin
 else:  # RL Zoo MuJoCo: SB3's defaults, Gaussian exploration noise 0.1
     noise = NormalActionNoise(np.zeros(env.action_space.shape), 0.1 * np.ones(env.action_space.shape))
     model = TD3("MlpPolicy", env, learning_starts=learning_starts, action_noise=noise, seed=0, verbose=0)
-class Mark(BaseCallback):  # the time at env step argv[6] (0: none), for the rate of the steps after it
-    at, seen = int(sys.argv[6]) if len(sys.argv) > 6 else 0, None
-    def _on_step(self):
-        if self.num_timesteps == self.at:
-            self.seen = time.perf_counter()
-        return True
-mark = Mark()
+"""
+    + MARK_CALLBACK
+    + """
+mark = Mark(int(sys.argv[6]) if len(sys.argv) > 6 else 0)
 train_start = time.perf_counter()
 model.learn(total_timesteps=steps, callback=mark)
 end = time.perf_counter()
@@ -66,6 +76,7 @@ if env_id == "Pendulum-v1":
 print(json.dumps({"train_seconds": end - train_start, "total_seconds": time.perf_counter() - start,
                   "mean_return": float(mean), "after_mark_seconds": end - mark.seen if mark.seen else None}))
 """
+)
 
 
 def pendulum_id() -> str:
