@@ -14,7 +14,8 @@ again with exactly the same settings and compares:
 * not the columns that measure time or speed (:data:`TIME_COLUMNS`).
 
 Recording (only when a change of the numbers is intended, and say why in the commit; or for a new
-case: its row in :data:`CASES`, then ``--write`` with its name)::
+case: its row in :data:`CASES`, then ``--write`` with its name; it writes this CPU's width's files,
+so record the other width's on such a CPU too)::
 
     PYTHONPATH=src python tests/test_golden.py --write            # every case
     PYTHONPATH=src python tests/test_golden.py --write ppo_host   # some cases
@@ -25,8 +26,14 @@ numbers depend on the CPUs that client saw when jax made it: XLA sizes its threa
 the Atari CNN's update comes out differently with 1 and 2 CPUs. Within a test process that depends
 on what ran before (the compiled runner keeps agentax's one-CPU client; the host, parallel and
 compiled Atari runners ask for every CPU when they come first); a fresh process has a one-CPU
-client whatever ran before and however many cores the machine has. (Another kind of CPU may still
-round differently: the files were recorded on x86-64 Linux.)
+client whatever ran before and however many cores the machine has.
+
+They also depend on the width of the CPU's float vectors, to which XLA and its dot kernels split
+sums: CPUs of one width give the same rows, and the files are kept by width
+(``tests/golden/<width>/``, :func:`vector_width`). ``avx512`` was recorded on an Intel Xeon (AVX-512,
+AMX) and gave the same rows on an AMD EPYC Zen 4; ``avx2`` on an AMD EPYC Zen 3 (AVX2, no AVX-512),
+where three of the ``avx512`` cases differ from the second row on. A CPU of another width skips
+the comparison, saying how to record its rows.
 
 Each case was trained twice with the recording code and gave the same rows (the parallel runner's
 on-policy lag is exact: rollout ``k`` is always collected with parameter version ``k - policy_lag``,
@@ -38,6 +45,7 @@ from __future__ import annotations
 import argparse
 import csv
 import os
+import platform
 import re
 import shutil
 import subprocess
@@ -50,6 +58,8 @@ import numpy as np
 import pytest
 
 GOLDEN = Path(__file__).resolve().parent / "golden"
+WIDTHS = {path.name for path in GOLDEN.iterdir() if path.is_dir()}
+"""The vector widths whose rows are recorded (:func:`vector_width`)."""
 
 # The settings of each case: agentax.train's arguments (algo and env apart), shared by the writer and
 # the test. The host runners log a row every 2,048 env steps, the compiled ones every chunk of updates
@@ -176,6 +186,23 @@ def make_one_cpu_client() -> None:
             pass
 
 
+def vector_width() -> str:
+    """The golden set for this CPU: ``avx512`` (AVX-512 float vectors), ``avx2`` (AVX2 with FMA), else
+    the machine's architecture, for which no rows are recorded."""
+    from agentax.kernel_choice import cpu_info
+
+    flags = cpu_info()[1]
+    if "avx512f" in flags:
+        return "avx512"
+    if {"avx2", "fma"} <= flags:
+        return "avx2"
+    return platform.machine().lower() or "unknown"
+
+
+def golden_file(name: str) -> Path:
+    return GOLDEN / vector_width() / f"{name}.csv"
+
+
 def read_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
     with open(path, newline="") as f:
         reader = csv.DictReader(f)
@@ -212,27 +239,36 @@ LONG_CASES = {"ppo_atari_compiled"}  # ~110 s cold (the Nature CNN's compilation
 def test_metrics_rows_match_the_golden_file(name, tmp_path):
     if CASES[name].get("env", "").startswith("ALE/"):
         pytest.importorskip("envpool")
-    golden = GOLDEN / f"{name}.csv"
+    golden = golden_file(name)
+    if not golden.parent.is_dir():
+        pytest.skip(
+            f"no golden rows for {golden.parent.name} CPUs (recorded: {', '.join(sorted(WIDTHS))}); "
+            "record them with python tests/test_golden.py --write"
+        )
     assert golden.is_file(), f"no {golden}; record it with python tests/test_golden.py --write {name}"
     assert_same_rows(golden, train_in_fresh_process(name, tmp_path / name))
 
 
 def test_the_golden_files_are_the_cases():
-    """One file per case, and every column that looks like a time or a speed is in TIME_COLUMNS."""
-    assert sorted(p.stem for p in GOLDEN.glob("*.csv")) == sorted(CASES)
-    columns = {column for path in GOLDEN.glob("*.csv") for column in read_rows(path)[0]}
+    """Each width's folder holds one file per case, and every column that looks like a time or a
+    speed is in TIME_COLUMNS."""
+    assert WIDTHS == {"avx512", "avx2"}, WIDTHS
+    for width in WIDTHS:
+        assert sorted(p.stem for p in (GOLDEN / width).glob("*.csv")) == sorted(CASES), width
+    columns = {column for path in GOLDEN.glob("*/*.csv") for column in read_rows(path)[0]}
     timing = {c for c in columns if re.search(r"seconds|per_second|sps|wait|elapsed|time", c)}
     assert timing <= TIME_COLUMNS, timing - TIME_COLUMNS
 
 
 def write(names: list[str]) -> None:
-    """Train ``names`` and record their metrics.csv as the golden files."""
-    GOLDEN.mkdir(exist_ok=True)
+    """Train ``names`` and record their metrics.csv as this CPU's width's golden files."""
     with tempfile.TemporaryDirectory() as folder:
         for name in names:
             metrics = train_in_fresh_process(name, Path(folder) / name)
-            shutil.copyfile(metrics, GOLDEN / f"{name}.csv")
-            print(f"wrote {GOLDEN / f'{name}.csv'} ({len(read_rows(metrics)[1])} rows)", file=sys.stderr)
+            golden = golden_file(name)
+            golden.parent.mkdir(exist_ok=True)
+            shutil.copyfile(metrics, golden)
+            print(f"wrote {golden} ({len(read_rows(metrics)[1])} rows)", file=sys.stderr)
 
 
 if __name__ == "__main__":

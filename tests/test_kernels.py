@@ -76,6 +76,9 @@ def assert_close(actual, desired, bf16):
 @pytest.mark.parametrize("layer", NATURE_LAYERS, ids=["conv1", "conv2", "conv3"])
 def test_forward_and_both_gradients_match_xla(layer, bf16):
     shape, size, out, stride = layer
+    if bf16 and kernels.implementation("fwd", shape, (size, out, stride), bf16=True) == "none":
+        # as on an AMD EPYC Zen 3 (AVX2); agentax never chooses onednn-bf16 there (kernel_choice.candidates)
+        pytest.skip("oneDNN has no bfloat16 convolution on this CPU")
     x, w, dy_key = arrays(shape, size, out)
     expected = value_and_grads(x, w, dy_key, stride, "xla")
     actual = value_and_grads(x, w, dy_key, stride, "onednn-bf16" if bf16 else "onednn")
