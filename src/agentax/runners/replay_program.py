@@ -20,7 +20,7 @@ from flax import struct
 from agentax.agents.protocol import PRIORITY, Agent, OffPolicy
 from agentax.replay import example_transition, nstep, prioritized, uniform
 from agentax.returns import EpisodeStats
-from agentax.runners.rollout import Program, VectorEnv, agent_program, any_seed, scalars, transition_of
+from agentax.runners.rollout import Program, VectorEnv, agent_program, scalars, seeds_where, transition_of
 
 
 @dataclass(frozen=True)
@@ -277,10 +277,14 @@ def off_policy_program(agent: Agent, envs: Any, freeze: Freeze | None = None) ->
         if freeze is not None:
             due = due & ~carry.greedy.frozen
             extra = {"frozen": carry.greedy.frozen.astype(jnp.float32)}
-        carry, metrics = jax.lax.cond(
-            any_seed(due),
-            lambda c: learn_where(agent, replay, c, due),
-            lambda c: no_learning(agent, replay, c),
+        # every seed due (the usual case once learning started): no copy of the states kept apart
+        carry, metrics = jax.lax.switch(
+            seeds_where(due),
+            [
+                lambda c: no_learning(agent, replay, c),
+                lambda c: learn_where(agent, replay, c, due),
+                lambda c: learn_where(agent, replay, c, jnp.bool_(True)),  # (XLA drops its selects)
+            ],
             carry,
         )
         if agent.learning_steps is not None:
