@@ -128,8 +128,9 @@ def _cpuinfo_fields() -> dict:
 
 
 def cpu_label(machine: dict) -> str:
-    """A short name for the CPU a result was measured on: ``AMD EPYC, no AMX``, ``Intel Xeon, AMX``;
-    without recorded flags (results older than the ``cpu`` field) the model name alone."""
+    """A short name for the CPU a result was measured on: ``AMD EPYC, no AMX``, ``Intel Xeon, AMX``
+    (AVX-512 CPUs), ``AMD EPYC, no AVX-512`` (an AMD EPYC Zen 3's: the model name alone does not tell
+    it from a Zen 4); without recorded flags (results older than the ``cpu`` field) the model name alone."""
     name = machine.get("cpu", {}).get("model_name") or machine.get("processor") or "CPU not recorded"
     name = " ".join(
         word for word in name.replace("(R)", "").replace("(TM)", "").split() if word != "Processor"
@@ -137,12 +138,17 @@ def cpu_label(machine: dict) -> str:
     flags = machine.get("cpu", {}).get("flags")
     if not flags:
         return name
+    if "avx512f" not in flags:
+        return f"{name}, no AVX-512"
     return f"{name}, {'AMX' if 'amx_tile' in flags else 'no AMX'}"
 
 
 def cpu_slug(machine: dict) -> str:
-    """The CPU in a file name: ``amd-epyc``, ``intel-xeon`` (the first two words of its label)."""
-    return "-".join(cpu_label(machine).replace(",", " ").lower().split()[:2])
+    """The CPU in a file name: ``amd-epyc``, ``intel-xeon`` (the first two words of its label), with
+    ``-no-avx512`` for a CPU without AVX-512, so a Zen 3's results never replace a Zen 4's."""
+    label = cpu_label(machine)
+    slug = "-".join(label.replace(",", " ").lower().split()[:2])
+    return f"{slug}-no-avx512" if label.endswith("no AVX-512") else slug
 
 
 def result_path(name: str, machine: dict) -> Path:

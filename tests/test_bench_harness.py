@@ -64,7 +64,7 @@ def test_a_result_of_another_cpu_stays_and_this_cpus_goes_beside_it(harness, tmp
     xeon = {"name": "good", "title": "Good", "headers": ["envs"], "rows": [], "notes": "", "machine": {}}
     xeon["machine"]["cpu"] = {"model_name": "Intel(R) Xeon(R) Platinum 8481C CPU"}
     (results / "good.json").write_text(json.dumps(xeon))
-    amd = {"model_name": "AMD EPYC 9B14", "flags": ["fpu", "avx512_bf16"]}
+    amd = {"model_name": "AMD EPYC 9B14", "flags": ["fpu", "avx512f", "avx512_bf16"]}
     monkeypatch.setattr(harness, "cpu_info", lambda: amd)
     assert harness.main(["good"]) == 0 and harness.main(["good"]) == 0
     assert json.loads((results / "good.json").read_text()) == xeon

@@ -174,9 +174,14 @@ def test_the_bench_records_the_cpu_and_names_it():
     info = harness.cpu_info()
     assert info["model_name"] and "fpu" in info["flags"] or not Path("/proc/cpuinfo").exists()
     amd = {"cpu": {"model_name": "AMD EPYC", "flags": ["fpu", "avx512f"]}}
-    xeon = {"cpu": {"model_name": "Intel(R) Xeon(R) Platinum 8481C CPU", "flags": ["amx_tile", "amx_bf16"]}}
+    xeon_flags = ["avx512f", "amx_tile", "amx_bf16"]
+    xeon = {"cpu": {"model_name": "Intel(R) Xeon(R) Platinum 8481C CPU", "flags": xeon_flags}}
+    zen3 = {"cpu": {"model_name": "AMD EPYC", "flags": ["fpu", "avx2", "fma"]}}
     assert harness.cpu_label(amd) == "AMD EPYC, no AMX"
+    assert harness.cpu_label(zen3) == "AMD EPYC, no AVX-512"
     assert harness.cpu_label(xeon) == "Intel Xeon Platinum 8481C CPU, AMX"
+    slugs = [harness.cpu_slug(m) for m in (amd, zen3, xeon)]
+    assert slugs == ["amd-epyc", "amd-epyc-no-avx512", "intel-xeon"]
     assert harness.cpu_label({"processor": "Intel(R) Xeon(R) Processor"}) == "Intel Xeon"
     assert harness.cpu_label({}) == "CPU not recorded"
 
