@@ -32,7 +32,7 @@ They also depend on the width of the CPU's float vectors, to which XLA and its d
 sums: CPUs of one width give the same rows, and the files are kept by width
 (``tests/golden/<width>/``, :func:`vector_width`). ``avx512`` was recorded on an Intel Xeon (AVX-512,
 AMX) and gave the same rows on an AMD EPYC Zen 4; ``avx2`` on an AMD EPYC Zen 3 (AVX2, no AVX-512),
-where three of the ``avx512`` cases differ from the second row on. A CPU of another width skips
+where three of the ``avx512`` cases come out beyond the tolerance. A CPU of another width skips
 the comparison, saying how to record its rows.
 
 Each case was trained twice with the recording code and gave the same rows (the parallel runner's
