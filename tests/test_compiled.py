@@ -268,3 +268,14 @@ def test_looking_ahead_a_chunk_changes_no_number(tmp_path):
 def test_runner_config_rejects_zero_seeds():
     with pytest.raises(UsageError, match="seeds"):
         RunnerConfig(num_seeds=0)
+
+
+def test_seeds_where_tells_no_seed_some_seeds_and_every_seed_apart():
+    """The off-policy program's three learning branches (none, the due seeds', every seed's) hang on
+    this index; outside the seeds' vmap a flag is every seed or none."""
+    from agentax.runners.rollout import SEED_AXIS, seeds_where
+
+    batched = jax.vmap(seeds_where, axis_name=SEED_AXIS)
+    for flags, index in (([False, False, False], 0), ([False, True, False], 1), ([True, True, True], 2)):
+        assert batched(np.array(flags)).tolist() == [index] * 3
+    assert int(seeds_where(np.bool_(True))) == 2 and int(seeds_where(np.bool_(False))) == 0
