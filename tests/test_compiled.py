@@ -270,12 +270,14 @@ def test_runner_config_rejects_zero_seeds():
         RunnerConfig(num_seeds=0)
 
 
-def test_seeds_where_tells_no_seed_some_seeds_and_every_seed_apart():
-    """The off-policy program's three learning branches (none, the due seeds', every seed's) hang on
-    this index; outside the seeds' vmap a flag is every seed or none."""
-    from agentax.runners.rollout import SEED_AXIS, seeds_where
 
-    batched = jax.vmap(seeds_where, axis_name=SEED_AXIS)
-    for flags, index in (([False, False, False], 0), ([False, True, False], 1), ([True, True, True], 2)):
-        assert batched(np.array(flags)).tolist() == [index] * 3
-    assert int(seeds_where(np.bool_(True))) == 2 and int(seeds_where(np.bool_(False))) == 0
+def test_any_seed_is_one_flag_for_the_whole_batch():
+    """The off-policy program's learning branch hangs on this flag; outside the seeds' vmap a flag is
+    its own."""
+    from agentax.runners.rollout import SEED_AXIS, any_seed
+
+    batched = jax.vmap(any_seed, axis_name=SEED_AXIS)
+    cases = (([False, False, False], False), ([False, True, False], True), ([True, True, True], True))
+    for flags, due in cases:
+        assert batched(np.array(flags)).tolist() == [due] * 3
+    assert bool(any_seed(np.bool_(True))) and not bool(any_seed(np.bool_(False)))

@@ -105,7 +105,7 @@ def test_lecture_schedule_counts_episodes(tmp_path):
 @pytest.mark.timeout(240)
 def test_lecture_schedule_in_a_batch_learns_exactly_as_alone():
     """Seeds end episodes at different steps: in a vmapped batch the learning branch runs when any
-    seed is due (``seeds_where``) and keeps its result only for the due ones, so each seed learns as alone."""
+    seed is due (``any_seed``) and keeps its result only for the due ones, so each seed learns as alone."""
     cfg = dataclasses.replace(
         presets.preset("dqn", "lecture").config,
         learning_starts=5,

@@ -20,7 +20,7 @@ from flax import struct
 from agentax.agents.protocol import PRIORITY, Agent, OffPolicy
 from agentax.replay import example_transition, nstep, prioritized, uniform
 from agentax.returns import EpisodeStats
-from agentax.runners.rollout import Program, VectorEnv, agent_program, scalars, seeds_where, transition_of
+from agentax.runners.rollout import Program, VectorEnv, agent_program, any_seed, scalars, transition_of
 
 
 @dataclass(frozen=True)
@@ -219,6 +219,13 @@ def off_policy_program(agent: Agent, envs: Any, freeze: Freeze | None = None) ->
     by_episode = experience.by_episode
     length = 1 if by_episode else experience.train_frequency  # collected steps per env an update
     side_envs = None if freeze is None else VectorEnv(envs.env, envs.params, freeze.episodes)
+    # On the step schedule every seed of a batch steps alike, so all are due to learn at once and keep
+    # what they learned without a select of each state leaf between learned and kept (XLA drops a
+    # select on a constant): a copy of every seed's parameters and moments an update saved. Frozen
+    # seeds, an episode cap, the episode schedule or a sweep's traced learning_starts set seeds apart.
+    alike = not (by_episode or experience.max_episodes or freeze is not None) and not isinstance(
+        experience.learning_starts, jax.core.Tracer
+    )
 
     def init(key: jax.Array) -> OffPolicyCarry:
         key, agent_key, reset_key, monitor_key = jax.random.split(key, 4)
@@ -277,14 +284,10 @@ def off_policy_program(agent: Agent, envs: Any, freeze: Freeze | None = None) ->
         if freeze is not None:
             due = due & ~carry.greedy.frozen
             extra = {"frozen": carry.greedy.frozen.astype(jnp.float32)}
-        # every seed due (the usual case once learning started): no copy of the states kept apart
-        carry, metrics = jax.lax.switch(
-            seeds_where(due),
-            [
-                lambda c: no_learning(agent, replay, c),
-                lambda c: learn_where(agent, replay, c, due),
-                lambda c: learn_where(agent, replay, c, jnp.bool_(True)),  # (XLA drops its selects)
-            ],
+        carry, metrics = jax.lax.cond(
+            any_seed(due),
+            lambda c: learn_where(agent, replay, c, jnp.bool_(True) if alike else due),
+            lambda c: no_learning(agent, replay, c),
             carry,
         )
         if agent.learning_steps is not None:

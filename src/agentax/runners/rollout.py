@@ -25,16 +25,13 @@ from agentax.returns import EpisodeStats
 SEED_AXIS = "seeds"  # the name of the compiled runner's vmap axis over seeds
 
 
-def seeds_where(flag: jax.Array) -> jax.Array:
-    """``0`` where ``flag`` holds for no seed of the compiled runner's batch, ``2`` where it holds for
-    every seed, else ``1``: one unbatched int32 that a ``lax.switch`` branches on under the seeds' vmap
-    (outside it: ``0`` or ``2`` by ``flag`` itself)."""
+def any_seed(flag: jax.Array) -> jax.Array:
+    """Whether ``flag`` holds for any seed of the compiled runner's batch, one unbatched bool that a
+    ``lax.cond`` branches on under the seeds' vmap (``flag`` itself outside it)."""
     try:
-        count = jax.lax.psum(flag.astype(jnp.int32), SEED_AXIS)
-        size = jax.lax.psum(1, SEED_AXIS)
+        return jax.lax.psum(flag.astype(jnp.int32), SEED_AXIS) > 0
     except NameError:  # not traced under the runner's vmap
-        return 2 * flag.astype(jnp.int32)
-    return jnp.where(count == 0, 0, jnp.where(count == size, 2, 1))
+        return flag
 
 
 @dataclass(frozen=True)
