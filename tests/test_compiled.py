@@ -270,7 +270,6 @@ def test_runner_config_rejects_zero_seeds():
         RunnerConfig(num_seeds=0)
 
 
-
 def test_any_seed_is_one_flag_for_the_whole_batch():
     """The off-policy program's learning branch hangs on this flag; outside the seeds' vmap a flag is
     its own."""
