@@ -35,9 +35,10 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
         "test_a_fixture_resumes_in_todays_format[1-pqn-compiled]",
         "test_a_fixture_resumes_in_todays_format[1-reinforce-compiled]",
     ),
-    "test_export.py": (  # sac-pendulum's Gaussian head, dqn-cartpole's both formats, test_export_memory's
+    "test_export.py": (  # sac-pendulum's both formats (a Gaussian head), test_export_memory's
         "test_both_formats_act_as_the_agentax_policy[ppo-pendulum]",  # PPO; the CLI's export
         "test_both_formats_act_as_the_agentax_policy[ppo-cartpole]",
+        "test_both_formats_act_as_the_agentax_policy[dqn-cartpole]",  # a Q-network: the stochastic PPO's
         "test_evaluate_policy_file_gives_the_runs_evaluation",
     ),
     "test_export_memory.py": (  # the LSTM's
@@ -59,6 +60,8 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
         "test_a_diverging_run_stops_with_one_line_and_exit_code_3[dqn-parallel-",
     ),
     "test_dqn_cli.py": (  # [checkpoint_half_written]; a restart from the config: test_formats' deleted one
+        # every flag: each variant's learning step in test_dqn and test_replay, a CLI run's folder test_cli's
+        "test_train_dqn_with_every_flag_writes_a_run",
         "test_resume_of_a_run_killed_before_its_first_checkpoint_starts_it_from_its_config[",
         "test_a_kill_at_each_stage_of_a_checkpoint_resumes_with_the_replay_of_its_checkpoint[first_committed]",
         "test_a_kill_at_each_stage_of_a_checkpoint_resumes_with_the_replay_of_its_checkpoint[replay_written]",
@@ -95,7 +98,10 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
         "test_policy_lag_1_runs_are_reproducible",
         "test_a_slow_learner_shows_as_actors_waiting",
     ),
-    "test_reinforce.py": ("test_reinforce_with_the_gaussian_head_learns_pendulum",),  # PPO's Gaussian head
+    "test_reinforce.py": (  # PPO's Gaussian head; learning: [lecture]; a baseline: test_masks_and_encoders'
+        "test_reinforce_with_the_gaussian_head_learns_pendulum",
+        "test_reinforce_learns_cartpole_v0[baseline]",
+    ),
     "test_compiled.py": (  # its seed tests; the compiled resume: test_formats', a torn one: test_logger's
         "test_looking_ahead_a_chunk_changes_no_number",
         "test_seeds_run_in_groups_give_each_seed_the_numbers_of_one_vmapped_batch",  # (the rule: a unit test)
@@ -118,13 +124,14 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
     "test_spaces_learning.py": (  # PPO's; DQN's Taxi mask: test_masks_and_encoders, frames: test_cnn_agent
         "test_blackjack_ppo_plays_near_the_basic_strategy",  # Blackjack's tuple: test_host_spaces
         "test_ppo_learns_multi_entry_actions_to_the_optimum[Match-MultiBinary-v0]",  # test_host_spaces' run
-        # masks learned: REINFORCE's and PQN's in test_masks_and_encoders; Taxi's mask trained, evaluated
-        # and played: test_host_spaces
+        # masks learned: REINFORCE's and PQN's in test_masks_and_encoders, DQN's Taxi mask there too
         "test_taxi_with_its_mask_is_learned_and_no_illegal_action_is_taken[",
-        "test_pictures_of_ones_own_size_train_on_the_host_runner[dqn]",
+        "test_pictures_of_ones_own_size_train_on_the_host_runner[",  # CNNs learning: test_cnn_agent's
     ),
     "test_host_spaces.py": (  # Blackjack's Tuple: its layout test; MultiDiscrete's run: MultiBinary's (the
-        # same multi-entry actions) and test_spaces_learning's MultiDiscrete learning
+        # same multi-entry actions) and test_spaces_learning's MultiDiscrete learning; Taxi's: the packed
+        # runs of the others, its mask test_masks_and_encoders' DQN on Taxi
+        "test_ppo_trains_evaluates_and_plays_on_packed_host_observations[Taxi-v4-host]",
         "test_ppo_trains_evaluates_and_plays_on_packed_host_observations[Blackjack-v1-host]",
         "test_ppo_trains_evaluates_and_plays_on_packed_host_observations[scripts.own_envs:Match-MultiDiscrete-v0-host]",
     ),
@@ -138,8 +145,10 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
     "test_board_and_grid.py": (  # sweeps in test_sweep, the masked board game's PPO in this file
         "test_a_sweep_on_the_masked_board_game_traces_its_settings_beside_the_seeds",
     ),
-    "test_atari_compiled.py": (  # the pool's games: its policy lag 1; a pool run's folder: test_mujoco's
+    "test_atari_compiled.py": (  # the pool's games: its rollouts; a pool run's folder: test_mujoco's
         "test_in_program_pool_plays_the_host_adapters_games",
+        # policy lag 1: the ppo_parallel golden case, the parallel runner's own tests
+        "test_policy_lag_1_on_a_real_pool_learns_the_first_update_as_lag_0_and_then_goes_its_way",
         "test_short_run_writes_the_run_folder_loads_and_resumes",
     ),
     "test_cli.py": ("test_a_trained_run_folder_is_a_policy",),  # test_api's train-then-load evaluates one

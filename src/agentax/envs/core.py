@@ -162,6 +162,7 @@ def uniform4(key: jax.Array, low: float, high: float) -> jax.Array:
 _ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
 
 
+@jax.jit
 def threefry2x32(
     key_0: jax.Array, key_1: jax.Array, x_0: jax.Array, x_1: jax.Array
 ) -> tuple[jax.Array, jax.Array]:
@@ -169,7 +170,9 @@ def threefry2x32(
 
     Bit for bit ``jax.extend.random.threefry_2x32``, whose CPU lowering loops over its five
     four-round blocks with the rotation amounts as loop data; unrolled, XLA fuses the 20 rounds into
-    one elementwise kernel (CartPole's batched ``step`` ~1.4x faster at 8,192 envs, measured).
+    one elementwise kernel (CartPole's batched ``step`` ~1.4x faster at 8,192 envs, measured). Jitted,
+    its ~120 operations are traced once a process and XLA inlines the call into each program (the
+    same fused kernels): a compiled PPO program on CartPole traces and lowers in 0.68 s, not 1.0 s.
     """
     key_2 = key_0 ^ key_1 ^ jnp.uint32(0x1BD11BDA)
     schedule = (key_0, key_1, key_2)

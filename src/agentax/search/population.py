@@ -82,14 +82,18 @@ class PopulationConfig:
 def check_env(env: Environment, net: NetConfig) -> None:
     """``UsageError`` unless a ``PolicyNet`` can act in ``env``: vector observations, discrete actions."""
     obs_space, action_space = env.observation_space(), env.action_space()
-    fits = [name for name, factory in JAX_ENVS.items() if _fits(factory())]
     if not _fits(env):
         raise UsageError(
             f"a neural policy needs vector observations and discrete actions; {env.id} has observations "
-            f"{obs_space} and actions {action_space}; choose from {', '.join(fits)}"
+            f"{obs_space} and actions {action_space}; choose from {', '.join(fitting_envs())}"
         )
     if net.sigmoid_head and action_space.n != 2:
         raise UsageError(f"the sigmoid head needs exactly 2 actions; {env.id} has {action_space.n}")
+
+
+def fitting_envs() -> list[str]:
+    """The JAX envs a policy network can act in (each made once: for an error message only)."""
+    return [name for name, factory in JAX_ENVS.items() if _fits(factory())]
 
 
 def _fits(env: Environment) -> bool:
@@ -102,8 +106,7 @@ def _fits(env: Environment) -> bool:
 def make_env(env_id: str, net: NetConfig) -> Environment:
     """The JAX env ``env_id``, checked to be one the policy network can act in."""
     if env_id not in JAX_ENVS:
-        fits = [name for name, factory in JAX_ENVS.items() if _fits(factory())]
-        raise UsageError(f"unknown env {env_id!r} for policy search; choose from {', '.join(fits)}")
+        raise UsageError(f"unknown env {env_id!r} for policy search; choose from {', '.join(fitting_envs())}")
     env = make_jax(env_id)
     check_env(env, net)
     return env
