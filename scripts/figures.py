@@ -773,10 +773,10 @@ def values(root: Path, figures: dict[str, Figure] = FIGURES) -> dict[str, str]:
 
 def problems(text: str, shown: dict[str, str], where: str = "") -> list[str]:
     """Each marked figure of ``text`` other than ``shown[name]``, each unknown name, each open marker."""
-    found = []
+    found, line, counted = [], 1, 0
     for match in MARKER.finditer(text):
         name, printed = match.groups()
-        line = text.count("\n", 0, match.start()) + 1
+        line, counted = line + text.count("\n", counted, match.start()), match.start()  # (each once)
         if name not in shown:
             found.append(f"{where}:{line}: fig:{name} is not a figure of scripts/figures.py")
         elif printed != shown[name]:
