@@ -162,6 +162,8 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
     ),
     "test_atari_cli.py": (  # play's video: test_cli's demo GIF, test_api's video
         "test_play_a_run_writes_an_mp4_of_one_frame_per_step_with_the_runs_env_settings",
+        # evaluate's random games: play random's game evaluated again; true scores: test_atari's
+        "test_evaluate_random_gives_the_random_baseline_in_whole_games",
     ),
     "test_tutorial.py": tuple(  # the pages that train for most of a minute; make test runs the others
         f"test_page_runs_and_prints_what_it_shows[{page}-" for page in ("02", "03", "07", "09", "10", "11")
