@@ -424,6 +424,26 @@ def test_actors_that_need_more_cpus_than_the_cluster_has_are_refused_and_once_st
         ray_runner.check_cpus(TwoCpus, RayRunnerConfig(actors=8), started=True)
 
 
+def test_a_run_whose_own_ray_could_not_hold_its_actors_is_refused_before_ray_starts(monkeypatch):
+    """Without ``--ray-address`` the run's own Ray has this machine's CPUs: too many actors for them
+    is the same one-line refusal, said before Ray starts (which takes seconds); with an address the
+    cluster's CPUs decide, once joined."""
+    from agentax.errors import UsageError
+
+    def no_ray(address):
+        raise AssertionError(f"Ray started ({address})")
+
+    monkeypatch.setattr(ray_runner, "ray_session", no_ray)
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    monkeypatch.delitem(sys.modules, "ray", raising=False)  # (a Ray this test process joined is not there)
+    too_many = RayRunnerConfig(actors=8)
+    with pytest.raises(UsageError, match=r"8 actors × 1 CPU need 8 CPUs, the Ray cluster has 2: "):
+        ray_runner.train(None, "CartPole-v1", too_many, make_agent=None)
+    with pytest.raises(AssertionError, match="Ray started"):  # a cluster's CPUs are asked once joined
+        joining = dataclasses.replace(too_many, ray_address="auto")
+        ray_runner.train(None, "CartPole-v1", joining, make_agent=None)
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(60)
 def test_more_actors_than_the_cluster_has_cpus_is_refused(cluster):

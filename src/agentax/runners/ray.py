@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import collections
 import functools
+import os
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
@@ -311,7 +312,11 @@ def ray_fleet(agent: Agent, make_agent: Callable[[], Agent], env_id: str, runner
 def check_cpus(ray: Any, runner: RayRunnerConfig, started: bool = False) -> None:
     """A ``UsageError`` (``NodeLost`` once ``started``) where the cluster has fewer CPUs than the
     actors reserve: they would wait forever."""
-    cpus = ray.cluster_resources().get("CPU", 0)
+    refuse_cpus(runner, ray.cluster_resources().get("CPU", 0), started)
+
+
+def refuse_cpus(runner: RayRunnerConfig, cpus: float, started: bool = False) -> None:
+    """:func:`check_cpus` for a cluster of ``cpus`` CPUs."""
     wanted = runner.actors * runner.cpus_per_actor
     if wanted <= cpus:
         return
@@ -375,6 +380,9 @@ def train(
 ) -> TrainResult:
     """Train ``agent`` on ``env_id`` with ``runner.actors`` Ray actors and a learner in this process;
     ``make_agent()`` (picklable) builds the same agent in each actor process."""
+    connected = "ray" in sys.modules and sys.modules["ray"].is_initialized()
+    if runner.ray_address is None and not connected:  # the run's own Ray will have this machine's CPUs:
+        refuse_cpus(runner, os.cpu_count() or 1)  # too few is said before it starts (seconds)
     with hint_if_ray_ends_this_process(run), ray_session(runner.ray_address) as ray:
         fleet = ray_fleet(agent, make_agent, env_id, runner, ray)
         try:
