@@ -380,9 +380,10 @@ def train(
 ) -> TrainResult:
     """Train ``agent`` on ``env_id`` with ``runner.actors`` Ray actors and a learner in this process;
     ``make_agent()`` (picklable) builds the same agent in each actor process."""
-    connected = "ray" in sys.modules and sys.modules["ray"].is_initialized()
-    if runner.ray_address is None and not connected:  # the run's own Ray will have this machine's CPUs:
-        refuse_cpus(runner, os.cpu_count() or 1)  # too few is said before it starts (seconds)
+    imported = sys.modules.get("ray")  # (imported once a run, or the user, connects to a Ray)
+    if runner.ray_address is None and not (imported and imported.is_initialized()):
+        # the run's own Ray will have this machine's CPUs: too few is said before it starts (seconds)
+        refuse_cpus(runner, os.cpu_count() or 1)
     with hint_if_ray_ends_this_process(run), ray_session(runner.ray_address) as ray:
         fleet = ray_fleet(agent, make_agent, env_id, runner, ray)
         try:
