@@ -172,7 +172,8 @@ def threefry2x32(
     four-round blocks with the rotation amounts as loop data; unrolled, XLA fuses the 20 rounds into
     one elementwise kernel (CartPole's batched ``step`` ~1.4x faster at 8,192 envs, measured). Jitted,
     its ~120 operations are traced once a process and XLA inlines the call into each program (the
-    same fused kernels): a compiled PPO program on CartPole traces and lowers in 0.68 s, not 1.0 s.
+    same fused kernels): compiled programs on CartPole trace and lower ~25 % faster (medians of 9
+    interleaved builds, AMD EPYC Zen 3: PPO 0.98 s, not 1.29 s; DQN 1.35 s, not 1.82 s).
     """
     key_2 = key_0 ^ key_1 ^ jnp.uint32(0x1BD11BDA)
     schedule = (key_0, key_1, key_2)
