@@ -776,7 +776,7 @@ def problems(text: str, shown: dict[str, str], where: str = "") -> list[str]:
     found, line, counted = [], 1, 0
     for match in MARKER.finditer(text):
         name, printed = match.groups()
-        line, counted = line + text.count("\n", counted, match.start()), match.start()  # (each once)
+        line, counted = line + text.count("\n", counted, match.start()), match.start()  # since the last
         if name not in shown:
             found.append(f"{where}:{line}: fig:{name} is not a figure of scripts/figures.py")
         elif printed != shown[name]:
