@@ -104,6 +104,8 @@ LONG_CASES: dict[str, tuple[str, ...]] = {
     ),
     "test_compiled.py": (  # its seed tests; the compiled resume: test_formats', a torn one: test_logger's
         "test_looking_ahead_a_chunk_changes_no_number",
+        # a seed alone as inside a vmapped batch: test_sweep's setting alone; reruns: the golden rows
+        "test_seed_alone_equals_seed_inside_a_vmapped_batch_and_reruns_are_identical",
         "test_seeds_run_in_groups_give_each_seed_the_numbers_of_one_vmapped_batch",  # (the rule: a unit test)
         "test_interrupted_run_resumes_to_the_same_end_and_a_torn_checkpoint_is_a_clear_error",
     ),
