@@ -412,16 +412,11 @@ def test_actors_that_need_more_cpus_than_the_cluster_has_are_refused_and_once_st
     before the run starts, and a node lost under a running run is ``NodeLost``."""
     from agentax.errors import NodeLost, UsageError
 
-    class TwoCpus:
-        @staticmethod
-        def cluster_resources():
-            return {"CPU": 2.0, "memory": 1e9}
-
-    ray_runner.check_cpus(TwoCpus, RayRunnerConfig(actors=2))
+    ray_runner.check_cpus(RayRunnerConfig(actors=2), 2.0)
     with pytest.raises(UsageError, match=r"8 actors × 1 CPU need 8 CPUs, the Ray cluster has 2: .*0\.25"):
-        ray_runner.check_cpus(TwoCpus, RayRunnerConfig(actors=8))
+        ray_runner.check_cpus(RayRunnerConfig(actors=8), 2.0)
     with pytest.raises(NodeLost, match=r"8 actors × 1 CPU, 2 CPUs left"):
-        ray_runner.check_cpus(TwoCpus, RayRunnerConfig(actors=8), started=True)
+        ray_runner.check_cpus(RayRunnerConfig(actors=8), 2.0, started=True)
 
 
 def test_a_run_whose_own_ray_could_not_hold_its_actors_is_refused_before_ray_starts(monkeypatch):

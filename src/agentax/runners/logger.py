@@ -24,13 +24,6 @@ from agentax.runs import Run
 DIVERGED_HINT = "lower the learning rate or clip the gradients (--max-grad-norm)"
 
 
-def check_finite(metrics: dict[str, Any], env_steps: float, last_checkpoint: str | None) -> None:
-    """Raise ``TrainingDiverged`` naming the first metric that is NaN or infinite."""
-    for name, value in metrics.items():
-        if not np.all(np.isfinite(np.asarray(value, np.float64))):
-            raise TrainingDiverged(_diverged(f"non-finite {name}", env_steps, last_checkpoint))
-
-
 def check_finite_tree(tree: Any, env_steps: float, last_checkpoint: str | None) -> None:
     """Raise ``TrainingDiverged`` if any floating-point leaf of ``tree`` (parameters) is not finite."""
     for leaf in jax.tree.leaves(tree):
@@ -145,9 +138,12 @@ class RunLogger:
         return self.elapsed_before + time.perf_counter() - self.start
 
     def log(self, row: dict[str, float], metrics: dict[str, Any]) -> dict[str, float]:
-        """Check ``metrics`` are finite, then write ``row`` + metrics (+ ``wall_seconds``); returns it."""
+        """Check ``metrics`` are finite (``TrainingDiverged`` names the first that is not), then write
+        ``row`` + metrics (+ ``wall_seconds``); returns it."""
         env_steps = float(row["env_steps"])
-        check_finite(metrics, env_steps, self.last_checkpoint)
+        for name, value in metrics.items():
+            if not np.all(np.isfinite(np.asarray(value, np.float64))):
+                raise TrainingDiverged(_diverged(f"non-finite {name}", env_steps, self.last_checkpoint))
         row = {
             **row,
             "wall_seconds": self.wall_seconds(),

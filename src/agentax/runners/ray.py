@@ -265,7 +265,7 @@ def ray_fleet(agent: Agent, make_agent: Callable[[], Agent], env_id: str, runner
         return version, ray.put(jax.device_get(acting_view(state)))
 
     def make(coordinator: Coordinator, updates: int, done_steps: int, actors_key: jax.Array) -> Fleet:
-        check_cpus(ray, runner)
+        check_cpus(runner, ray.cluster_resources().get("CPU", 0))
 
         def spawn(index: int, restarts: int) -> Any:
             seed = actor_seed(runner.seed, index, updates) + RESTART_SEED_STRIDE * restarts
@@ -283,7 +283,7 @@ def ray_fleet(agent: Agent, make_agent: Callable[[], Agent], env_id: str, runner
                 coordinator,
                 done_steps // runner.actors,
                 runner.max_actor_restarts,
-                functools.partial(check_cpus, ray, runner, started=True),
+                lambda: check_cpus(runner, ray.cluster_resources().get("CPU", 0), started=True),
             )
             for i in range(runner.actors)
         ]
@@ -309,14 +309,9 @@ def ray_fleet(agent: Agent, make_agent: Callable[[], Agent], env_id: str, runner
     return make
 
 
-def check_cpus(ray: Any, runner: RayRunnerConfig, started: bool = False) -> None:
-    """A ``UsageError`` (``NodeLost`` once ``started``) where the cluster has fewer CPUs than the
-    actors reserve: they would wait forever."""
-    refuse_cpus(runner, ray.cluster_resources().get("CPU", 0), started)
-
-
-def refuse_cpus(runner: RayRunnerConfig, cpus: float, started: bool = False) -> None:
-    """:func:`check_cpus` for a cluster of ``cpus`` CPUs."""
+def check_cpus(runner: RayRunnerConfig, cpus: float, started: bool = False) -> None:
+    """A ``UsageError`` (``NodeLost`` once ``started``) where a cluster of ``cpus`` CPUs has fewer
+    than the actors reserve: they would wait forever."""
     wanted = runner.actors * runner.cpus_per_actor
     if wanted <= cpus:
         return
@@ -383,7 +378,7 @@ def train(
     imported = sys.modules.get("ray")  # (imported once a run, or the user, connects to a Ray)
     if runner.ray_address is None and not (imported and imported.is_initialized()):
         # the run's own Ray will have this machine's CPUs: too few is said before it starts (seconds)
-        refuse_cpus(runner, os.cpu_count() or 1)
+        check_cpus(runner, os.cpu_count() or 1)
     with hint_if_ray_ends_this_process(run), ray_session(runner.ray_address) as ray:
         fleet = ray_fleet(agent, make_agent, env_id, runner, ray)
         try:
