@@ -189,7 +189,7 @@ class Session:
             run.truncate_metrics(meta["env_steps"])
             self.meta = {**meta, "checkpoint": path}  # the file it came from (its replay is beside it)
         else:
-            self.state = jax.jit(agent.init)(init_key)  # one compile, not one per initialiser
+            self.state = agent.init(init_key)
         self.updates, self.env_steps = int(self.meta["updates"]), int(self.meta["env_steps"])
         self.before_checkpoint = None  # what must be on disk before a checkpoint commits (the replay)
         self.next_log = self.env_steps + runner.log_every_steps
