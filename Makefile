@@ -10,13 +10,13 @@ GYMNAX := gymnax==1.0.1
 # conversion: installed without its declared dependencies too; what it imports is in the lock (extra export).
 JAX2ONNX := jax2onnx==0.17.1
 # The lock installs with uv (fetching in parallel: about 10 s from an empty cache, pip takes a minute);
-# uv is itself one wheel that pip installs into the venv. --compile-bytecode writes every installed
-# module's .pyc, as pip does: where PYTHONDONTWRITEBYTECODE is set (CI machines) nothing else would, and
-# every process of the suite (each xdist worker, each CLI run a test starts, each Ray actor) would
-# compile jax and its kin from source again. The test runs also write the bytecode of agentax and the
-# tests themselves (not installed, so not compiled at install).
+# uv is itself one wheel that pip installs into the venv. Bytecode is written as modules are first
+# imported, not at install: compiling every installed module (ray, sympy, pandas, PyOpenGL, ...) took
+# 22 s of a fresh install, most of it for modules agentax never imports. The test targets write it even
+# where PYTHONDONTWRITEBYTECODE is set (CI machines), so that each process of the suite (each xdist
+# worker, each CLI run a test starts, each Ray actor) reads what the first one compiled.
 UV := uv==0.13.8
-INSTALL := $(VENV)/bin/uv pip install --quiet --compile-bytecode --python $(PY)
+INSTALL := $(VENV)/bin/uv pip install --quiet --python $(PY)
 PYTEST := PYTHONDONTWRITEBYTECODE= $(PY) -m pytest -q -n 2 --dist loadgroup
 
 .PHONY: kernel kernel-where-buildable demo test test-quick test-long bench figures lint docs lock clean
