@@ -12,7 +12,7 @@ JAX2ONNX := jax2onnx==0.17.1
 # The lock installs with uv (fetching in parallel: about 10 s from an empty cache, pip takes a minute);
 # uv is itself one wheel that pip installs into the venv. Bytecode is written as modules are first
 # imported, not at install: compiling every installed module (ray, sympy, pandas, PyOpenGL, ...) took
-# 22 s of a fresh install, most of it for modules agentax never imports. The test targets write it even
+# 22 s of a fresh install on a 2-core AMD EPYC, most of it for modules agentax never imports. The test targets write it even
 # where PYTHONDONTWRITEBYTECODE is set (CI machines), so that each process of the suite (each xdist
 # worker, each CLI run a test starts, each Ray actor) reads what the first one compiled.
 UV := uv==0.13.8
