@@ -721,13 +721,15 @@ def _figures() -> dict[str, Figure]:
         figures[f"{key}.two"] = bench(xeon, run, col="2 workers (s)", fmt="{:.1f}")
         figures[f"{key}.speedup"] = bench(xeon, run, col="speed-up", fmt="{:.2f}")
 
-    figures["rejax.cpu"] = cpu("rejax")
-    for i, key in enumerate(("agentax", "yaml", "min")):  # its rows: agentax, Rejax's yaml, Rejax's ends only
-        figures[f"rejax.{key}.seconds"] = derived("rejax", lambda r, i=i: r["rows"][i][2], "{:.1f}")
-        if key != "yaml":  # the same training as "min"
-            figures[f"rejax.{key}.final"] = derived("rejax", lambda r, i=i: r["rows"][i][3], "{:.1f}")
-        if key != "agentax":
-            figures[f"rejax.{key}.ratio"] = derived("rejax", lambda r, i=i: r["rows"][i][4], "{:.2f}")
+    # the Xeon's (rejax.json) and the Zen 3's
+    for name, prefix in (("rejax", "rejax"), ("rejax@amd-epyc-no-avx512", "rejax.zen3")):
+        figures[f"{prefix}.cpu"] = cpu(name)
+        for i, key in enumerate(("agentax", "yaml", "min")):  # its rows: agentax, Rejax's yaml, its ends only
+            figures[f"{prefix}.{key}.seconds"] = derived(name, lambda r, i=i: r["rows"][i][2], "{:.1f}")
+            if key != "yaml" and prefix == "rejax":  # the same training as "min"
+                figures[f"{prefix}.{key}.final"] = derived(name, lambda r, i=i: r["rows"][i][3], "{:.1f}")
+            if key != "agentax":
+                figures[f"{prefix}.{key}.ratio"] = derived(name, lambda r, i=i: r["rows"][i][4], "{:.2f}")
 
     figures["regress.cpu"] = cpu("regress")  # this checkout against an earlier commit, --precision f32
     figures["regress.against"] = derived("regress", lambda r: r["headers"][1].split()[0])
