@@ -157,6 +157,18 @@ NOISY: dict[str, dict[int, Tolerance]] = {
             "on other code; the count of rare illegal moves varies most)",
         ),
     },
+    "11-memory.md": {
+        2: Tolerance(
+            rtol=0.5,
+            why="the feed-forward PPO's greedy evaluation on CartPoleNoVel (42.6 became 43.7 on an AMD "
+            "EPYC Zen 3, AVX2)",
+        ),
+        5: Tolerance(
+            rtol=0.5,
+            why="the trained LSTM's return when it forgets at every step (41 became 48 on the Zen 3); "
+            "its 500s with memory came out the same there",
+        ),
+    },
 }
 
 OUTPUTS_WRITTEN_ON = re.compile(r"^<!-- outputs written on: (?P<platform>.*?) -->[ \t]*\n?", re.MULTILINE)
