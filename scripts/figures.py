@@ -726,7 +726,7 @@ def _figures() -> dict[str, Figure]:
         figures[f"{prefix}.cpu"] = cpu(name)
         for i, key in enumerate(("agentax", "yaml", "min")):  # its rows: agentax, Rejax's yaml, its ends only
             figures[f"{prefix}.{key}.seconds"] = derived(name, lambda r, i=i: r["rows"][i][2], "{:.1f}")
-            if key != "yaml" and prefix == "rejax":  # the same training as "min"
+            if key != "yaml":  # the same training as "min"
                 figures[f"{prefix}.{key}.final"] = derived(name, lambda r, i=i: r["rows"][i][3], "{:.1f}")
             if key != "agentax":
                 figures[f"{prefix}.{key}.ratio"] = derived(name, lambda r, i=i: r["rows"][i][4], "{:.2f}")
